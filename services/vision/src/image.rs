@@ -1,0 +1,362 @@
+//! Grey images as borrowed views with a stride, and an owned buffer.
+//!
+//! Pixel coordinates follow `docs/conventions.md`: x to the right, y down, the centre of pixel
+//! `(x, y)` at integer coordinates `(x, y)`, so pixel `(x, y)` covers `[x-½, x+½] × [y-½, y+½]`.
+//!
+//! A [`GrayView`] borrows pixels it does not own (a frame in shared memory is never copied);
+//! rows may be padded, so each row starts `stride` pixels after the previous one.
+
+use crate::error::VisionError;
+
+/// Largest frame side the engine accepts. Moment sums are exact integers up to this size
+/// (see `moments.rs` for the bounds).
+pub const MAX_SIDE_PX: u32 = 8192;
+
+/// A grey pixel type: 8-bit (`u8`) or 16-bit (`u16`, Y16 cameras).
+pub trait Pixel: Copy + Default + Send + Sync + PartialOrd + std::fmt::Debug + 'static {
+    /// Largest value this pixel type can hold.
+    const MAX_VALUE: u32;
+    /// Number of bits, for messages.
+    const BITS: u32;
+    /// The value widened to `u32`.
+    fn value(self) -> u32;
+    /// A pixel from a `u32`, saturating at [`Pixel::MAX_VALUE`].
+    fn from_u32_saturating(v: u32) -> Self;
+
+    /// Bit `i` set where `chunk[i] >= threshold`, for the first 64 pixels of `chunk`
+    /// (which must hold at least 64). The hot loop of blob extraction.
+    #[inline(always)]
+    fn foreground_mask64(chunk: &[Self], threshold: u32) -> u64 {
+        let chunk = &chunk[..64];
+        let mut mask = 0u64;
+        for (i, p) in chunk.iter().enumerate() {
+            mask |= ((p.value() >= threshold) as u64) << i;
+        }
+        mask
+    }
+
+    /// Whether any of the first 64 pixels of `chunk` is `>= threshold`.
+    #[inline(always)]
+    fn any_foreground64(chunk: &[Self], threshold: u32) -> bool {
+        Self::foreground_mask64(chunk, threshold) != 0
+    }
+}
+
+impl Pixel for u8 {
+    const MAX_VALUE: u32 = u8::MAX as u32;
+    const BITS: u32 = 8;
+    #[inline(always)]
+    fn value(self) -> u32 {
+        self as u32
+    }
+    #[inline(always)]
+    fn from_u32_saturating(v: u32) -> Self {
+        v.min(255) as u8
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[inline(always)]
+    fn foreground_mask64(chunk: &[Self], threshold: u32) -> u64 {
+        use std::arch::x86_64::*;
+        let chunk = &chunk[..64];
+        // SAFETY: `chunk` holds 64 bytes (sliced above), so each 16-byte load at 16k is in
+        // bounds; unaligned loads are allowed; SSE2 is part of the x86_64 baseline.
+        unsafe {
+            let t = _mm_set1_epi8(threshold.min(255) as u8 as i8);
+            let mut mask = 0u64;
+            for k in 0..4 {
+                let v = _mm_loadu_si128(chunk.as_ptr().add(16 * k) as *const __m128i);
+                let ge = _mm_cmpeq_epi8(_mm_max_epu8(v, t), v);
+                mask |= (_mm_movemask_epi8(ge) as u16 as u64) << (16 * k);
+            }
+            mask
+        }
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[inline(always)]
+    fn any_foreground64(chunk: &[Self], threshold: u32) -> bool {
+        use std::arch::x86_64::*;
+        let chunk = &chunk[..64];
+        // SAFETY: as above, four 16-byte loads inside the 64-byte slice; SSE2 is baseline.
+        unsafe {
+            let p = chunk.as_ptr() as *const __m128i;
+            let (a, b) = (_mm_loadu_si128(p), _mm_loadu_si128(p.add(1)));
+            let (c, d) = (_mm_loadu_si128(p.add(2)), _mm_loadu_si128(p.add(3)));
+            let m = _mm_max_epu8(_mm_max_epu8(a, b), _mm_max_epu8(c, d));
+            let t = _mm_set1_epi8(threshold.min(255) as u8 as i8);
+            let ge = _mm_cmpeq_epi8(_mm_max_epu8(m, t), m);
+            _mm_movemask_epi8(ge) != 0
+        }
+    }
+}
+
+impl Pixel for u16 {
+    const MAX_VALUE: u32 = u16::MAX as u32;
+    const BITS: u32 = 16;
+    #[inline(always)]
+    fn value(self) -> u32 {
+        self as u32
+    }
+    #[inline(always)]
+    fn from_u32_saturating(v: u32) -> Self {
+        v.min(65535) as u16
+    }
+}
+
+/// A rectangle of whole pixels, both corners inclusive: it covers the pixels
+/// `x0..=x1` × `y0..=y1`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub struct PixelRect {
+    pub x0: u32,
+    pub y0: u32,
+    pub x1: u32,
+    pub y1: u32,
+}
+
+impl PixelRect {
+    /// The rectangle covering a whole `width` × `height` frame. Both must be at least 1.
+    pub fn full(width: u32, height: u32) -> Self {
+        PixelRect {
+            x0: 0,
+            y0: 0,
+            x1: width.saturating_sub(1),
+            y1: height.saturating_sub(1),
+        }
+    }
+
+    pub fn width(&self) -> u32 {
+        self.x1 - self.x0 + 1
+    }
+
+    pub fn height(&self) -> u32 {
+        self.y1 - self.y0 + 1
+    }
+
+    pub fn area(&self) -> u64 {
+        self.width() as u64 * self.height() as u64
+    }
+
+    pub fn contains(&self, x: f64, y: f64) -> bool {
+        // Pixel (x1, y1) covers up to x1 + ½.
+        x >= self.x0 as f64 - 0.5
+            && x <= self.x1 as f64 + 0.5
+            && y >= self.y0 as f64 - 0.5
+            && y <= self.y1 as f64 + 0.5
+    }
+}
+
+/// A borrowed grey image: `height` rows of `width` pixels, row `y` starting at `y * stride`.
+#[derive(Debug, Clone, Copy)]
+pub struct GrayView<'a, P: Pixel> {
+    data: &'a [P],
+    width: u32,
+    height: u32,
+    stride: usize,
+}
+
+impl<'a, P: Pixel> GrayView<'a, P> {
+    /// Checks the geometry once, so that row access afterwards cannot go out of bounds.
+    pub fn new(data: &'a [P], width: u32, height: u32, stride: usize) -> Result<Self, VisionError> {
+        if width == 0 || height == 0 {
+            return Err(VisionError::EmptyImage { width, height });
+        }
+        if width > MAX_SIDE_PX || height > MAX_SIDE_PX {
+            return Err(VisionError::ImageTooLarge {
+                width,
+                height,
+                max: MAX_SIDE_PX,
+            });
+        }
+        if stride < width as usize {
+            return Err(VisionError::StrideTooSmall { stride, width });
+        }
+        let needed = (height as usize - 1) * stride + width as usize;
+        if data.len() < needed {
+            return Err(VisionError::BufferTooShort {
+                len: data.len(),
+                needed,
+                width,
+                height,
+                stride,
+            });
+        }
+        Ok(GrayView {
+            data,
+            width,
+            height,
+            stride,
+        })
+    }
+
+    pub fn width(&self) -> u32 {
+        self.width
+    }
+
+    pub fn height(&self) -> u32 {
+        self.height
+    }
+
+    pub fn stride(&self) -> usize {
+        self.stride
+    }
+
+    /// Row `y`, exactly `width` pixels. `y` must be below `height` (checked).
+    #[inline(always)]
+    pub fn row(&self, y: u32) -> &'a [P] {
+        let start = y as usize * self.stride;
+        &self.data[start..start + self.width as usize]
+    }
+
+    /// The pixel at `(x, y)`, or `None` outside the image.
+    pub fn get(&self, x: u32, y: u32) -> Option<P> {
+        if x < self.width && y < self.height {
+            Some(self.row(y)[x as usize])
+        } else {
+            None
+        }
+    }
+
+    pub fn full_rect(&self) -> PixelRect {
+        PixelRect::full(self.width, self.height)
+    }
+}
+
+/// An owned grey image with rows packed (`stride == width`).
+#[derive(Debug, Clone, PartialEq)]
+pub struct GrayImage<P: Pixel> {
+    data: Vec<P>,
+    width: u32,
+    height: u32,
+}
+
+impl<P: Pixel> GrayImage<P> {
+    /// A `width` × `height` image filled with `value`.
+    pub fn filled(width: u32, height: u32, value: P) -> Result<Self, VisionError> {
+        if width == 0 || height == 0 {
+            return Err(VisionError::EmptyImage { width, height });
+        }
+        if width > MAX_SIDE_PX || height > MAX_SIDE_PX {
+            return Err(VisionError::ImageTooLarge {
+                width,
+                height,
+                max: MAX_SIDE_PX,
+            });
+        }
+        Ok(GrayImage {
+            data: vec![value; width as usize * height as usize],
+            width,
+            height,
+        })
+    }
+
+    /// Wraps packed pixels; `data.len()` must be `width * height`.
+    pub fn from_vec(data: Vec<P>, width: u32, height: u32) -> Result<Self, VisionError> {
+        GrayView::new(&data, width, height, width as usize)?;
+        if data.len() != width as usize * height as usize {
+            return Err(VisionError::BufferTooShort {
+                len: data.len(),
+                needed: width as usize * height as usize,
+                width,
+                height,
+                stride: width as usize,
+            });
+        }
+        Ok(GrayImage {
+            data,
+            width,
+            height,
+        })
+    }
+
+    pub fn width(&self) -> u32 {
+        self.width
+    }
+
+    pub fn height(&self) -> u32 {
+        self.height
+    }
+
+    pub fn as_slice(&self) -> &[P] {
+        &self.data
+    }
+
+    pub fn as_mut_slice(&mut self) -> &mut [P] {
+        &mut self.data
+    }
+
+    pub fn into_vec(self) -> Vec<P> {
+        self.data
+    }
+
+    pub fn view(&self) -> GrayView<'_, P> {
+        GrayView {
+            data: &self.data,
+            width: self.width,
+            height: self.height,
+            stride: self.width as usize,
+        }
+    }
+
+    /// Mutable row `y` (checked).
+    pub fn row_mut(&mut self, y: u32) -> &mut [P] {
+        let start = y as usize * self.width as usize;
+        &mut self.data[start..start + self.width as usize]
+    }
+
+    pub fn get(&self, x: u32, y: u32) -> Option<P> {
+        self.view().get(x, y)
+    }
+
+    pub fn set(&mut self, x: u32, y: u32, value: P) {
+        if x < self.width && y < self.height {
+            let w = self.width as usize;
+            self.data[y as usize * w + x as usize] = value;
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn view_rejects_bad_geometry() {
+        let buf = [0u8; 12];
+        assert!(matches!(
+            GrayView::new(&buf, 0, 3, 4),
+            Err(VisionError::EmptyImage { .. })
+        ));
+        assert!(matches!(
+            GrayView::new(&buf, 4, 0, 4),
+            Err(VisionError::EmptyImage { .. })
+        ));
+        assert!(matches!(
+            GrayView::new(&buf, 4, 3, 3),
+            Err(VisionError::StrideTooSmall {
+                stride: 3,
+                width: 4
+            })
+        ));
+        assert!(matches!(
+            GrayView::new(&buf, 4, 4, 4),
+            Err(VisionError::BufferTooShort { .. })
+        ));
+        assert!(matches!(
+            GrayView::new(&buf, 9000, 1, 9000),
+            Err(VisionError::ImageTooLarge { .. })
+        ));
+        // The last row need not be padded.
+        let v = GrayView::new(&buf[..10], 2, 3, 4).unwrap();
+        assert_eq!(v.row(2).len(), 2);
+    }
+
+    #[test]
+    fn strided_rows_skip_padding() {
+        let buf: Vec<u16> = (0..12).collect();
+        let v = GrayView::new(&buf, 3, 3, 4).unwrap();
+        assert_eq!(v.row(1), &[4, 5, 6]);
+        assert_eq!(v.get(2, 2), Some(10));
+        assert_eq!(v.get(3, 0), None);
+    }
+}
