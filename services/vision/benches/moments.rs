@@ -1,1 +1,220 @@
-fn main() {}
+//! Blob-extraction benchmark: full-frame and windowed, single thread and all cores, at
+//! 640×480, 1920×1080 and 3840×2160 with 4, 50 and 500 blobs.
+//!
+//! `cargo bench -p stereoscope-vision --bench moments -- [--quick] [--frames-dir DIR] [--json FILE]`
+//!
+//! `--frames-dir` writes each scene as a PGM so that `compare-opencv.sh` can time OpenCV on the
+//! very same frames in the same run; `--json` writes the timings for it to merge.
+//! Times are the median of timed batches (each ≥ 20 ms), in milliseconds per frame.
+
+use std::hint::black_box;
+use std::io::Write;
+use std::time::{Duration, Instant};
+use stereoscope_vision::raster::random_scene;
+use stereoscope_vision::{ExtractConfig, Extractor, GrayImage, Tracker, TrackerConfig};
+
+const THRESHOLD: u32 = 128;
+
+struct Options {
+    quick: bool,
+    frames_dir: Option<std::path::PathBuf>,
+    json: Option<std::path::PathBuf>,
+}
+
+fn parse_args() -> Options {
+    let mut o = Options {
+        quick: false,
+        frames_dir: None,
+        json: None,
+    };
+    let mut args = std::env::args().skip(1);
+    while let Some(a) = args.next() {
+        match a.as_str() {
+            "--quick" => o.quick = true,
+            "--frames-dir" => o.frames_dir = args.next().map(Into::into),
+            "--json" => o.json = args.next().map(Into::into),
+            // cargo bench passes --bench; ignore anything else.
+            _ => {}
+        }
+    }
+    o
+}
+
+/// Median milliseconds per call over `batches` batches of at least `min_batch` each.
+fn time_ms(batches: usize, min_batch: Duration, mut f: impl FnMut()) -> f64 {
+    // Warm up and size a batch.
+    let start = Instant::now();
+    let mut n = 0u64;
+    while start.elapsed() < min_batch / 4 || n < 3 {
+        f();
+        n += 1;
+    }
+    let per_call = start.elapsed().as_secs_f64() / n as f64;
+    let iters = ((min_batch.as_secs_f64() / per_call).ceil() as u64).max(3);
+    let mut samples: Vec<f64> = (0..batches)
+        .map(|_| {
+            let t = Instant::now();
+            for _ in 0..iters {
+                f();
+            }
+            t.elapsed().as_secs_f64() * 1e3 / iters as f64
+        })
+        .collect();
+    samples.sort_by(f64::total_cmp);
+    samples[samples.len() / 2]
+}
+
+fn write_pgm(path: &std::path::Path, img: &GrayImage<u8>) -> std::io::Result<()> {
+    let mut f = std::io::BufWriter::new(std::fs::File::create(path)?);
+    write!(f, "P5\n{} {}\n255\n", img.width(), img.height())?;
+    f.write_all(img.as_slice())?;
+    f.flush()
+}
+
+/// Median ms of a tracker step over 4 markers, or `None` if the scene could not be tracked.
+fn windowed_ms(w: u32, h: u32, batches: usize, min_batch: Duration) -> Option<f64> {
+    let (img, placed) = random_scene(w, h, 4, (5.0, 8.0), 2.0, 4242).ok()?;
+    let mut tr = Tracker::new(
+        TrackerConfig {
+            max_objects: 4,
+            search_every_frames: u32::MAX,
+            ..Default::default()
+        },
+        ExtractConfig {
+            threads: 1,
+            ..Default::default()
+        },
+    )
+    .ok()?;
+    for _ in 0..3 {
+        tr.step(img.view(), THRESHOLD).ok()?;
+    }
+    let step = tr.step(img.view(), THRESHOLD).ok()?;
+    if step.full_frame || step.tracked != placed.len() {
+        return None;
+    }
+    Some(time_ms(batches, min_batch, || {
+        black_box(
+            tr.step(img.view(), THRESHOLD)
+                .map(|s| s.tracked)
+                .unwrap_or(0),
+        );
+    }))
+}
+
+fn main() {
+    let opts = parse_args();
+    let (batches, min_batch) = if opts.quick {
+        (3, Duration::from_millis(10))
+    } else {
+        (11, Duration::from_millis(25))
+    };
+    let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
+    let sizes = [(640u32, 480u32), (1920, 1080), (3840, 2160)];
+    let counts = [4usize, 50, 500];
+    println!(
+        "blob extraction, threshold {THRESHOLD}, noise σ=2, {cores} cores; ms per frame (median of {batches} batches)"
+    );
+    println!(
+        "{:>10} {:>5} {:>7} | {:>9} {:>10} {:>10} {:>10} {:>12}",
+        "frame", "blobs", "found", "read", "full 1T", "full allT", "window 1T", "full/window"
+    );
+    let mut rows = Vec::new();
+    if let Some(dir) = &opts.frames_dir {
+        if let Err(e) = std::fs::create_dir_all(dir) {
+            eprintln!("error: cannot create {}: {e}", dir.display());
+            std::process::exit(1);
+        }
+    }
+    for &(w, h) in &sizes {
+        for &count in &counts {
+            let scale = ((w as f64 * h as f64) / (count as f64 * 900.0))
+                .sqrt()
+                .clamp(0.3, 1.5);
+            let (img, placed) = match random_scene(
+                w,
+                h,
+                count,
+                (3.0 * scale, 12.0 * scale),
+                2.0,
+                42 + count as u64,
+            ) {
+                Ok(s) => s,
+                Err(e) => {
+                    eprintln!("error: scene {w}×{h}: {e}");
+                    std::process::exit(1);
+                }
+            };
+            let name = format!("{w}x{h}_{count}");
+            if let Some(dir) = &opts.frames_dir {
+                if let Err(e) = write_pgm(&dir.join(format!("{name}.pgm")), &img) {
+                    eprintln!("error: writing frame {name}: {e}");
+                    std::process::exit(1);
+                }
+            }
+            // The floor: reading every byte once.
+            let read = time_ms(batches, min_batch, || {
+                black_box(img.as_slice().iter().fold(0u8, |m, &p| m.max(p)));
+            });
+            let mut ex1 = Extractor::new(ExtractConfig {
+                threads: 1,
+                max_blobs: 4096,
+                ..Default::default()
+            });
+            let found = ex1
+                .extract(img.view(), THRESHOLD, &[])
+                .map(|b| b.len())
+                .unwrap_or(0);
+            let full1 = time_ms(batches, min_batch, || {
+                black_box(
+                    ex1.extract(img.view(), THRESHOLD, &[])
+                        .map(|b| b.len())
+                        .unwrap_or(0),
+                );
+            });
+            let mut exn = Extractor::new(ExtractConfig {
+                threads: 0,
+                max_blobs: 4096,
+                ..Default::default()
+            });
+            let fulln = time_ms(batches, min_batch, || {
+                black_box(
+                    exn.extract(img.view(), THRESHOLD, &[])
+                        .map(|b| b.len())
+                        .unwrap_or(0),
+                );
+            });
+            // Windowed tracking of 4 markers (radius 5–8 px, the size of a motion-capture marker
+            // in these frames) on the same background, in steady state: each found in its
+            // window every frame. Windows follow Eq. 5.1 with the 30 px floor.
+            let window = if count == 4 {
+                windowed_ms(w, h, batches, min_batch)
+            } else {
+                None
+            };
+            let fmt = |v: Option<f64>| v.map_or("-".to_string(), |v| format!("{v:.4}"));
+            println!(
+                "{:>10} {:>5} {:>7} | {:>9.4} {:>10.4} {:>10.4} {:>10} {:>12}",
+                format!("{w}×{h}"),
+                count,
+                found,
+                read,
+                full1,
+                fulln,
+                fmt(window),
+                window.map_or("-".to_string(), |v| format!("{:.0}×", full1 / v)),
+            );
+            rows.push(format!(
+                "{{\"frame\":\"{name}\",\"width\":{w},\"height\":{h},\"blobs\":{count},\"found\":{found},\"read_ms\":{read},\"full_1t_ms\":{full1},\"full_all_ms\":{fulln},\"window_1t_ms\":{},\"cores\":{cores}}}",
+                window.map_or("null".to_string(), |v| v.to_string())
+            ));
+        }
+    }
+    if let Some(path) = &opts.json {
+        let body = format!("[\n{}\n]\n", rows.join(",\n"));
+        if let Err(e) = std::fs::write(path, body) {
+            eprintln!("error: writing {}: {e}", path.display());
+            std::process::exit(1);
+        }
+    }
+}

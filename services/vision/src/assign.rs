@@ -5,90 +5,121 @@
 //! nearest match hands one blob to two tracks or swaps identities at crossings.
 
 /// Assigns rows to columns minimising the total cost. `cost[r][c]` may be `f64::INFINITY`
-/// (not allowed). Returns, for each row, the chosen column or `None`.
+/// (not allowed). Returns, for each row, the chosen column or `None`. Feasible pairs come
+/// first: no assignment leaves a feasible pair out to lower the cost.
 pub fn assign_min_cost(cost: &[Vec<f64>]) -> Vec<Option<usize>> {
     let rows = cost.len();
     let cols = cost.iter().map(|r| r.len()).max().unwrap_or(0);
-    if rows == 0 || cols == 0 {
-        return vec![None; rows];
+    let mut flat = vec![f64::INFINITY; rows * cols];
+    for (r, row) in cost.iter().enumerate() {
+        flat[r * cols..r * cols + row.len()].copy_from_slice(row);
     }
-    // Finite stand-in for "not allowed", larger than any sum of allowed costs.
-    let finite_max = cost
-        .iter()
-        .flat_map(|r| r.iter())
-        .filter(|c| c.is_finite())
-        .fold(0.0f64, |a, &c| a.max(c.abs()));
-    let big = (finite_max + 1.0) * (rows.max(cols) as f64 + 1.0) * 4.0;
-    // Square it up; padding costs `big` too.
-    let n = rows.max(cols);
-    let at = |r: usize, c: usize| -> f64 {
-        match cost.get(r).and_then(|row| row.get(c)) {
-            Some(&v) if v.is_finite() => v,
-            _ => big,
+    let mut a = Assigner::default();
+    a.solve(&flat, rows, cols).to_vec()
+}
+
+/// The assignment solver with its buffers, reusable without allocating per call.
+#[derive(Debug, Default, Clone)]
+pub struct Assigner {
+    u: Vec<f64>,
+    v: Vec<f64>,
+    p: Vec<usize>,
+    way: Vec<usize>,
+    minv: Vec<f64>,
+    used: Vec<bool>,
+    out: Vec<Option<usize>>,
+}
+
+impl Assigner {
+    /// Solves for a row-major `rows × cols` cost matrix (`INFINITY` = not allowed).
+    pub fn solve(&mut self, cost: &[f64], rows: usize, cols: usize) -> &[Option<usize>] {
+        self.out.clear();
+        self.out.resize(rows, None);
+        if rows == 0 || cols == 0 || cost.len() < rows * cols {
+            return &self.out;
         }
-    };
-    // Potentials u (rows), v (cols); p[c] = row matched to col c (1-based, 0 = none).
-    let mut u = vec![0.0f64; n + 1];
-    let mut v = vec![0.0f64; n + 1];
-    let mut p = vec![0usize; n + 1];
-    let mut way = vec![0usize; n + 1];
-    for i in 1..=n {
-        p[0] = i;
-        let mut j0 = 0usize;
-        let mut minv = vec![f64::INFINITY; n + 1];
-        let mut used = vec![false; n + 1];
-        loop {
-            used[j0] = true;
-            let i0 = p[j0];
-            let mut delta = f64::INFINITY;
-            let mut j1 = 0usize;
-            for j in 1..=n {
-                if used[j] {
-                    continue;
+        // Finite stand-in for "not allowed", larger than any sum of allowed costs.
+        let finite_max = cost
+            .iter()
+            .filter(|c| c.is_finite())
+            .fold(0.0f64, |a, &c| a.max(c.abs()));
+        let n = rows.max(cols);
+        let big = (finite_max + 1.0) * (n as f64 + 1.0) * 4.0;
+        let at = |r: usize, c: usize| -> f64 {
+            if r < rows && c < cols {
+                let v = cost[r * cols + c];
+                if v.is_finite() { v } else { big }
+            } else {
+                big
+            }
+        };
+        // Potentials u (rows), v (cols); p[c] = row matched to col c (1-based, 0 = none).
+        for buf in [&mut self.u, &mut self.v] {
+            buf.clear();
+            buf.resize(n + 1, 0.0);
+        }
+        for buf in [&mut self.p, &mut self.way] {
+            buf.clear();
+            buf.resize(n + 1, 0);
+        }
+        let (u, v, p, way) = (&mut self.u, &mut self.v, &mut self.p, &mut self.way);
+        for i in 1..=n {
+            p[0] = i;
+            let mut j0 = 0usize;
+            self.minv.clear();
+            self.minv.resize(n + 1, f64::INFINITY);
+            self.used.clear();
+            self.used.resize(n + 1, false);
+            let (minv, used) = (&mut self.minv, &mut self.used);
+            loop {
+                used[j0] = true;
+                let i0 = p[j0];
+                let mut delta = f64::INFINITY;
+                let mut j1 = 0usize;
+                for j in 1..=n {
+                    if used[j] {
+                        continue;
+                    }
+                    let cur = at(i0 - 1, j - 1) - u[i0] - v[j];
+                    if cur < minv[j] {
+                        minv[j] = cur;
+                        way[j] = j0;
+                    }
+                    if minv[j] < delta {
+                        delta = minv[j];
+                        j1 = j;
+                    }
                 }
-                let cur = at(i0 - 1, j - 1) - u[i0] - v[j];
-                if cur < minv[j] {
-                    minv[j] = cur;
-                    way[j] = j0;
+                for j in 0..=n {
+                    if used[j] {
+                        u[p[j]] += delta;
+                        v[j] -= delta;
+                    } else {
+                        minv[j] -= delta;
+                    }
                 }
-                if minv[j] < delta {
-                    delta = minv[j];
-                    j1 = j;
+                j0 = j1;
+                if p[j0] == 0 {
+                    break;
                 }
             }
-            for j in 0..=n {
-                if used[j] {
-                    u[p[j]] += delta;
-                    v[j] -= delta;
-                } else {
-                    minv[j] -= delta;
+            loop {
+                let j1 = way[j0];
+                p[j0] = p[j1];
+                j0 = j1;
+                if j0 == 0 {
+                    break;
                 }
-            }
-            j0 = j1;
-            if p[j0] == 0 {
-                break;
             }
         }
-        loop {
-            let j1 = way[j0];
-            p[j0] = p[j1];
-            j0 = j1;
-            if j0 == 0 {
-                break;
+        for j in 1..=n {
+            let i = p[j];
+            if i >= 1 && i <= rows && j <= cols && cost[(i - 1) * cols + (j - 1)].is_finite() {
+                self.out[i - 1] = Some(j - 1);
             }
         }
+        &self.out
     }
-    let mut out = vec![None; rows];
-    for j in 1..=n {
-        let i = p[j];
-        if i >= 1 && i <= rows && j <= cols {
-            let c = cost[i - 1].get(j - 1).copied().unwrap_or(f64::INFINITY);
-            if c.is_finite() {
-                out[i - 1] = Some(j - 1);
-            }
-        }
-    }
-    out
 }
 
 #[cfg(test)]

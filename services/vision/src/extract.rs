@@ -25,7 +25,6 @@
 use crate::error::VisionError;
 use crate::image::{GrayView, Pixel, PixelRect};
 use crate::moments::{RawMoments, WeightedMoments};
-use rayon::prelude::*;
 
 /// Which neighbours join two foreground pixels into one blob.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
@@ -118,6 +117,15 @@ impl Blob {
 
     pub fn central(&self) -> crate::moments::CentralMoments {
         self.moments.central()
+    }
+
+    /// Intensity-weighted central moments when weights were computed (sub-pixel edges), else
+    /// the binary ones.
+    pub fn best_central(&self) -> crate::moments::CentralMoments {
+        match self.weighted {
+            Some(w) if w.w00 > 0 => w.central(self.moments.m00),
+            _ => self.moments.central(),
+        }
     }
 
     /// Major-axis angle, degrees CCW on screen from the x axis, (−90, 90] (Eq. 3.44 corrected).
@@ -485,6 +493,35 @@ fn merge_acc(into: &mut Acc, from: &Acc) {
     into.flags.0 |= from.flags.0;
 }
 
+/// Whether any pixel of the row's segments is foreground: the quick test that lets empty rows
+/// (most rows of a tracking window) skip all bookkeeping.
+#[inline]
+fn row_has_foreground<P: Pixel>(row: &[P], segs: &[Seg]) -> bool {
+    for seg in segs {
+        let (mut x, end) = (seg.x0 as usize, seg.x1 as usize + 1);
+        while x + 64 <= end {
+            if P::any_foreground64(&row[x..x + 64], seg.threshold) {
+                return true;
+            }
+            x += 64;
+        }
+        if x < end {
+            let n = end - x;
+            let hit = if x + 64 <= row.len() {
+                let chunk = &row[x..x + 64];
+                P::any_foreground64(chunk, seg.threshold)
+                    && P::foreground_mask64(chunk, seg.threshold) & ((1u64 << n) - 1) != 0
+            } else {
+                row[x..end].iter().any(|p| p.value() >= seg.threshold)
+            };
+            if hit {
+                return true;
+            }
+        }
+    }
+    false
+}
+
 /// Finds the foreground runs of one row across the row's segments, joining runs that cross
 /// from one segment into a contiguous next one. Each run: `(x0, x1, clipped_horizontally)`.
 fn find_row_runs<P: Pixel>(row: &[P], segs: &[Seg], out: &mut Vec<(u32, u32, bool)>) {
@@ -501,29 +538,44 @@ fn find_row_runs<P: Pixel>(row: &[P], segs: &[Seg], out: &mut Vec<(u32, u32, boo
         let thr = seg.threshold;
         let mut x = seg.x0;
         let end = seg.x1 + 1;
-        // 64 pixels at a time while they fit.
-        while x + 64 <= end {
-            let chunk = &row[x as usize..x as usize + 64];
-            match open {
-                None => {
-                    if !P::any_foreground64(chunk, thr) {
-                        x += 64;
-                        continue;
-                    }
+        // 64 pixels at a time; the last chunk of a segment is masked to the segment's end
+        // (read from the row when it has 64 pixels left, else from a padded copy).
+        let mut pad = [P::default(); 64];
+        while x < end {
+            if open.is_none() {
+                // The common case: 64 background pixels, one compare and skip.
+                while x + 64 <= end && !P::any_foreground64(&row[x as usize..x as usize + 64], thr)
+                {
+                    x += 64;
                 }
-                Some(_) => {}
+                if x >= end {
+                    break;
+                }
             }
-            let mask = P::foreground_mask64(chunk, thr);
-            if open.is_some() && mask == u64::MAX {
-                x += 64;
+            let n = (end - x).min(64);
+            let chunk: &[P] = if x as usize + 64 <= row.len() {
+                &row[x as usize..x as usize + 64]
+            } else {
+                pad[..n as usize].copy_from_slice(&row[x as usize..(x + n) as usize]);
+                pad[n as usize..].fill(P::default());
+                &pad
+            };
+            let limit = if n == 64 { u64::MAX } else { (1u64 << n) - 1 };
+            if open.is_none() && !P::any_foreground64(chunk, thr) {
+                x += n;
+                continue;
+            }
+            let mask = P::foreground_mask64(chunk, thr) & limit;
+            if open.is_some() && mask == limit {
+                x += n;
                 continue;
             }
             let mut pos = 0u32;
-            while pos < 64 {
+            while pos < n {
                 match open {
                     Some((start, c)) => {
                         let ones = (!mask >> pos).trailing_zeros();
-                        if pos + ones >= 64 {
+                        if pos + ones >= n {
                             break;
                         }
                         out.push((start, x + pos + ones - 1, c));
@@ -532,7 +584,7 @@ fn find_row_runs<P: Pixel>(row: &[P], segs: &[Seg], out: &mut Vec<(u32, u32, boo
                     }
                     None => {
                         let zeros = (mask >> pos).trailing_zeros();
-                        if zeros >= 64 - pos {
+                        if zeros >= n - pos {
                             break;
                         }
                         let start = x + pos + zeros;
@@ -541,20 +593,7 @@ fn find_row_runs<P: Pixel>(row: &[P], segs: &[Seg], out: &mut Vec<(u32, u32, boo
                     }
                 }
             }
-            x += 64;
-        }
-        // The tail, pixel by pixel.
-        while x < end {
-            let fg = row[x as usize].value() >= thr;
-            match (open, fg) {
-                (None, true) => open = Some((x, x == seg.x0 && seg.open_left)),
-                (Some((s, c)), false) => {
-                    out.push((s, x - 1, c));
-                    open = None;
-                }
-                _ => {}
-            }
-            x += 1;
+            x += n;
         }
         if seg.open_right {
             if let Some((s, _c)) = open.take() {
@@ -608,7 +647,21 @@ impl Scratch {
                 continue;
             }
             let segs = &region.segs[band.segs.0..band.segs.1];
-            for y in y0..y1 {
+            let mut y = y0;
+            while y < y1 {
+                // Empty rows (most rows of a tracking window) are skipped in a tight loop: they
+                // join nothing, and an empty cut row needs no record for the band joins.
+                let skip_from = y;
+                while y < y1 && !row_has_foreground(img.row(y), segs) {
+                    y += 1;
+                }
+                if y > skip_from {
+                    self.prev.clear();
+                    prev_y = Some(y - 1);
+                }
+                if y >= y1 {
+                    break;
+                }
                 let row = img.row(y);
                 let mut row_runs = std::mem::take(&mut self.row_runs);
                 find_row_runs(row, segs, &mut row_runs);
@@ -694,6 +747,7 @@ impl Scratch {
                 }
                 std::mem::swap(&mut self.prev, &mut self.cur);
                 prev_y = Some(y);
+                y += 1;
             }
         }
     }
@@ -807,14 +861,20 @@ impl Extractor {
         if parts == 1 {
             self.scratch[0].scan(&img, region, ya, yb, &cfg);
         } else {
+            // The caller scans the first band itself while the pool takes the others, so a
+            // frame never waits idle for a worker to wake up.
             let ranges = &self.ranges;
-            self.scratch[..parts]
-                .par_iter_mut()
-                .enumerate()
-                .for_each(|(i, s)| {
-                    let (a, b) = ranges[i];
-                    s.scan(&img, region, a, b, &cfg);
-                });
+            let (first, rest) = self.scratch[..parts].split_at_mut(1);
+            rayon::in_place_scope(|scope| {
+                for (i, s) in rest.iter_mut().enumerate() {
+                    let (a, b) = ranges[i + 1];
+                    let img = &img;
+                    let cfg = &cfg;
+                    scope.spawn(move |_| s.scan(img, region, a, b, cfg));
+                }
+                let (a, b) = ranges[0];
+                first[0].scan(&img, region, a, b, &cfg);
+            });
         }
         self.join_parts(parts, w, h, pixels);
         Ok(&self.blobs)

@@ -22,7 +22,7 @@
 //!
 //! Pixel conventions: `docs/conventions.md`.
 
-use crate::assign::assign_min_cost;
+use crate::assign::Assigner;
 use crate::error::VisionError;
 use crate::extract::{Blob, BlobFlags, ExtractConfig, ExtractStats, Extractor, Window};
 use crate::heading::{HeadingConfig, HeadingStatus, HeadingTracker, HeadingUpdate};
@@ -166,7 +166,8 @@ pub struct Tracker {
     next_id: u32,
     frames_since_search: u32,
     windows: Vec<Window>,
-    cost: Vec<Vec<f64>>,
+    cost: Vec<f64>,
+    assigner: Assigner,
     taken: Vec<bool>,
 }
 
@@ -202,6 +203,7 @@ impl Tracker {
             frames_since_search: 0,
             windows: Vec::new(),
             cost: Vec::new(),
+            assigner: Assigner::default(),
             taken: Vec::new(),
         })
     }
@@ -277,25 +279,23 @@ impl Tracker {
         self.cost.clear();
         for t in &self.tracks {
             let (px, py) = t.predicted();
-            let row = blobs
-                .iter()
-                .map(|b| {
-                    let (bx, by) = b.best_centroid_px();
-                    if t.window.contains(bx, by) {
-                        (bx - px).powi(2) + (by - py).powi(2)
-                    } else {
-                        f64::INFINITY
-                    }
-                })
-                .collect();
-            self.cost.push(row);
+            self.cost.extend(blobs.iter().map(|b| {
+                let (bx, by) = b.best_centroid_px();
+                if t.window.contains(bx, by) {
+                    (bx - px).powi(2) + (by - py).powi(2)
+                } else {
+                    f64::INFINITY
+                }
+            }));
         }
-        let assignment = assign_min_cost(&self.cost);
+        let assignment = self
+            .assigner
+            .solve(&self.cost, self.tracks.len(), blobs.len());
         self.taken.clear();
         self.taken.resize(blobs.len(), false);
         let par = self.cfg.par;
         let skew = self.cfg.direction_min_skewness;
-        for (t, a) in self.tracks.iter_mut().zip(&assignment) {
+        for (t, a) in self.tracks.iter_mut().zip(assignment) {
             match a {
                 Some(j) => {
                     let b = blobs[*j];
@@ -367,7 +367,7 @@ impl Tracker {
 }
 
 fn heading_of(ht: &mut HeadingTracker, b: &Blob, par: f64, min_skew: Option<f64>) -> HeadingUpdate {
-    let shape = b.moments.central().axis_shape(par);
+    let shape = b.best_central().axis_shape(par);
     let directed = min_skew.and_then(|s| directed_angle_deg(&b.moments, par, s));
     let u = ht.update(shape.angle_deg, shape.roundness(), directed);
     debug_assert!(u.status != HeadingStatus::Initial || ht.heading_deg().is_some());
