@@ -120,18 +120,18 @@ fn main() {
         "frame", "blobs", "found", "read", "full 1T", "full allT", "window 1T", "full/window"
     );
     let mut rows = Vec::new();
-    if let Some(dir) = &opts.frames_dir {
-        if let Err(e) = std::fs::create_dir_all(dir) {
-            eprintln!("error: cannot create {}: {e}", dir.display());
-            std::process::exit(1);
-        }
+    if let Some(dir) = &opts.frames_dir
+        && let Err(e) = std::fs::create_dir_all(dir)
+    {
+        eprintln!("error: cannot create {}: {e}", dir.display());
+        std::process::exit(1);
     }
     for &(w, h) in &sizes {
         for &count in &counts {
             let scale = ((w as f64 * h as f64) / (count as f64 * 900.0))
                 .sqrt()
                 .clamp(0.3, 1.5);
-            let (img, placed) = match random_scene(
+            let (img, _placed) = match random_scene(
                 w,
                 h,
                 count,
@@ -146,11 +146,11 @@ fn main() {
                 }
             };
             let name = format!("{w}x{h}_{count}");
-            if let Some(dir) = &opts.frames_dir {
-                if let Err(e) = write_pgm(&dir.join(format!("{name}.pgm")), &img) {
-                    eprintln!("error: writing frame {name}: {e}");
-                    std::process::exit(1);
-                }
+            if let Some(dir) = &opts.frames_dir
+                && let Err(e) = write_pgm(&dir.join(format!("{name}.pgm")), &img)
+            {
+                eprintln!("error: writing frame {name}: {e}");
+                std::process::exit(1);
             }
             // The floor: reading every byte once.
             let read = time_ms(batches, min_batch, || {

@@ -270,7 +270,7 @@ impl Region {
     }
 
     /// The union of `windows`, clipped to the frame, as bands of segments.
-    fn from_windows<P: Pixel>(
+    fn set_windows<P: Pixel>(
         &mut self,
         windows: &[Window],
         width: u32,
@@ -595,10 +595,10 @@ fn find_row_runs<P: Pixel>(row: &[P], segs: &[Seg], out: &mut Vec<(u32, u32, boo
             }
             x += n;
         }
-        if seg.open_right {
-            if let Some((s, _c)) = open.take() {
-                out.push((s, seg.x1, true));
-            }
+        if seg.open_right
+            && let Some((s, _c)) = open.take()
+        {
+            out.push((s, seg.x1, true));
         }
     }
     if let Some((s, c)) = open.take() {
@@ -832,7 +832,7 @@ impl Extractor {
         if windows.is_empty() {
             self.region.full(w, h, threshold);
         } else {
-            self.region.from_windows::<P>(windows, w, h, threshold)?;
+            self.region.set_windows::<P>(windows, w, h, threshold)?;
         }
         let (ya, yb) = self.region.rows();
         let pixels = self.region.pixel_count();

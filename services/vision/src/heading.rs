@@ -107,7 +107,8 @@ impl HeadingTracker {
         roundness: f64,
         directed_deg: Option<f64>,
     ) -> HeadingUpdate {
-        let round = !(roundness <= self.cfg.max_roundness);
+        // NaN (degenerate moments) counts as round.
+        let round = roundness.is_nan() || roundness > self.cfg.max_roundness;
         let Some(prev) = self.heading_deg else {
             if round {
                 // Nothing to measure yet; report 0 and stay uninitialised.

@@ -13,6 +13,12 @@
 //!   knee where the background's tail ends. It depends on the background's shape, not on how
 //!   many target pixels there are, so it copes with a few small bright targets.
 //!
+//! - **Auto** (the default): the triangle knee, then halfway from it to the mean level of the
+//!   pixels at or above the knee (the targets). The knee alone sits on the background's noise
+//!   tail, so noise pixels cross it; halfway up the targets' edges no background pixel does,
+//!   and a binary blob's area is then that of its half-intensity outline, which is the true
+//!   area for a blurred edge.
+//!
 //! Foreground is `pixel >= threshold` everywhere in the project, so a threshold `t` puts levels
 //! `0..t` in the background.
 
@@ -32,13 +38,15 @@ pub enum ThresholdMethod {
     Fixed(u32),
     Otsu,
     Triangle,
+    Auto,
 }
 
 impl ThresholdMethod {
-    /// Parses `N`, `otsu`, `triangle` or `auto` (= triangle, see the module docs).
+    /// Parses `N`, `auto`, `otsu` or `triangle` (module docs).
     pub fn parse(s: &str) -> Option<Self> {
         match s.trim().to_ascii_lowercase().as_str() {
-            "auto" | "triangle" => Some(ThresholdMethod::Triangle),
+            "auto" => Some(ThresholdMethod::Auto),
+            "triangle" => Some(ThresholdMethod::Triangle),
             "otsu" => Some(ThresholdMethod::Otsu),
             other => other.parse::<u32>().ok().map(ThresholdMethod::Fixed),
         }
@@ -180,6 +188,22 @@ impl Histogram {
         Ok(best_level as u32 + 1)
     }
 
+    /// The auto threshold: halfway from the triangle knee to the mean of the levels at or
+    /// above it (module docs).
+    pub fn auto(&self) -> Result<u32, VisionError> {
+        let knee = self.triangle()? as usize;
+        let (mut n, mut sum) = (0u64, 0u64);
+        for (level, &c) in self.counts.iter().enumerate().skip(knee) {
+            n += c as u64;
+            sum += level as u64 * c as u64;
+        }
+        if n == 0 {
+            return Ok(knee as u32);
+        }
+        let bright = sum as f64 / n as f64;
+        Ok(((knee as f64 + bright) / 2.0).round() as u32)
+    }
+
     /// The threshold a method gives on this histogram (a fixed one is range-checked for `P`).
     pub fn threshold<P: Pixel>(&self, method: ThresholdMethod) -> Result<u32, VisionError> {
         match method {
@@ -193,6 +217,7 @@ impl Histogram {
             ThresholdMethod::Fixed(t) => Ok(t),
             ThresholdMethod::Otsu => Ok(self.otsu()?.min(P::MAX_VALUE)),
             ThresholdMethod::Triangle => Ok(self.triangle()?.min(P::MAX_VALUE)),
+            ThresholdMethod::Auto => Ok(self.auto()?.min(P::MAX_VALUE)),
         }
     }
 
@@ -273,7 +298,7 @@ mod tests {
     fn both_methods_find_four_targets_under_even_light() {
         let img = scene(0.0, 1);
         let h = Histogram::of(&img.view());
-        for t in [h.otsu().unwrap(), h.triangle().unwrap()] {
+        for t in [h.otsu().unwrap(), h.triangle().unwrap(), h.auto().unwrap()] {
             assert_eq!(count_blobs(&img, t), 4, "threshold {t}");
         }
     }
@@ -288,6 +313,9 @@ mod tests {
         assert_ne!(count_blobs(&img, otsu), 4);
         assert!(tri > 80, "triangle {tri}");
         assert_eq!(count_blobs(&img, tri), 4);
+        let auto = h.auto().unwrap();
+        assert!(auto > tri, "auto {auto}");
+        assert_eq!(count_blobs(&img, auto), 4);
     }
 
     #[test]
@@ -325,6 +353,7 @@ mod tests {
         let h = Histogram::of(&flat.view());
         assert_eq!(h.otsu().unwrap(), 41);
         assert_eq!(h.triangle().unwrap(), 41);
+        assert_eq!(h.auto().unwrap(), 41);
         assert_eq!(
             h.threshold::<u8>(ThresholdMethod::Fixed(300)).unwrap_err(),
             VisionError::ThresholdOutOfRange {
@@ -361,8 +390,9 @@ mod tests {
 
     #[test]
     fn parse_methods() {
+        assert_eq!(ThresholdMethod::parse("auto"), Some(ThresholdMethod::Auto));
         assert_eq!(
-            ThresholdMethod::parse("auto"),
+            ThresholdMethod::parse("triangle"),
             Some(ThresholdMethod::Triangle)
         );
         assert_eq!(ThresholdMethod::parse("OTSU"), Some(ThresholdMethod::Otsu));

@@ -1,0 +1,5 @@
+//! The `stereoscope` command line, as a library so its commands can be tested in-process.
+//! `main.rs` only parses arguments and calls these.
+
+pub mod blobs;
+pub mod example;

@@ -1,0 +1,234 @@
+#![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)] // test helpers may fail loudly
+//! System tests of `stereoscope blobs`: the real binary on real files.
+//! Every child is waited for with a bound; every test works in its own temporary folder.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output, Stdio};
+use std::time::{Duration, Instant};
+use stereoscope_proto::blobs::BlobsReport;
+use stereoscope_vision::GrayImage;
+use stereoscope_vision::raster::{Ellipse, draw_ellipse};
+
+const BIN: &str = env!("CARGO_BIN_EXE_stereoscope");
+
+fn repo_root() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../..")
+}
+
+/// A fresh folder for one test, removed when dropped.
+struct TempDir(PathBuf);
+
+impl TempDir {
+    fn new(name: &str) -> Self {
+        let dir =
+            std::env::temp_dir().join(format!("stereoscope-test-{name}-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).unwrap();
+        TempDir(dir)
+    }
+}
+
+impl Drop for TempDir {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_dir_all(&self.0);
+    }
+}
+
+/// Runs the binary with a time limit; kills and reaps it if it overruns.
+fn run(args: &[&str]) -> Output {
+    let mut child = Command::new(BIN)
+        .args(args)
+        .current_dir(repo_root())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("start stereoscope");
+    let deadline = Instant::now() + Duration::from_secs(60);
+    loop {
+        if child.try_wait().expect("wait").is_some() {
+            return child.wait_with_output().expect("collect output");
+        }
+        if Instant::now() > deadline {
+            let _ = child.kill();
+            let _ = child.wait();
+            panic!("stereoscope {args:?} did not finish within 60 s");
+        }
+        std::thread::sleep(Duration::from_millis(10));
+    }
+}
+
+fn reports(out: &Output) -> Vec<BlobsReport> {
+    String::from_utf8_lossy(&out.stdout)
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap_or_else(|e| panic!("bad JSON line {l:?}: {e}")))
+        .collect()
+}
+
+#[test]
+fn quick_start_example_finds_the_three_targets() {
+    let out = run(&[
+        "blobs",
+        "docs/examples/thesis-targets-320x240.pgm",
+        "--par",
+        "0.86",
+        "--json",
+    ]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let r = reports(&out);
+    assert_eq!(r.len(), 1);
+    let blobs = &r[0].blobs;
+    assert_eq!(blobs.len(), 3, "{blobs:?}");
+    // Truth from services/stereoscope/src/example.rs, in raster order.
+    for (b, (x, y)) in blobs
+        .iter()
+        .zip([(110.4, 95.3), (230.7, 160.2), (70.25, 184.6)])
+    {
+        assert!(
+            (b.x_px - x).abs() < 0.15 && (b.y_px - y).abs() < 0.15,
+            "{b:?} vs ({x}, {y})"
+        );
+    }
+    // The glued balls lie at 30°, the oblong marker at −50° (PAR 0.86 corrected).
+    assert!(
+        (blobs[0].orientation_deg - 30.0).abs() < 1.0,
+        "{}",
+        blobs[0].orientation_deg
+    );
+    assert!(
+        (blobs[2].orientation_deg + 50.0).abs() < 1.0,
+        "{}",
+        blobs[2].orientation_deg
+    );
+    // The human table names the same image.
+    let table = run(&[
+        "blobs",
+        "docs/examples/thesis-targets-320x240.pgm",
+        "--par",
+        "0.86",
+    ]);
+    assert!(table.status.success());
+    assert!(String::from_utf8_lossy(&table.stdout).contains("3 blobs"));
+}
+
+#[test]
+fn sixteen_bit_pgm_and_png_give_the_same_blobs_as_eight_bit() {
+    let dir = TempDir::new("formats");
+    let mut img8 = GrayImage::filled(120, 80, 10u8).unwrap();
+    let e = Ellipse {
+        cx_px: 50.3,
+        cy_px: 40.6,
+        semi_major: 14.0,
+        semi_minor: 6.0,
+        angle_deg: 20.0,
+    };
+    draw_ellipse(&mut img8, &e, 1.0, 10.0, 210.0, 8);
+    let img16 = GrayImage::from_vec(
+        img8.as_slice().iter().map(|&p| p as u16 * 257).collect(),
+        120,
+        80,
+    )
+    .unwrap();
+    let p8 = dir.0.join("a.pgm");
+    let p16 = dir.0.join("b.pgm");
+    let png = dir.0.join("c.png");
+    std::fs::write(&p8, stereoscope_imageio::encode_pgm_u8(&img8)).unwrap();
+    std::fs::write(&p16, stereoscope_imageio::encode_pgm_u16(&img16, 65535)).unwrap();
+    std::fs::write(&png, stereoscope_imageio::encode_png_u8(&img8).unwrap()).unwrap();
+    let out8 = run(&[
+        "blobs",
+        p8.to_str().unwrap(),
+        png.to_str().unwrap(),
+        "--threshold",
+        "110",
+        "--json",
+    ]);
+    let out16 = run(&[
+        "blobs",
+        p16.to_str().unwrap(),
+        "--threshold",
+        "28270",
+        "--json",
+    ]);
+    assert!(out8.status.success() && out16.status.success());
+    let (r8, r16) = (reports(&out8), reports(&out16));
+    assert_eq!(r8.len(), 2);
+    assert_eq!(r8[0].blobs, r8[1].blobs, "PGM and PNG disagree");
+    assert_eq!(r8[0].blobs, r16[0].blobs, "8- and 16-bit disagree");
+    assert_eq!(r8[0].blobs.len(), 1);
+    assert!((r8[0].blobs[0].orientation_deg - 20.0).abs() < 1.0);
+}
+
+#[test]
+fn bad_files_are_named_and_do_not_stop_the_others() {
+    let dir = TempDir::new("bad");
+    let truncated = dir.0.join("truncated.pgm");
+    std::fs::write(&truncated, b"P5\n10 10\n255\n\x00\x00\x00").unwrap();
+    let garbage = dir.0.join("garbage.png");
+    std::fs::write(&garbage, b"this is not an image").unwrap();
+    let missing = dir.0.join("missing.pgm");
+    let good = repo_root().join("docs/examples/thesis-targets-320x240.pgm");
+    let args = [
+        "blobs",
+        truncated.to_str().unwrap(),
+        garbage.to_str().unwrap(),
+        missing.to_str().unwrap(),
+        good.to_str().unwrap(),
+        "--json",
+    ];
+    let out = run(&args);
+    assert_eq!(out.status.code(), Some(1));
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("truncated.pgm") && err.contains("truncated"),
+        "{err}"
+    );
+    assert!(
+        err.contains("garbage.png") && err.contains("not a PGM or PNG"),
+        "{err}"
+    );
+    assert!(
+        err.contains("missing.pgm") && err.contains("cannot read"),
+        "{err}"
+    );
+    assert_eq!(reports(&out).len(), 1, "the good image is still reported");
+    assert!(!err.contains("panicked"));
+}
+
+#[test]
+fn bad_options_are_rejected_with_the_value() {
+    let out = run(&[
+        "blobs",
+        "docs/examples/thesis-targets-320x240.pgm",
+        "--threshold",
+        "bright",
+    ]);
+    assert_eq!(out.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("bright"));
+    let out = run(&[
+        "blobs",
+        "docs/examples/thesis-targets-320x240.pgm",
+        "--threshold",
+        "300",
+    ]);
+    assert_eq!(out.status.code(), Some(1));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("threshold 300 is out of range"));
+    let out = run(&[
+        "blobs",
+        "docs/examples/thesis-targets-320x240.pgm",
+        "--connectivity",
+        "6",
+    ]);
+    assert_eq!(out.status.code(), Some(2));
+    let out = run(&[
+        "blobs",
+        "docs/examples/thesis-targets-320x240.pgm",
+        "--par",
+        "0",
+    ]);
+    assert_eq!(out.status.code(), Some(1));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("pixel aspect ratio 0"));
+}
