@@ -522,6 +522,26 @@ fn row_has_foreground<P: Pixel>(row: &[P], segs: &[Seg]) -> bool {
     false
 }
 
+/// The first row in `y..y1` with a foreground pixel in `segs`, or `y1`. A band made of one
+/// segment no wider than 64 pixels (a tracking window) is tested four rows per compare.
+#[inline]
+fn next_nonempty_row<P: Pixel>(img: &GrayView<'_, P>, segs: &[Seg], mut y: u32, y1: u32) -> u32 {
+    if let [seg] = segs
+        && seg.x1 - seg.x0 < 64
+        && seg.x0 + 64 <= img.width()
+    {
+        let (x0, thr) = (seg.x0 as usize, seg.threshold);
+        let chunk = |y: u32| &img.row(y)[x0..x0 + 64];
+        while y + 4 <= y1 && !P::any_foreground64x4([chunk(y), chunk(y + 1), chunk(y + 2), chunk(y + 3)], thr) {
+            y += 4;
+        }
+    }
+    while y < y1 && !row_has_foreground(img.row(y), segs) {
+        y += 1;
+    }
+    y
+}
+
 /// Finds the foreground runs of one row across the row's segments, joining runs that cross
 /// from one segment into a contiguous next one. Each run: `(x0, x1, clipped_horizontally)`.
 fn find_row_runs<P: Pixel>(row: &[P], segs: &[Seg], out: &mut Vec<(u32, u32, bool)>) {
@@ -540,12 +560,10 @@ fn find_row_runs<P: Pixel>(row: &[P], segs: &[Seg], out: &mut Vec<(u32, u32, boo
         let end = seg.x1 + 1;
         // 64 pixels at a time; the last chunk of a segment is masked to the segment's end
         // (read from the row when it has 64 pixels left, else from a padded copy).
-        let mut pad = [P::default(); 64];
         while x < end {
             if open.is_none() {
                 // The common case: 64 background pixels, one compare and skip.
-                while x + 64 <= end && !P::any_foreground64(&row[x as usize..x as usize + 64], thr)
-                {
+                while x + 64 <= end && !P::any_foreground64(&row[x as usize..x as usize + 64], thr) {
                     x += 64;
                 }
                 if x >= end {
@@ -553,19 +571,19 @@ fn find_row_runs<P: Pixel>(row: &[P], segs: &[Seg], out: &mut Vec<(u32, u32, boo
                 }
             }
             let n = (end - x).min(64);
-            let chunk: &[P] = if x as usize + 64 <= row.len() {
-                &row[x as usize..x as usize + 64]
-            } else {
-                pad[..n as usize].copy_from_slice(&row[x as usize..(x + n) as usize]);
-                pad[n as usize..].fill(P::default());
-                &pad
-            };
             let limit = if n == 64 { u64::MAX } else { (1u64 << n) - 1 };
-            if open.is_none() && !P::any_foreground64(chunk, thr) {
+            let mask = if x as usize + 64 <= row.len() {
+                P::foreground_mask64(&row[x as usize..x as usize + 64], thr) & limit
+            } else {
+                // The last pixels of the row: read through a padded copy.
+                let mut pad = [P::default(); 64];
+                pad[..n as usize].copy_from_slice(&row[x as usize..(x + n) as usize]);
+                P::foreground_mask64(&pad, thr) & limit
+            };
+            if open.is_none() && mask == 0 {
                 x += n;
                 continue;
             }
-            let mask = P::foreground_mask64(chunk, thr) & limit;
             if open.is_some() && mask == limit {
                 x += n;
                 continue;
@@ -652,9 +670,7 @@ impl Scratch {
                 // Empty rows (most rows of a tracking window) are skipped in a tight loop: they
                 // join nothing, and an empty cut row needs no record for the band joins.
                 let skip_from = y;
-                while y < y1 && !row_has_foreground(img.row(y), segs) {
-                    y += 1;
-                }
+                y = next_nonempty_row(img, segs, y, y1);
                 if y > skip_from {
                     self.prev.clear();
                     prev_y = Some(y - 1);

@@ -40,6 +40,13 @@ pub trait Pixel: Copy + Default + Send + Sync + PartialOrd + std::fmt::Debug + '
     fn any_foreground64(chunk: &[Self], threshold: u32) -> bool {
         Self::foreground_mask64(chunk, threshold) != 0
     }
+
+    /// Whether any of the first 64 pixels of any of four chunks is `>= threshold`: the test
+    /// that skips empty rows of a narrow window four at a time.
+    #[inline(always)]
+    fn any_foreground64x4(chunks: [&[Self]; 4], threshold: u32) -> bool {
+        chunks.iter().any(|c| Self::any_foreground64(c, threshold))
+    }
 }
 
 impl Pixel for u8 {
@@ -84,6 +91,27 @@ impl Pixel for u8 {
             let (a, b) = (_mm_loadu_si128(p), _mm_loadu_si128(p.add(1)));
             let (c, d) = (_mm_loadu_si128(p.add(2)), _mm_loadu_si128(p.add(3)));
             let m = _mm_max_epu8(_mm_max_epu8(a, b), _mm_max_epu8(c, d));
+            let t = _mm_set1_epi8(threshold.min(255) as u8 as i8);
+            let ge = _mm_cmpeq_epi8(_mm_max_epu8(m, t), m);
+            _mm_movemask_epi8(ge) != 0
+        }
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[inline(always)]
+    fn any_foreground64x4(chunks: [&[Self]; 4], threshold: u32) -> bool {
+        use std::arch::x86_64::*;
+        let chunks = chunks.map(|c| &c[..64]);
+        // SAFETY: each chunk holds 64 bytes (sliced above): four 16-byte loads inside each;
+        // SSE2 is baseline on x86_64.
+        unsafe {
+            let mut m = _mm_setzero_si128();
+            for c in chunks {
+                let p = c.as_ptr() as *const __m128i;
+                let ab = _mm_max_epu8(_mm_loadu_si128(p), _mm_loadu_si128(p.add(1)));
+                let cd = _mm_max_epu8(_mm_loadu_si128(p.add(2)), _mm_loadu_si128(p.add(3)));
+                m = _mm_max_epu8(m, _mm_max_epu8(ab, cd));
+            }
             let t = _mm_set1_epi8(threshold.min(255) as u8 as i8);
             let ge = _mm_cmpeq_epi8(_mm_max_epu8(m, t), m);
             _mm_movemask_epi8(ge) != 0

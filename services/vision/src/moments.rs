@@ -238,11 +238,11 @@ pub fn validate_par(par: f64) -> Result<f64, crate::VisionError> {
 /// its centroid near the big ball, so the small ball's side has the positive skew. The
 /// returned direction points to that end. `None` when the skew is too small to trust
 /// (normalised skew `s / (M00·σ³)` below `min_skewness`), e.g. for symmetric blobs.
-pub fn directed_angle_deg(raw: &RawMoments, par: f64, min_skewness: f64) -> Option<f64> {
+/// `shape` is the blob's axis shape (`CentralMoments::axis_shape`, binary or weighted).
+pub fn directed_angle_deg(raw: &RawMoments, shape: &AxisShape, par: f64, min_skewness: f64) -> Option<f64> {
     if raw.m00 < 3 {
         return None;
     }
-    let shape = raw.central().axis_shape(par);
     if shape.major_var <= 0.0 {
         return None;
     }
@@ -254,6 +254,8 @@ pub fn directed_angle_deg(raw: &RawMoments, par: f64, min_skewness: f64) -> Opti
         + 3.0 * ux * ux * uy * mu21
         + 3.0 * ux * uy * uy * mu12
         + uy * uy * uy * mu03;
+    // Weighted shapes are scaled to the binary one (`WeightedMoments::central`), so the
+    // variance per pixel is major_var / M00 either way.
     let sigma = (shape.major_var / raw.m00 as f64).sqrt();
     let normalised = skew / (raw.m00 as f64 * sigma * sigma * sigma);
     if !normalised.is_finite() || normalised.abs() < min_skewness {
@@ -446,7 +448,7 @@ mod tests {
         for y in 103..106u32 {
             m.add_run(109, 120, y);
         }
-        let d = directed_angle_deg(&m, 1.0, 0.1).unwrap();
+        let d = directed_angle_deg(&m, &m.central().axis_shape(1.0), 1.0, 0.1).unwrap();
         assert!(d.abs() < 1e-6 || (d - 360.0).abs() < 1e-6, "{d}");
         // Mirror it: tail to the left → 180°.
         let mut m = RawMoments::default();
@@ -456,14 +458,14 @@ mod tests {
         for y in 103..106u32 {
             m.add_run(88, 99, y);
         }
-        let d = directed_angle_deg(&m, 1.0, 0.1).unwrap();
+        let d = directed_angle_deg(&m, &m.central().axis_shape(1.0), 1.0, 0.1).unwrap();
         assert!((d - 180.0).abs() < 1e-6, "{d}");
         // A symmetric bar has no direction.
         let mut m = RawMoments::default();
         for y in 100..103u32 {
             m.add_run(100, 130, y);
         }
-        assert_eq!(directed_angle_deg(&m, 1.0, 0.1), None);
+        assert_eq!(directed_angle_deg(&m, &m.central().axis_shape(1.0), 1.0, 0.1), None);
     }
 
     #[test]

@@ -368,7 +368,7 @@ impl Tracker {
 
 fn heading_of(ht: &mut HeadingTracker, b: &Blob, par: f64, min_skew: Option<f64>) -> HeadingUpdate {
     let shape = b.best_central().axis_shape(par);
-    let directed = min_skew.and_then(|s| directed_angle_deg(&b.moments, par, s));
+    let directed = min_skew.and_then(|s| directed_angle_deg(&b.moments, &shape, par, s));
     let u = ht.update(shape.angle_deg, shape.roundness(), directed);
     debug_assert!(u.status != HeadingStatus::Initial || ht.heading_deg().is_some());
     u
