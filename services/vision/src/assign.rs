@@ -38,6 +38,35 @@ impl Assigner {
         if rows == 0 || cols == 0 || cost.len() < rows * cols {
             return &self.out;
         }
+        // The common case while tracking: every row has at most one allowed column and no
+        // column is wanted twice. That is the optimum; skip the general method.
+        let mut unique = true;
+        for r in 0..rows {
+            let mut only = None;
+            for c in 0..cols {
+                if cost[r * cols + c].is_finite() {
+                    if only.is_some() {
+                        unique = false;
+                        break;
+                    }
+                    only = Some(c);
+                }
+            }
+            if !unique {
+                break;
+            }
+            if let Some(c) = only {
+                if self.out[..r].contains(&Some(c)) {
+                    unique = false;
+                    break;
+                }
+                self.out[r] = Some(c);
+            }
+        }
+        if unique {
+            return &self.out;
+        }
+        self.out.fill(None);
         // Finite stand-in for "not allowed", larger than any sum of allowed costs.
         let finite_max = cost
             .iter()

@@ -532,7 +532,9 @@ fn next_nonempty_row<P: Pixel>(img: &GrayView<'_, P>, segs: &[Seg], mut y: u32, 
     {
         let (x0, thr) = (seg.x0 as usize, seg.threshold);
         let chunk = |y: u32| &img.row(y)[x0..x0 + 64];
-        while y + 4 <= y1 && !P::any_foreground64x4([chunk(y), chunk(y + 1), chunk(y + 2), chunk(y + 3)], thr) {
+        while y + 4 <= y1
+            && !P::any_foreground64x4([chunk(y), chunk(y + 1), chunk(y + 2), chunk(y + 3)], thr)
+        {
             y += 4;
         }
     }
@@ -540,6 +542,24 @@ fn next_nonempty_row<P: Pixel>(img: &GrayView<'_, P>, segs: &[Seg], mut y: u32, 
         y += 1;
     }
     y
+}
+
+/// The runs of a segment read as one masked 64-pixel chunk (bit i = pixel `seg.x0 + i`).
+#[inline]
+fn runs_from_mask(mut mask: u64, seg: &Seg, out: &mut Vec<(u32, u32, bool)>) {
+    out.clear();
+    let n = seg.x1 - seg.x0 + 1;
+    while mask != 0 {
+        let start = mask.trailing_zeros();
+        let end = start + (!(mask >> start)).trailing_zeros(); // exclusive
+        let clipped = (start == 0 && seg.open_left) || (end == n && seg.open_right);
+        out.push((seg.x0 + start, seg.x0 + end - 1, clipped));
+        mask = if end >= 64 {
+            0
+        } else {
+            mask & (u64::MAX << end)
+        };
+    }
 }
 
 /// Finds the foreground runs of one row across the row's segments, joining runs that cross
@@ -563,7 +583,8 @@ fn find_row_runs<P: Pixel>(row: &[P], segs: &[Seg], out: &mut Vec<(u32, u32, boo
         while x < end {
             if open.is_none() {
                 // The common case: 64 background pixels, one compare and skip.
-                while x + 64 <= end && !P::any_foreground64(&row[x as usize..x as usize + 64], thr) {
+                while x + 64 <= end && !P::any_foreground64(&row[x as usize..x as usize + 64], thr)
+                {
                     x += 64;
                 }
                 if x >= end {
@@ -665,12 +686,50 @@ impl Scratch {
                 continue;
             }
             let segs = &region.segs[band.segs.0..band.segs.1];
+            // A band that is one segment of at most 64 pixels (a tracking window) is read as
+            // one 64-pixel chunk per row, its runs taken straight from the chunk's mask.
+            let narrow = match segs {
+                [seg] if seg.x1 - seg.x0 < 64 && seg.x0 + 64 <= img.width() => Some(*seg),
+                _ => None,
+            };
+            let mut row_runs = std::mem::take(&mut self.row_runs);
             let mut y = y0;
             while y < y1 {
                 // Empty rows (most rows of a tracking window) are skipped in a tight loop: they
                 // join nothing, and an empty cut row needs no record for the band joins.
                 let skip_from = y;
-                y = next_nonempty_row(img, segs, y, y1);
+                let row = match narrow {
+                    Some(seg) => {
+                        let (x0, n) = (seg.x0 as usize, seg.x1 - seg.x0 + 1);
+                        let limit = if n == 64 { u64::MAX } else { (1u64 << n) - 1 };
+                        let chunk = |y: u32| &img.row(y)[x0..x0 + 64];
+                        let mut mask = 0;
+                        while y < y1 {
+                            if y + 4 <= y1
+                                && !P::any_foreground64x4(
+                                    [chunk(y), chunk(y + 1), chunk(y + 2), chunk(y + 3)],
+                                    seg.threshold,
+                                )
+                            {
+                                y += 4;
+                                continue;
+                            }
+                            mask = P::foreground_mask64(chunk(y), seg.threshold) & limit;
+                            if mask != 0 {
+                                break;
+                            }
+                            y += 1;
+                        }
+                        if y < y1 {
+                            runs_from_mask(mask, &seg, &mut row_runs);
+                        }
+                        None
+                    }
+                    None => {
+                        y = next_nonempty_row(img, segs, y, y1);
+                        if y < y1 { Some(img.row(y)) } else { None }
+                    }
+                };
                 if y > skip_from {
                     self.prev.clear();
                     prev_y = Some(y - 1);
@@ -678,9 +737,13 @@ impl Scratch {
                 if y >= y1 {
                     break;
                 }
-                let row = img.row(y);
-                let mut row_runs = std::mem::take(&mut self.row_runs);
-                find_row_runs(row, segs, &mut row_runs);
+                let row = match row {
+                    Some(row) => {
+                        find_row_runs(row, segs, &mut row_runs);
+                        row
+                    }
+                    None => img.row(y),
+                };
                 if prev_y != Some(y.wrapping_sub(1)) || y == 0 {
                     self.prev.clear();
                 }
@@ -709,7 +772,9 @@ impl Scratch {
                         }
                         jj += 1;
                     }
-                    let clipped = hclip || region.vertically_clipped(bi, y, x0, x1);
+                    let edge_row =
+                        (band.check_top && y == band.y0) || (band.check_bottom && y + 1 == band.y1);
+                    let clipped = hclip || (edge_row && region.vertically_clipped(bi, y, x0, x1));
                     if label == u32::MAX {
                         label = self.parent.len() as u32;
                         self.parent.push(label);
@@ -750,7 +815,6 @@ impl Scratch {
                     self.cur.push(RunRef { x0, x1, label });
                 }
                 self.runs += row_runs.len();
-                self.row_runs = row_runs;
                 if y == ya {
                     self.first_row.clear();
                     self.first_row.extend_from_slice(&self.cur);
@@ -765,6 +829,7 @@ impl Scratch {
                 prev_y = Some(y);
                 y += 1;
             }
+            self.row_runs = row_runs;
         }
     }
 }
@@ -1010,7 +1075,7 @@ mod tests {
         thr: u32,
         conn: Connectivity,
         mask: Option<&[Window]>,
-    ) -> Vec<(RawMoments, PixelRect)> {
+    ) -> Vec<(RawMoments, PixelRect, bool)> {
         let (w, h) = (img.width() as i64, img.height() as i64);
         let inside = |x: i64, y: i64| -> Option<u32> {
             if x < 0 || y < 0 || x >= w || y >= h {
@@ -1047,8 +1112,16 @@ mod tests {
                 };
                 let mut stack = vec![(x, y)];
                 seen[(y * w + x) as usize] = true;
+                // Clipped: a pixel with a 4-neighbour in the frame but outside the region.
+                let mut clipped = false;
                 while let Some((px, py)) = stack.pop() {
                     m.add_pixel(px as u32, py as u32);
+                    for (dx, dy) in [(-1, 0), (1, 0), (0, -1), (0, 1)] {
+                        let (nx, ny) = (px + dx, py + dy);
+                        if nx >= 0 && ny >= 0 && nx < w && ny < h && inside(nx, ny).is_none() {
+                            clipped = true;
+                        }
+                    }
                     bb.x0 = bb.x0.min(px as u32);
                     bb.x1 = bb.x1.max(px as u32);
                     bb.y0 = bb.y0.min(py as u32);
@@ -1073,7 +1146,7 @@ mod tests {
                         }
                     }
                 }
-                out.push((m, bb));
+                out.push((m, bb, clipped));
             }
         }
         out
@@ -1092,13 +1165,18 @@ mod tests {
         img
     }
 
-    fn sorted(mut v: Vec<(RawMoments, PixelRect)>) -> Vec<(RawMoments, PixelRect)> {
-        v.sort_by_key(|(m, b)| (b.y0, b.x0, m.m00, m.m10, m.m01));
+    fn sorted(mut v: Vec<(RawMoments, PixelRect, bool)>) -> Vec<(RawMoments, PixelRect, bool)> {
+        v.sort_by_key(|(m, b, _)| (b.y0, b.x0, m.m00, m.m10, m.m01));
         v
     }
 
-    fn ours(blobs: &[Blob]) -> Vec<(RawMoments, PixelRect)> {
-        sorted(blobs.iter().map(|b| (b.moments, b.bbox)).collect())
+    fn ours(blobs: &[Blob]) -> Vec<(RawMoments, PixelRect, bool)> {
+        sorted(
+            blobs
+                .iter()
+                .map(|b| (b.moments, b.bbox, b.flags.contains(BlobFlags::CLIPPED)))
+                .collect(),
+        )
     }
 
     #[test]
@@ -1184,6 +1262,50 @@ mod tests {
                 let got = ours(ex.extract(img.view(), 100, &windows).unwrap());
                 let want = sorted(reference_blobs(&img, 100, conn, Some(&windows)));
                 assert_eq!(got, want, "{conn:?} threads {threads}");
+            }
+        }
+    }
+
+    #[test]
+    fn matches_flood_fill_in_random_narrow_and_wide_windows() {
+        // Widths around the 64-pixel chunk (the narrow-window path), windows at the right
+        // edge (where a 64-pixel read would leave the row), overlapping and apart.
+        let mut rng = crate::raster::SplitMix64::new(99);
+        for trial in 0..60u64 {
+            let (w, h) = (100 + (trial % 7) as u32 * 13, 70);
+            let img = random_image(w, h, 500 + trial, 40);
+            let count = 1 + (trial % 4) as usize;
+            let windows: Vec<Window> = (0..count)
+                .map(|_| {
+                    let ww = 1 + (rng.next_u64() % 80) as u32;
+                    let hh = 1 + (rng.next_u64() % 40) as u32;
+                    let x0 = (rng.next_u64() % w as u64) as u32;
+                    let y0 = (rng.next_u64() % h as u64) as u32;
+                    let threshold = if rng.uniform() < 0.3 {
+                        Some(60 + (rng.next_u64() % 120) as u32)
+                    } else {
+                        None
+                    };
+                    Window {
+                        rect: PixelRect {
+                            x0,
+                            y0,
+                            x1: x0 + ww - 1,
+                            y1: y0 + hh - 1,
+                        },
+                        threshold,
+                    }
+                })
+                .collect();
+            for conn in [Connectivity::Four, Connectivity::Eight] {
+                let mut ex = Extractor::new(ExtractConfig {
+                    connectivity: conn,
+                    max_blobs: 1 << 20,
+                    ..Default::default()
+                });
+                let got = ours(ex.extract(img.view(), 100, &windows).unwrap());
+                let want = sorted(reference_blobs(&img, 100, conn, Some(&windows)));
+                assert_eq!(got, want, "trial {trial} {conn:?} windows {windows:?}");
             }
         }
     }

@@ -239,7 +239,12 @@ pub fn validate_par(par: f64) -> Result<f64, crate::VisionError> {
 /// returned direction points to that end. `None` when the skew is too small to trust
 /// (normalised skew `s / (M00·σ³)` below `min_skewness`), e.g. for symmetric blobs.
 /// `shape` is the blob's axis shape (`CentralMoments::axis_shape`, binary or weighted).
-pub fn directed_angle_deg(raw: &RawMoments, shape: &AxisShape, par: f64, min_skewness: f64) -> Option<f64> {
+pub fn directed_angle_deg(
+    raw: &RawMoments,
+    shape: &AxisShape,
+    par: f64,
+    min_skewness: f64,
+) -> Option<f64> {
     if raw.m00 < 3 {
         return None;
     }
@@ -465,7 +470,10 @@ mod tests {
         for y in 100..103u32 {
             m.add_run(100, 130, y);
         }
-        assert_eq!(directed_angle_deg(&m, &m.central().axis_shape(1.0), 1.0, 0.1), None);
+        assert_eq!(
+            directed_angle_deg(&m, &m.central().axis_shape(1.0), 1.0, 0.1),
+            None
+        );
     }
 
     #[test]
