@@ -704,8 +704,13 @@ impl Scratch {
                         let limit = if n == 64 { u64::MAX } else { (1u64 << n) - 1 };
                         let chunk = |y: u32| &img.row(y)[x0..x0 + 64];
                         let mut mask = 0;
+                        // Right after a row with runs the next row is likely busy too: test it
+                        // alone before skipping in fours.
+                        let mut skip_fours =
+                            prev_y != Some(y.wrapping_sub(1)) || self.prev.is_empty();
                         while y < y1 {
-                            if y + 4 <= y1
+                            if skip_fours
+                                && y + 4 <= y1
                                 && !P::any_foreground64x4(
                                     [chunk(y), chunk(y + 1), chunk(y + 2), chunk(y + 3)],
                                     seg.threshold,
@@ -718,6 +723,7 @@ impl Scratch {
                             if mask != 0 {
                                 break;
                             }
+                            skip_fours = true;
                             y += 1;
                         }
                         if y < y1 {

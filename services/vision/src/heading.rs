@@ -94,6 +94,10 @@ impl HeadingTracker {
         self.heading_deg
     }
 
+    pub fn config(&self) -> &HeadingConfig {
+        &self.cfg
+    }
+
     pub fn reset(&mut self) {
         self.heading_deg = None;
         self.omega_deg = 0.0;

@@ -49,6 +49,10 @@ fn sum2(k: u64) -> u64 {
 
 impl RawMoments {
     /// Adds the run of pixels `x = a..=b` on row `y` (a ≤ b) in closed form.
+    ///
+    /// Every per-run product fits `u64` for coordinates below 8192 (each is at most about
+    /// 2^53: Σx³ is formed as Σx · (S₁(b) + S₁(a−1)) rather than S₁(b)² − S₁(a−1)²), so only the
+    /// third-order accumulators are widened to `u128`.
     #[inline(always)]
     pub fn add_run(&mut self, a: u32, b: u32, y: u32) {
         let (a, b, y) = (a as u64, b as u64, y as u64);
@@ -59,9 +63,9 @@ impl RawMoments {
         } else {
             sum2(b) - sum2(a - 1)
         };
-        let t_hi = sum1(b) as u128;
-        let t_lo = if a == 0 { 0 } else { sum1(a - 1) as u128 };
-        let s3 = t_hi * t_hi - t_lo * t_lo; // Σx³ = (Σx)² over 0..=k
+        let t_lo = if a == 0 { 0 } else { sum1(a - 1) };
+        // Σx³ over a..=b = S₁(b)² − S₁(a−1)² = (S₁(b) − S₁(a−1))·(S₁(b) + S₁(a−1)) = Σx·(…).
+        let s3 = s1 * (sum1(b) + t_lo);
         let y2 = y * y;
         self.m00 += n;
         self.m10 += s1;
@@ -69,10 +73,10 @@ impl RawMoments {
         self.m20 += s2;
         self.m11 += s1 * y;
         self.m02 += n * y2;
-        self.m30 += s3;
-        self.m21 += s2 as u128 * y as u128;
-        self.m12 += s1 as u128 * y2 as u128;
-        self.m03 += n as u128 * y2 as u128 * y as u128;
+        self.m30 += s3 as u128;
+        self.m21 += (s2 * y) as u128;
+        self.m12 += (s1 * y2) as u128;
+        self.m03 += (n * y2 * y) as u128;
     }
 
     /// Adds one pixel (for tests and references).

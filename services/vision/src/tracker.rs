@@ -25,7 +25,7 @@
 use crate::assign::Assigner;
 use crate::error::VisionError;
 use crate::extract::{Blob, BlobFlags, ExtractConfig, ExtractStats, Extractor, Window};
-use crate::heading::{HeadingConfig, HeadingStatus, HeadingTracker, HeadingUpdate};
+use crate::heading::{HeadingConfig, HeadingTracker, HeadingUpdate};
 use crate::histogram::{Histogram, ThresholdMethod};
 use crate::image::{GrayView, Pixel, PixelRect};
 use crate::moments::{directed_angle_deg, validate_par};
@@ -368,15 +368,20 @@ impl Tracker {
 
 fn heading_of(ht: &mut HeadingTracker, b: &Blob, par: f64, min_skew: Option<f64>) -> HeadingUpdate {
     let shape = b.best_central().axis_shape(par);
-    let directed = min_skew.and_then(|s| directed_angle_deg(&b.moments, &shape, par, s));
-    let u = ht.update(shape.angle_deg, shape.roundness(), directed);
-    debug_assert!(u.status != HeadingStatus::Initial || ht.heading_deg().is_some());
-    u
+    let roundness = shape.roundness();
+    // A round blob's heading is held, so its direction is not worth the third moments.
+    let directed = if roundness > ht.config().max_roundness {
+        None
+    } else {
+        min_skew.and_then(|s| directed_angle_deg(&b.moments, &shape, par, s))
+    };
+    ht.update(shape.angle_deg, roundness, directed)
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::heading::HeadingStatus;
     use crate::image::GrayImage;
     use crate::raster::{Ellipse, draw_ellipse};
 
