@@ -1,0 +1,20 @@
+//! Stereoscope's geometry: the camera model, calibration and 3D recovery of the thesis
+//! "3D information recovery of multiple mobile objects" (chapters 2 and 4), corrected and
+//! extended to any number of calibrated cameras. Pure: no I/O.
+//!
+//! - [`transform`]: homogeneous transforms (Eq. 2.2–2.3), the camera placement of §2.3.1,
+//!   objects in camera coordinates (Eq. 2.13).
+//! - [`camera`]: the pinhole camera with distortion (Eq. 2.4–2.8).
+//! - [`depth`]: depth from blob area with one camera (Eq. 4.15–4.27).
+//! - [`triangulate`]: N-camera triangulation and the parallel rig (Eq. 4.28–4.38).
+//!
+//! Frames, units and conventions: `docs/geometry.md` and `docs/conventions.md`.
+
+pub mod camera;
+pub mod depth;
+pub mod error;
+pub mod transform;
+pub mod triangulate;
+
+pub use camera::{Camera, Distortion, Intrinsics};
+pub use error::GeometryError;
