@@ -28,15 +28,30 @@ pub struct Intrinsics {
 impl Intrinsics {
     /// Checks every value: focal lengths finite and positive, principal point finite, size
     /// non-zero.
-    pub fn new(fx: f64, fy: f64, cx: f64, cy: f64, width: u32, height: u32) -> Result<Self, GeometryError> {
+    pub fn new(
+        fx: f64,
+        fy: f64,
+        cx: f64,
+        cy: f64,
+        width: u32,
+        height: u32,
+    ) -> Result<Self, GeometryError> {
         for (field, v) in [("fx", fx), ("fy", fy)] {
             if !(v.is_finite() && v > 0.0) {
-                return Err(GeometryError::InvalidCamera { field, value: v, reason: "must be a finite number above zero" });
+                return Err(GeometryError::InvalidCamera {
+                    field,
+                    value: v,
+                    reason: "must be a finite number above zero",
+                });
             }
         }
         for (field, v) in [("cx", cx), ("cy", cy)] {
             if !v.is_finite() {
-                return Err(GeometryError::InvalidCamera { field, value: v, reason: "must be finite" });
+                return Err(GeometryError::InvalidCamera {
+                    field,
+                    value: v,
+                    reason: "must be finite",
+                });
             }
         }
         if width == 0 || height == 0 {
@@ -46,7 +61,14 @@ impl Intrinsics {
                 reason: "width and height must be at least 1",
             });
         }
-        Ok(Intrinsics { fx, fy, cx, cy, width, height })
+        Ok(Intrinsics {
+            fx,
+            fy,
+            cx,
+            cy,
+            width,
+            height,
+        })
     }
 
     /// Eq. 2.8: from the focal length and the pixel pitch (same length unit), principal point
@@ -59,13 +81,29 @@ impl Intrinsics {
         height: u32,
         principal_point: Option<(f64, f64)>,
     ) -> Result<Self, GeometryError> {
-        for (field, v) in [("focal_length", focal_length), ("pixel_width", pixel_width), ("pixel_height", pixel_height)] {
+        for (field, v) in [
+            ("focal_length", focal_length),
+            ("pixel_width", pixel_width),
+            ("pixel_height", pixel_height),
+        ] {
             if !(v.is_finite() && v > 0.0) {
-                return Err(GeometryError::InvalidCamera { field, value: v, reason: "must be a finite number above zero" });
+                return Err(GeometryError::InvalidCamera {
+                    field,
+                    value: v,
+                    reason: "must be a finite number above zero",
+                });
             }
         }
-        let (cx, cy) = principal_point.unwrap_or(((width as f64 - 1.0) / 2.0, (height as f64 - 1.0) / 2.0));
-        Self::new(focal_length / pixel_width, focal_length / pixel_height, cx, cy, width, height)
+        let (cx, cy) =
+            principal_point.unwrap_or(((width as f64 - 1.0) / 2.0, (height as f64 - 1.0) / 2.0));
+        Self::new(
+            focal_length / pixel_width,
+            focal_length / pixel_height,
+            cx,
+            cy,
+            width,
+            height,
+        )
     }
 
     /// Pixel aspect ratio, pixel width / pixel height = fy / fx.
@@ -79,7 +117,10 @@ impl Intrinsics {
     }
 
     pub fn to_pixel(&self, normalised: Vector2<f64>) -> Point2<f64> {
-        Point2::new(self.fx * normalised.x + self.cx, self.fy * normalised.y + self.cy)
+        Point2::new(
+            self.fx * normalised.x + self.cx,
+            self.fy * normalised.y + self.cy,
+        )
     }
 
     pub fn to_normalised(&self, pixel: Point2<f64>) -> Vector2<f64> {
@@ -103,9 +144,19 @@ impl Distortion {
     }
 
     pub fn validate(&self) -> Result<(), GeometryError> {
-        for (field, v) in [("k1", self.k1), ("k2", self.k2), ("k3", self.k3), ("p1", self.p1), ("p2", self.p2)] {
+        for (field, v) in [
+            ("k1", self.k1),
+            ("k2", self.k2),
+            ("k3", self.k3),
+            ("p1", self.p1),
+            ("p2", self.p2),
+        ] {
             if !v.is_finite() {
-                return Err(GeometryError::InvalidCamera { field, value: v, reason: "must be finite" });
+                return Err(GeometryError::InvalidCamera {
+                    field,
+                    value: v,
+                    reason: "must be finite",
+                });
             }
         }
         Ok(())
@@ -167,9 +218,17 @@ pub struct Camera {
 }
 
 impl Camera {
-    pub fn new(intrinsics: Intrinsics, distortion: Distortion, cam_from_world: Isometry3<f64>) -> Result<Self, GeometryError> {
+    pub fn new(
+        intrinsics: Intrinsics,
+        distortion: Distortion,
+        cam_from_world: Isometry3<f64>,
+    ) -> Result<Self, GeometryError> {
         distortion.validate()?;
-        Ok(Camera { intrinsics, distortion, cam_from_world })
+        Ok(Camera {
+            intrinsics,
+            distortion,
+            cam_from_world,
+        })
     }
 
     /// The optical centre in world coordinates.
@@ -194,7 +253,8 @@ impl Camera {
 
     /// The ideal (undistorted) normalised coordinate `(x/z, y/z)` of a pixel.
     pub fn normalised(&self, pixel: Point2<f64>) -> Option<Vector2<f64>> {
-        self.distortion.undistort(self.intrinsics.to_normalised(pixel))
+        self.distortion
+            .undistort(self.intrinsics.to_normalised(pixel))
     }
 
     /// Where the pixel would be without lens distortion.
@@ -213,7 +273,11 @@ impl Camera {
 
     /// The 3×4 projection matrix K·[R|t] of the undistorted camera.
     pub fn projection_matrix(&self) -> nalgebra::Matrix3x4<f64> {
-        let rt = self.cam_from_world.to_homogeneous().fixed_view::<3, 4>(0, 0).into_owned();
+        let rt = self
+            .cam_from_world
+            .to_homogeneous()
+            .fixed_view::<3, 4>(0, 0)
+            .into_owned();
         self.intrinsics.k() * rt
     }
 }
@@ -224,8 +288,14 @@ mod tests {
     use crate::transform::look_at;
 
     fn camera(dist: Distortion) -> Camera {
-        let intr = Intrinsics::from_focal_length(0.0125, 0.0000215, 0.000025, 320, 240, None).unwrap();
-        let world_from_cam = look_at(Point3::new(0.1, 0.0, 2.775), Point3::new(0.1, 0.0, 0.0), Vector3::y()).unwrap();
+        let intr =
+            Intrinsics::from_focal_length(0.0125, 0.0000215, 0.000025, 320, 240, None).unwrap();
+        let world_from_cam = look_at(
+            Point3::new(0.1, 0.0, 2.775),
+            Point3::new(0.1, 0.0, 0.0),
+            Vector3::y(),
+        )
+        .unwrap();
         Camera::new(intr, dist, world_from_cam.inverse()).unwrap()
     }
 
@@ -241,9 +311,20 @@ mod tests {
 
     #[test]
     fn project_and_back_project_round_trip_with_distortion() {
-        let dist = Distortion { k1: -0.21, k2: 0.08, k3: -0.01, p1: 0.0012, p2: -0.0007 };
+        let dist = Distortion {
+            k1: -0.21,
+            k2: 0.08,
+            k3: -0.01,
+            p1: 0.0012,
+            p2: -0.0007,
+        };
         let c = camera(dist);
-        for &(x, y, z) in &[(0.0, 0.0, 0.0), (0.4, 0.3, 0.1), (-0.5, 0.45, 0.6), (0.6, -0.5, 1.5)] {
+        for &(x, y, z) in &[
+            (0.0, 0.0, 0.0),
+            (0.4, 0.3, 0.1),
+            (-0.5, 0.45, 0.6),
+            (0.6, -0.5, 1.5),
+        ] {
             let p = Point3::new(x, y, z);
             let px = c.project(&p).unwrap();
             let (o, d) = c.ray_world(px).unwrap();
@@ -264,7 +345,13 @@ mod tests {
 
     #[test]
     fn jacobian_matches_finite_differences() {
-        let d = Distortion { k1: -0.3, k2: 0.1, k3: 0.02, p1: 0.003, p2: -0.002 };
+        let d = Distortion {
+            k1: -0.3,
+            k2: 0.1,
+            k3: 0.02,
+            p1: 0.003,
+            p2: -0.002,
+        };
         let p = Vector2::new(0.31, -0.22);
         let j = d.jacobian(p);
         let h = 1e-7;
@@ -282,10 +369,28 @@ mod tests {
         assert!(c.project(&Point3::new(0.1, 0.0, 3.0)).is_none());
         let e = Intrinsics::new(-5.0, 10.0, 1.0, 1.0, 10, 10).unwrap_err();
         assert!(e.to_string().contains("fx = -5"));
-        assert!(Intrinsics::new(5.0, f64::NAN, 1.0, 1.0, 10, 10).unwrap_err().to_string().contains("fy"));
+        assert!(
+            Intrinsics::new(5.0, f64::NAN, 1.0, 1.0, 10, 10)
+                .unwrap_err()
+                .to_string()
+                .contains("fy")
+        );
         assert!(Intrinsics::new(5.0, 5.0, 1.0, 1.0, 0, 10).is_err());
-        assert!(Intrinsics::from_focal_length(0.0, 1.0, 1.0, 10, 10, None).unwrap_err().to_string().contains("focal_length"));
-        let bad = Distortion { k1: f64::INFINITY, ..Default::default() };
-        assert!(Camera::new(c.intrinsics, bad, c.cam_from_world).unwrap_err().to_string().contains("k1"));
+        assert!(
+            Intrinsics::from_focal_length(0.0, 1.0, 1.0, 10, 10, None)
+                .unwrap_err()
+                .to_string()
+                .contains("focal_length")
+        );
+        let bad = Distortion {
+            k1: f64::INFINITY,
+            ..Default::default()
+        };
+        assert!(
+            Camera::new(c.intrinsics, bad, c.cam_from_world)
+                .unwrap_err()
+                .to_string()
+                .contains("k1")
+        );
     }
 }

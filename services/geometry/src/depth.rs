@@ -57,9 +57,15 @@ impl AreaModel {
     }
 
     /// The depth for an area, choosing the root inside `range` (module docs).
-    pub fn depth_from_area(&self, area: f64, range: (f64, f64)) -> Result<DepthEstimate, GeometryError> {
+    pub fn depth_from_area(
+        &self,
+        area: f64,
+        range: (f64, f64),
+    ) -> Result<DepthEstimate, GeometryError> {
         if !(area.is_finite() && area > 0.0) {
-            return Err(GeometryError::DepthModel(format!("area {area} must be a finite number above zero")));
+            return Err(GeometryError::DepthModel(format!(
+                "area {area} must be a finite number above zero"
+            )));
         }
         let (lo, hi) = (range.0.min(range.1), range.0.max(range.1));
         let margin = 0.1 * (hi - lo).max(f64::EPSILON);
@@ -67,7 +73,9 @@ impl AreaModel {
         let candidates: Vec<f64> = match *self {
             AreaModel::TwoParameter { a, b } => {
                 if a <= 0.0 {
-                    return Err(GeometryError::DepthModel(format!("two-parameter model has a = {a} ≤ 0")));
+                    return Err(GeometryError::DepthModel(format!(
+                        "two-parameter model has a = {a} ≤ 0"
+                    )));
                 }
                 vec![(a / area).sqrt() - b, -(a / area).sqrt() - b]
             }
@@ -76,7 +84,9 @@ impl AreaModel {
                 let k = c - a / area;
                 let disc = b * b - 4.0 * k;
                 if disc < 0.0 {
-                    return Err(GeometryError::DepthModel(format!("area {area} px has no depth under the model (discriminant {disc:.3e})")));
+                    return Err(GeometryError::DepthModel(format!(
+                        "area {area} px has no depth under the model (discriminant {disc:.3e})"
+                    )));
                 }
                 let s = disc.sqrt();
                 vec![(-b + s) / 2.0, (-b - s) / 2.0]
@@ -89,27 +99,49 @@ impl AreaModel {
             .filter(|d| d.is_finite())
             .min_by(|x, y| {
                 let key = |d: f64| (!inside(d), (d - mid).abs());
-                key(*x).partial_cmp(&key(*y)).unwrap_or(std::cmp::Ordering::Equal)
+                key(*x)
+                    .partial_cmp(&key(*y))
+                    .unwrap_or(std::cmp::Ordering::Equal)
             })
-            .ok_or_else(|| GeometryError::DepthModel(format!("area {area} px gives no finite depth")))?;
-        Ok(DepthEstimate { depth: best, in_range: inside(best) })
+            .ok_or_else(|| {
+                GeometryError::DepthModel(format!("area {area} px gives no finite depth"))
+            })?;
+        Ok(DepthEstimate {
+            depth: best,
+            in_range: inside(best),
+        })
     }
 }
 
-fn check_samples(samples: &[(f64, f64)], needed: usize, what: &str) -> Result<(f64, f64), GeometryError> {
+fn check_samples(
+    samples: &[(f64, f64)],
+    needed: usize,
+    what: &str,
+) -> Result<(f64, f64), GeometryError> {
     if samples.len() < needed {
-        return Err(GeometryError::TooFewPoints { what: what.into(), needed, got: samples.len() });
+        return Err(GeometryError::TooFewPoints {
+            what: what.into(),
+            needed,
+            got: samples.len(),
+        });
     }
     for (i, &(area, d)) in samples.iter().enumerate() {
         if !(area.is_finite() && area > 0.0) {
-            return Err(GeometryError::DepthModel(format!("sample {i}: area {area} must be a finite number above zero")));
+            return Err(GeometryError::DepthModel(format!(
+                "sample {i}: area {area} must be a finite number above zero"
+            )));
         }
         if !(d.is_finite() && d > 0.0) {
-            return Err(GeometryError::DepthModel(format!("sample {i}: distance {d} must be a finite number above zero")));
+            return Err(GeometryError::DepthModel(format!(
+                "sample {i}: distance {d} must be a finite number above zero"
+            )));
         }
     }
     let lo = samples.iter().map(|s| s.1).fold(f64::INFINITY, f64::min);
-    let hi = samples.iter().map(|s| s.1).fold(f64::NEG_INFINITY, f64::max);
+    let hi = samples
+        .iter()
+        .map(|s| s.1)
+        .fold(f64::NEG_INFINITY, f64::max);
     let distinct = {
         let mut ds: Vec<f64> = samples.iter().map(|s| s.1).collect();
         ds.sort_by(f64::total_cmp);
@@ -117,7 +149,9 @@ fn check_samples(samples: &[(f64, f64)], needed: usize, what: &str) -> Result<(f
         ds.len()
     };
     if distinct < needed {
-        return Err(GeometryError::DepthModel(format!("{what} needs {needed} different distances, the samples have {distinct}")));
+        return Err(GeometryError::DepthModel(format!(
+            "{what} needs {needed} different distances, the samples have {distinct}"
+        )));
     }
     Ok((lo, hi))
 }
@@ -131,13 +165,26 @@ pub fn exact_three_parameter(samples: [(f64, f64); 3]) -> Result<AreaModel, Geom
         [1.0, -a * d, -a][col]
     });
     let rhs = Vector3::from_fn(|r, _| samples[r].0 * samples[r].1 * samples[r].1);
-    let x = m.lu().solve(&rhs).ok_or_else(|| GeometryError::DepthModel("the three samples are degenerate (singular system)".into()))?;
-    Ok(AreaModel::ThreeParameter { a: x[0], b: x[1], c: x[2] })
+    let x = m.lu().solve(&rhs).ok_or_else(|| {
+        GeometryError::DepthModel("the three samples are degenerate (singular system)".into())
+    })?;
+    Ok(AreaModel::ThreeParameter {
+        a: x[0],
+        b: x[1],
+        c: x[2],
+    })
 }
 
 /// Depth residuals of a model over samples, or `None` if some area has no depth.
-fn depth_residuals(model: &AreaModel, samples: &[(f64, f64)], range: (f64, f64)) -> Option<Vec<f64>> {
-    samples.iter().map(|&(area, d)| model.depth_from_area(area, range).ok().map(|e| e.depth - d)).collect()
+fn depth_residuals(
+    model: &AreaModel,
+    samples: &[(f64, f64)],
+    range: (f64, f64),
+) -> Option<Vec<f64>> {
+    samples
+        .iter()
+        .map(|&(area, d)| model.depth_from_area(area, range).ok().map(|e| e.depth - d))
+        .collect()
 }
 
 fn params(m: &AreaModel) -> Vec<f64> {
@@ -150,7 +197,11 @@ fn params(m: &AreaModel) -> Vec<f64> {
 fn with_params(m: &AreaModel, p: &[f64]) -> AreaModel {
     match m {
         AreaModel::TwoParameter { .. } => AreaModel::TwoParameter { a: p[0], b: p[1] },
-        AreaModel::ThreeParameter { .. } => AreaModel::ThreeParameter { a: p[0], b: p[1], c: p[2] },
+        AreaModel::ThreeParameter { .. } => AreaModel::ThreeParameter {
+            a: p[0],
+            b: p[1],
+            c: p[2],
+        },
     }
 }
 
@@ -158,11 +209,18 @@ fn with_params(m: &AreaModel, p: &[f64]) -> AreaModel {
 fn refine(model: AreaModel, samples: &[(f64, f64)], range: (f64, f64)) -> AreaModel {
     let mut p = params(&model);
     let n = p.len();
-    let ssr = |p: &[f64]| depth_residuals(&with_params(&model, p), samples, range).map(|r| r.iter().map(|v| v * v).sum::<f64>());
-    let Some(mut cost) = ssr(&p) else { return model };
+    let ssr = |p: &[f64]| {
+        depth_residuals(&with_params(&model, p), samples, range)
+            .map(|r| r.iter().map(|v| v * v).sum::<f64>())
+    };
+    let Some(mut cost) = ssr(&p) else {
+        return model;
+    };
     let mut lambda = 1e-3;
     for _ in 0..100 {
-        let Some(r0) = depth_residuals(&with_params(&model, &p), samples, range) else { break };
+        let Some(r0) = depth_residuals(&with_params(&model, &p), samples, range) else {
+            break;
+        };
         let mut j = nalgebra::DMatrix::<f64>::zeros(samples.len(), n);
         let mut ok = true;
         for k in 0..n {
@@ -211,11 +269,21 @@ fn refine(model: AreaModel, samples: &[(f64, f64)], range: (f64, f64)) -> AreaMo
     with_params(&model, &p)
 }
 
-fn finish(model: AreaModel, samples: &[(f64, f64)], range: (f64, f64)) -> Result<DepthFit, GeometryError> {
-    let residuals = depth_residuals(&model, samples, range)
-        .ok_or_else(|| GeometryError::DepthModel("the fitted model gives no depth for some sample".into()))?;
+fn finish(
+    model: AreaModel,
+    samples: &[(f64, f64)],
+    range: (f64, f64),
+) -> Result<DepthFit, GeometryError> {
+    let residuals = depth_residuals(&model, samples, range).ok_or_else(|| {
+        GeometryError::DepthModel("the fitted model gives no depth for some sample".into())
+    })?;
     let rms = (residuals.iter().map(|r| r * r).sum::<f64>() / residuals.len() as f64).sqrt();
-    Ok(DepthFit { model, range, residuals, rms })
+    Ok(DepthFit {
+        model,
+        range,
+        residuals,
+        rms,
+    })
 }
 
 /// Least-squares fit of `AREA = a/(D + b)²` to `(area, depth)` samples (at least 2).
@@ -234,9 +302,14 @@ pub fn fit_two_parameter(samples: &[(f64, f64)]) -> Result<DepthFit, GeometryErr
     let slope = (n * sxy - sx * sy) / (n * sxx - sx * sx);
     let icept = (sy - slope * sx) / n;
     if !(slope.is_finite() && slope > 0.0) {
-        return Err(GeometryError::DepthModel(format!("area does not fall with distance (slope of 1/√area is {slope:.3e})")));
+        return Err(GeometryError::DepthModel(format!(
+            "area does not fall with distance (slope of 1/√area is {slope:.3e})"
+        )));
     }
-    let start = AreaModel::TwoParameter { a: 1.0 / (slope * slope), b: icept / slope };
+    let start = AreaModel::TwoParameter {
+        a: 1.0 / (slope * slope),
+        b: icept / slope,
+    };
     finish(refine(start, samples, range), samples, range)
 }
 
@@ -254,21 +327,32 @@ pub fn fit_three_parameter(samples: &[(f64, f64)]) -> Result<DepthFit, GeometryE
         m[(i, 2)] = -area * w;
         rhs[i] = 1.0;
     }
-    let x = m
-        .svd(true, true)
-        .solve(&rhs, 1e-12)
-        .map_err(|e| GeometryError::DepthModel(format!("three-parameter least squares failed: {e}")))?;
-    let start = AreaModel::ThreeParameter { a: x[0], b: x[1], c: x[2] };
+    let x = m.svd(true, true).solve(&rhs, 1e-12).map_err(|e| {
+        GeometryError::DepthModel(format!("three-parameter least squares failed: {e}"))
+    })?;
+    let start = AreaModel::ThreeParameter {
+        a: x[0],
+        b: x[1],
+        c: x[2],
+    };
     finish(refine(start, samples, range), samples, range)
 }
 
 /// The 3D point in world coordinates for a blob centroid at `pixel` whose depth along the
 /// camera's optical axis is `depth`: the centroid's ray scaled to that depth.
-pub fn point_from_depth(camera: &Camera, pixel: Point2<f64>, depth: f64) -> Result<Point3<f64>, GeometryError> {
+pub fn point_from_depth(
+    camera: &Camera,
+    pixel: Point2<f64>,
+    depth: f64,
+) -> Result<Point3<f64>, GeometryError> {
     if !(depth.is_finite() && depth > 0.0) {
-        return Err(GeometryError::DepthModel(format!("depth {depth} must be a finite number above zero")));
+        return Err(GeometryError::DepthModel(format!(
+            "depth {depth} must be a finite number above zero"
+        )));
     }
-    let n = camera.normalised(pixel).ok_or_else(|| GeometryError::Degenerate(format!("pixel {pixel:?} cannot be undistorted")))?;
+    let n = camera.normalised(pixel).ok_or_else(|| {
+        GeometryError::Degenerate(format!("pixel {pixel:?} cannot be undistorted"))
+    })?;
     let p_cam = Point3::new(n.x * depth, n.y * depth, depth);
     Ok(camera.cam_from_world.inverse() * p_cam)
 }
@@ -284,11 +368,23 @@ mod tests {
 
     #[test]
     fn exact_solve_recovers_three_parameters() {
-        let truth = AreaModel::ThreeParameter { a: 5.0e5, b: 12.0, c: -300.0 };
-        let s: Vec<(f64, f64)> = [80.0, 150.0, 260.0].iter().map(|&d| (truth.area_at(d), d)).collect();
+        let truth = AreaModel::ThreeParameter {
+            a: 5.0e5,
+            b: 12.0,
+            c: -300.0,
+        };
+        let s: Vec<(f64, f64)> = [80.0, 150.0, 260.0]
+            .iter()
+            .map(|&d| (truth.area_at(d), d))
+            .collect();
         let m = exact_three_parameter([s[0], s[1], s[2]]).unwrap();
-        let AreaModel::ThreeParameter { a, b, c } = m else { panic!() };
-        assert!((a - 5.0e5).abs() < 1e-3 && (b - 12.0).abs() < 1e-8 && (c + 300.0).abs() < 1e-6, "{m:?}");
+        let AreaModel::ThreeParameter { a, b, c } = m else {
+            panic!()
+        };
+        assert!(
+            (a - 5.0e5).abs() < 1e-3 && (b - 12.0).abs() < 1e-8 && (c + 300.0).abs() < 1e-6,
+            "{m:?}"
+        );
         for d in [90.0, 200.0, 250.0] {
             let e = m.depth_from_area(truth.area_at(d), (80.0, 260.0)).unwrap();
             assert!((e.depth - d).abs() < 1e-8 && e.in_range);
@@ -302,10 +398,18 @@ mod tests {
         let three = fit_three_parameter(&s).unwrap();
         let two = fit_two_parameter(&s).unwrap();
         assert!(three.rms < 1e-6, "three {}", three.rms);
-        assert!(two.rms > 10.0 * three.rms.max(1e-9), "two {} three {}", two.rms, three.rms);
+        assert!(
+            two.rms > 10.0 * three.rms.max(1e-9),
+            "two {} three {}",
+            two.rms,
+            three.rms
+        );
         // Noisy areas: both still close.
         let mut rng = stereoscope_vision::raster::SplitMix64::new(5);
-        let noisy: Vec<(f64, f64)> = s.iter().map(|&(a, d)| (a * (1.0 + 0.005 * rng.normal()), d)).collect();
+        let noisy: Vec<(f64, f64)> = s
+            .iter()
+            .map(|&(a, d)| (a * (1.0 + 0.005 * rng.normal()), d))
+            .collect();
         let fit = fit_three_parameter(&noisy).unwrap();
         // 0.5 % area noise is 0.25 % of depth: about 0.5 at these distances.
         assert!(fit.rms < 1.0, "{}", fit.rms);
@@ -314,7 +418,11 @@ mod tests {
 
     #[test]
     fn root_inside_the_range_and_outliers_flagged() {
-        let m = AreaModel::ThreeParameter { a: 1.0e6, b: 0.0, c: -4.0 };
+        let m = AreaModel::ThreeParameter {
+            a: 1.0e6,
+            b: 0.0,
+            c: -4.0,
+        };
         let e = m.depth_from_area(m.area_at(150.0), (100.0, 200.0)).unwrap();
         assert!((e.depth - 150.0).abs() < 1e-9 && e.in_range);
         // Far outside the calibrated range: answered but flagged (the thesis clamped).
@@ -323,24 +431,58 @@ mod tests {
         assert!(m.depth_from_area(0.0, (100.0, 200.0)).is_err());
         assert!(m.depth_from_area(f64::NAN, (100.0, 200.0)).is_err());
         let two = AreaModel::TwoParameter { a: 4.0e6, b: 3.0 };
-        let e = two.depth_from_area(two.area_at(120.0), (100.0, 200.0)).unwrap();
+        let e = two
+            .depth_from_area(two.area_at(120.0), (100.0, 200.0))
+            .unwrap();
         assert!((e.depth - 120.0).abs() < 1e-9);
     }
 
     #[test]
     fn degenerate_samples_are_named() {
-        assert!(matches!(fit_three_parameter(&[(1.0, 2.0), (2.0, 3.0)]), Err(GeometryError::TooFewPoints { needed: 3, got: 2, .. })));
-        assert!(fit_two_parameter(&[(1.0, 2.0), (-2.0, 3.0)]).unwrap_err().to_string().contains("sample 1: area -2"));
-        assert!(fit_two_parameter(&[(1.0, 2.0), (2.0, f64::NAN)]).unwrap_err().to_string().contains("distance NaN"));
-        assert!(fit_three_parameter(&[(1.0, 2.0), (2.0, 2.0), (3.0, 2.0)]).unwrap_err().to_string().contains("different distances"));
-        assert!(fit_two_parameter(&[(1.0, 2.0), (2.0, 3.0)]).unwrap_err().to_string().contains("does not fall"));
+        assert!(matches!(
+            fit_three_parameter(&[(1.0, 2.0), (2.0, 3.0)]),
+            Err(GeometryError::TooFewPoints {
+                needed: 3,
+                got: 2,
+                ..
+            })
+        ));
+        assert!(
+            fit_two_parameter(&[(1.0, 2.0), (-2.0, 3.0)])
+                .unwrap_err()
+                .to_string()
+                .contains("sample 1: area -2")
+        );
+        assert!(
+            fit_two_parameter(&[(1.0, 2.0), (2.0, f64::NAN)])
+                .unwrap_err()
+                .to_string()
+                .contains("distance NaN")
+        );
+        assert!(
+            fit_three_parameter(&[(1.0, 2.0), (2.0, 2.0), (3.0, 2.0)])
+                .unwrap_err()
+                .to_string()
+                .contains("different distances")
+        );
+        assert!(
+            fit_two_parameter(&[(1.0, 2.0), (2.0, 3.0)])
+                .unwrap_err()
+                .to_string()
+                .contains("does not fall")
+        );
     }
 
     #[test]
     fn point_from_depth_lies_on_the_centroid_ray() {
         use crate::camera::{Distortion, Intrinsics};
         let intr = Intrinsics::new(600.0, 520.0, 160.0, 120.0, 320, 240).unwrap();
-        let w = crate::transform::look_at(Point3::new(0.0, 0.0, 2.0), Point3::origin(), nalgebra::Vector3::y()).unwrap();
+        let w = crate::transform::look_at(
+            Point3::new(0.0, 0.0, 2.0),
+            Point3::origin(),
+            nalgebra::Vector3::y(),
+        )
+        .unwrap();
         let cam = Camera::new(intr, Distortion::default(), w.inverse()).unwrap();
         let truth = Point3::new(0.3, -0.2, 0.1);
         let px = cam.project(&truth).unwrap();

@@ -5,14 +5,18 @@
 //! - [`transform`]: homogeneous transforms (Eq. 2.2–2.3), the camera placement of §2.3.1,
 //!   objects in camera coordinates (Eq. 2.13).
 //! - [`camera`]: the pinhole camera with distortion (Eq. 2.4–2.8).
+//! - [`calibrate`]: calibration of one camera or a rig from target correspondences (§2.2.3).
+//! - [`lm`]: Levenberg–Marquardt for calibration-shaped problems.
 //! - [`depth`]: depth from blob area with one camera (Eq. 4.15–4.27).
 //! - [`triangulate`]: N-camera triangulation and the parallel rig (Eq. 4.28–4.38).
 //!
 //! Frames, units and conventions: `docs/geometry.md` and `docs/conventions.md`.
 
+pub mod calibrate;
 pub mod camera;
 pub mod depth;
 pub mod error;
+pub mod lm;
 pub mod transform;
 pub mod triangulate;
 
