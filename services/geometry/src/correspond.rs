@@ -30,7 +30,10 @@ pub struct CorrespondConfig {
 
 impl Default for CorrespondConfig {
     fn default() -> Self {
-        CorrespondConfig { max_epipolar_px: 3.0, max_residual_px: 2.0 }
+        CorrespondConfig {
+            max_epipolar_px: 3.0,
+            max_residual_px: 2.0,
+        }
     }
 }
 
@@ -53,7 +56,13 @@ pub fn essential(a: &Camera, b: &Camera) -> Matrix3<f64> {
 
 /// Distance in pixels of `x_b` from the epipolar line of `x_a`, and of `x_a` from the line of
 /// `x_b`, averaged (normalised coordinates in, scaled by each camera's mean focal length).
-fn symmetric_epipolar_px(e: &Matrix3<f64>, xa: Vector2<f64>, fa: f64, xb: Vector2<f64>, fb: f64) -> f64 {
+fn symmetric_epipolar_px(
+    e: &Matrix3<f64>,
+    xa: Vector2<f64>,
+    fa: f64,
+    xb: Vector2<f64>,
+    fb: f64,
+) -> f64 {
     let (ha, hb) = (Vector3::new(xa.x, xa.y, 1.0), Vector3::new(xb.x, xb.y, 1.0));
     let lb = e * ha; // line in b
     let la = e.transpose() * hb; // line in a
@@ -76,7 +85,9 @@ fn extend(
     let n = used.len();
     for c in 0..n {
         let free: Vec<usize> = (0..pixels[c].len()).filter(|&j| !used[c][j]).collect();
-        let open: Vec<usize> = (0..out.len()).filter(|&m| !out[m].blobs.iter().any(|b| b.0 == c)).collect();
+        let open: Vec<usize> = (0..out.len())
+            .filter(|&m| !out[m].blobs.iter().any(|b| b.0 == c))
+            .collect();
         if free.is_empty() || open.is_empty() {
             continue;
         }
@@ -85,15 +96,29 @@ fn extend(
             let proj = cams[c].project(&out[m].point.point_world);
             for &j in &free {
                 let d = proj.map_or(f64::INFINITY, |p| (p - pixels[c][j]).norm());
-                cost.push(if d <= cfg.max_residual_px * 2.0 { d } else { f64::INFINITY });
+                cost.push(if d <= cfg.max_residual_px * 2.0 {
+                    d
+                } else {
+                    f64::INFINITY
+                });
             }
         }
-        let pairs: Vec<(usize, usize)> =
-            assigner.solve(&cost, open.len(), free.len()).iter().enumerate().filter_map(|(r, k)| k.map(|k| (open[r], free[k]))).collect();
+        let pairs: Vec<(usize, usize)> = assigner
+            .solve(&cost, open.len(), free.len())
+            .iter()
+            .enumerate()
+            .filter_map(|(r, k)| k.map(|k| (open[r], free[k])))
+            .collect();
         for (m, j) in pairs {
             let mut blobs = out[m].blobs.clone();
             blobs.push((c, j));
-            let obs: Vec<Observation> = blobs.iter().map(|&(cc, jj)| Observation { camera: cc, pixel: pixels[cc][jj] }).collect();
+            let obs: Vec<Observation> = blobs
+                .iter()
+                .map(|&(cc, jj)| Observation {
+                    camera: cc,
+                    pixel: pixels[cc][jj],
+                })
+                .collect();
             if let Ok(t) = triangulate(cams, &obs)
                 && t.rms_px <= cfg.max_residual_px
             {
@@ -105,9 +130,15 @@ fn extend(
 }
 
 /// Matches the blobs (`pixels[camera][blob]`) of several cameras into 3D points.
-pub fn match_blobs(cams: &[Camera], pixels: &[Vec<Point2<f64>>], cfg: &CorrespondConfig) -> Vec<Match> {
+pub fn match_blobs(
+    cams: &[Camera],
+    pixels: &[Vec<Point2<f64>>],
+    cfg: &CorrespondConfig,
+) -> Vec<Match> {
     let n = cams.len().min(pixels.len());
-    let norm: Vec<Vec<Option<Vector2<f64>>>> = (0..n).map(|c| pixels[c].iter().map(|p| cams[c].normalised(*p)).collect()).collect();
+    let norm: Vec<Vec<Option<Vector2<f64>>>> = (0..n)
+        .map(|c| pixels[c].iter().map(|p| cams[c].normalised(*p)).collect())
+        .collect();
     let focal = |c: usize| 0.5 * (cams[c].intrinsics.fx + cams[c].intrinsics.fy);
     let mut used: Vec<Vec<bool>> = (0..n).map(|c| vec![false; pixels[c].len()]).collect();
     let mut out: Vec<Match> = Vec::new();
@@ -117,8 +148,12 @@ pub fn match_blobs(cams: &[Camera], pixels: &[Vec<Point2<f64>>], cfg: &Correspon
         for b in a + 1..n {
             let e = essential(&cams[a], &cams[b]);
             let (ia, ib): (Vec<usize>, Vec<usize>) = (
-                (0..pixels[a].len()).filter(|&i| !used[a][i] && norm[a][i].is_some()).collect(),
-                (0..pixels[b].len()).filter(|&j| !used[b][j] && norm[b][j].is_some()).collect(),
+                (0..pixels[a].len())
+                    .filter(|&i| !used[a][i] && norm[a][i].is_some())
+                    .collect(),
+                (0..pixels[b].len())
+                    .filter(|&j| !used[b][j] && norm[b][j].is_some())
+                    .collect(),
             );
             if ia.is_empty() || ib.is_empty() {
                 continue;
@@ -131,7 +166,11 @@ pub fn match_blobs(cams: &[Camera], pixels: &[Vec<Point2<f64>>], cfg: &Correspon
                         continue;
                     };
                     let d = symmetric_epipolar_px(&e, xa, focal(a), xb, focal(b));
-                    cost.push(if d <= cfg.max_epipolar_px { d } else { f64::INFINITY });
+                    cost.push(if d <= cfg.max_epipolar_px {
+                        d
+                    } else {
+                        f64::INFINITY
+                    });
                 }
             }
             let pairs: Vec<(usize, usize)> = assigner
@@ -141,18 +180,40 @@ pub fn match_blobs(cams: &[Camera], pixels: &[Vec<Point2<f64>>], cfg: &Correspon
                 .filter_map(|(r, c)| c.map(|c| (ia[r], ib[c])))
                 .collect();
             for (i, j) in pairs {
-                let obs = [Observation { camera: a, pixel: pixels[a][i] }, Observation { camera: b, pixel: pixels[b][j] }];
-                let Ok(t) = triangulate(cams, &obs) else { continue };
+                let obs = [
+                    Observation {
+                        camera: a,
+                        pixel: pixels[a][i],
+                    },
+                    Observation {
+                        camera: b,
+                        pixel: pixels[b][j],
+                    },
+                ];
+                let Ok(t) = triangulate(cams, &obs) else {
+                    continue;
+                };
                 if t.rms_px > cfg.max_residual_px {
                     continue;
                 }
                 used[a][i] = true;
                 used[b][j] = true;
-                out.push(Match { blobs: vec![(a, i), (b, j)], point: t });
+                out.push(Match {
+                    blobs: vec![(a, i), (b, j)],
+                    point: t,
+                });
             }
             // Other cameras' free blobs join these points before they can pair among
             // themselves into duplicates.
-            extend(cams, pixels, cfg, &mut used, &mut out, &mut assigner, &mut cost);
+            extend(
+                cams,
+                pixels,
+                cfg,
+                &mut used,
+                &mut out,
+                &mut assigner,
+                &mut cost,
+            );
         }
     }
     for m in &mut out {
@@ -173,8 +234,21 @@ mod tests {
         (0..4)
             .map(|i| {
                 let a = i as f64 * 1.3;
-                let w = look_at(Point3::new(2.5 * a.cos(), 2.5 * a.sin(), 2.0), Point3::new(0.0, 0.0, 0.3), Vector3::z()).unwrap();
-                Camera::new(Intrinsics::new(700.0, 700.0, 320.0, 240.0, 640, 480).unwrap(), Distortion { k1: -0.05, ..Default::default() }, w.inverse()).unwrap()
+                let w = look_at(
+                    Point3::new(2.5 * a.cos(), 2.5 * a.sin(), 2.0),
+                    Point3::new(0.0, 0.0, 0.3),
+                    Vector3::z(),
+                )
+                .unwrap();
+                Camera::new(
+                    Intrinsics::new(700.0, 700.0, 320.0, 240.0, 640, 480).unwrap(),
+                    Distortion {
+                        k1: -0.05,
+                        ..Default::default()
+                    },
+                    w.inverse(),
+                )
+                .unwrap()
             })
             .collect()
     }
@@ -182,14 +256,27 @@ mod tests {
     fn parallel_rig() -> Vec<Camera> {
         let intr = Intrinsics::new(581.0, 500.0, 159.5, 119.5, 320, 240).unwrap();
         // Looking straight down from 2.775 m; camera 1 20 cm along x and 2.5 cm higher.
-        let down = |x: f64, z: f64| look_at(Point3::new(x, 0.0, z), Point3::new(x, 0.0, 0.0), Vector3::y()).unwrap().inverse();
+        let down = |x: f64, z: f64| {
+            look_at(
+                Point3::new(x, 0.0, z),
+                Point3::new(x, 0.0, 0.0),
+                Vector3::y(),
+            )
+            .unwrap()
+            .inverse()
+        };
         vec![
             Camera::new(intr, Distortion::default(), down(0.0, 2.775)).unwrap(),
             Camera::new(intr, Distortion::default(), down(0.2, 2.8)).unwrap(),
         ]
     }
 
-    fn scene(cams: &[Camera], points: &[Point3<f64>], noise: f64, seed: u64) -> (Vec<Vec<Point2<f64>>>, Vec<Vec<usize>>) {
+    fn scene(
+        cams: &[Camera],
+        points: &[Point3<f64>],
+        noise: f64,
+        seed: u64,
+    ) -> (Vec<Vec<Point2<f64>>>, Vec<Vec<usize>>) {
         let mut rng = SplitMix64::new(seed);
         let mut pixels = Vec::new();
         let mut truth = Vec::new();
@@ -219,7 +306,10 @@ mod tests {
         for m in &matches {
             // Every blob of a match is the same true point.
             let ids: Vec<usize> = m.blobs.iter().map(|&(c, j)| order[c][j]).collect();
-            assert!(ids.windows(2).all(|w| w[0] == w[1]), "seed {seed}: mixed {ids:?}");
+            assert!(
+                ids.windows(2).all(|w| w[0] == w[1]),
+                "seed {seed}: mixed {ids:?}"
+            );
             assert!((m.point.point_world - points[ids[0]]).norm() < 0.02);
             if all_cams {
                 assert_eq!(m.blobs.len(), cams.len());
@@ -232,7 +322,15 @@ mod tests {
         let cams = general_rig();
         let mut rng = SplitMix64::new(9);
         for seed in 0..10 {
-            let points: Vec<Point3<f64>> = (0..6).map(|_| Point3::new(rng.range(-0.6, 0.6), rng.range(-0.6, 0.6), rng.range(0.0, 0.8))).collect();
+            let points: Vec<Point3<f64>> = (0..6)
+                .map(|_| {
+                    Point3::new(
+                        rng.range(-0.6, 0.6),
+                        rng.range(-0.6, 0.6),
+                        rng.range(0.0, 0.8),
+                    )
+                })
+                .collect();
             check(&cams, &points, seed, 0.2, true);
         }
     }
@@ -241,7 +339,11 @@ mod tests {
     fn several_objects_in_the_parallel_rig() {
         let cams = parallel_rig();
         // Three targets on different rows (on one image row the parallel rig is ambiguous).
-        let points = [Point3::new(0.1, 0.3, 0.5), Point3::new(-0.2, -0.1, 0.2), Point3::new(0.3, 0.05, 1.0)];
+        let points = [
+            Point3::new(0.1, 0.3, 0.5),
+            Point3::new(-0.2, -0.1, 0.2),
+            Point3::new(0.3, 0.05, 1.0),
+        ];
         // 0.05 px: with a 20 cm baseline at 2.7 m, 0.2 px of disparity noise is 2 cm of depth.
         check(&cams, &points, 1, 0.05, true);
     }

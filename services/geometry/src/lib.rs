@@ -10,6 +10,7 @@
 //! - [`depth`]: depth from blob area with one camera (Eq. 4.15–4.27).
 //! - [`triangulate`]: N-camera triangulation and the parallel rig (Eq. 4.28–4.38).
 //! - [`correspond`]: which blob is which across cameras (epipolar + global assignment).
+//! - [`rig`]: rig files checked and turned into cameras (`docs/rig.md`).
 //! - [`world_heading`]: heading in the world from blob axes (§4.1.1, generalised).
 //!
 //! Frames, units and conventions: `docs/geometry.md` and `docs/conventions.md`.
@@ -20,6 +21,7 @@ pub mod correspond;
 pub mod depth;
 pub mod error;
 pub mod lm;
+pub mod rig;
 pub mod transform;
 pub mod triangulate;
 pub mod world_heading;

@@ -22,7 +22,12 @@ pub fn axis_pixel_direction(angle_deg: f64, par: f64) -> Vector2<f64> {
 
 /// The world heading, in [0, 360), of the direction `axis_px` (pixels) from `centroid_px`, for
 /// an object at `point_world`. `None` when the view is edge-on to the horizontal plane.
-pub fn world_direction_deg(camera: &Camera, centroid_px: Point2<f64>, axis_px: Vector2<f64>, point_world: &Point3<f64>) -> Option<f64> {
+pub fn world_direction_deg(
+    camera: &Camera,
+    centroid_px: Point2<f64>,
+    axis_px: Vector2<f64>,
+    point_world: &Point3<f64>,
+) -> Option<f64> {
     let cut = |px: Point2<f64>| -> Option<Point3<f64>> {
         let (o, d) = camera.ray_world(px)?;
         if d.z.abs() < 1e-9 {
@@ -32,7 +37,10 @@ pub fn world_direction_deg(camera: &Camera, centroid_px: Point2<f64>, axis_px: V
         (t > 0.0).then(|| o + d.into_inner() * t)
     };
     let step = 5.0;
-    let (a, b) = (cut(centroid_px - axis_px * step)?, cut(centroid_px + axis_px * step)?);
+    let (a, b) = (
+        cut(centroid_px - axis_px * step)?,
+        cut(centroid_px + axis_px * step)?,
+    );
     let v = b - a;
     if v.xy().norm() < 1e-12 {
         return None;
@@ -65,7 +73,11 @@ pub struct WorldHeading {
 }
 
 /// Fuses the views of one object at `point_world` (module docs).
-pub fn fuse(cams: &[Camera], views: &[AxisView], point_world: &Point3<f64>) -> Option<WorldHeading> {
+pub fn fuse(
+    cams: &[Camera],
+    views: &[AxisView],
+    point_world: &Point3<f64>,
+) -> Option<WorldHeading> {
     let mut per_view = Vec::new();
     for v in views {
         if !(v.weight > 0.0) || v.camera >= cams.len() {
@@ -91,10 +103,17 @@ pub fn fuse(cams: &[Camera], views: &[AxisView], point_world: &Point3<f64>) -> O
         }
         let r = (s * s + c * c).sqrt() / w;
         let spread = (-2.0 * r.max(1e-300).ln()).sqrt().to_degrees() / factor;
-        ((s.atan2(c).to_degrees() / factor).rem_euclid(360.0 / factor), spread)
+        (
+            (s.atan2(c).to_degrees() / factor).rem_euclid(360.0 / factor),
+            spread,
+        )
     };
     let (heading_deg, spread_deg) = if directed {
-        let dir_views: Vec<(f64, f64)> = per_view.iter().filter(|v| v.1).map(|v| (v.0, v.2)).collect();
+        let dir_views: Vec<(f64, f64)> = per_view
+            .iter()
+            .filter(|v| v.1)
+            .map(|v| (v.0, v.2))
+            .collect();
         let (ref_dir, _) = mean(&dir_views, 1.0);
         // Axis views take the half turn nearest the directed mean.
         let all: Vec<(f64, f64)> = per_view
@@ -113,7 +132,12 @@ pub fn fuse(cams: &[Camera], views: &[AxisView], point_world: &Point3<f64>) -> O
         let axes: Vec<(f64, f64)> = per_view.iter().map(|v| (v.0, v.2)).collect();
         mean(&axes, 2.0)
     };
-    Some(WorldHeading { heading_deg, directed, spread_deg, views_used: per_view.len() })
+    Some(WorldHeading {
+        heading_deg,
+        directed,
+        spread_deg,
+        views_used: per_view.len(),
+    })
 }
 
 #[cfg(test)]
@@ -125,11 +149,29 @@ mod tests {
 
     fn cams() -> Vec<Camera> {
         let intr = Intrinsics::new(581.0, 500.0, 159.5, 119.5, 320, 240).unwrap(); // PAR 0.86
-        let down = look_at(Point3::new(0.0, 0.0, 2.775), Point3::new(0.0, 0.0, 0.0), Vector3::y()).unwrap();
-        let oblique = look_at(Point3::new(1.5, -1.0, 2.0), Point3::new(0.0, 0.0, 0.0), Vector3::z()).unwrap();
+        let down = look_at(
+            Point3::new(0.0, 0.0, 2.775),
+            Point3::new(0.0, 0.0, 0.0),
+            Vector3::y(),
+        )
+        .unwrap();
+        let oblique = look_at(
+            Point3::new(1.5, -1.0, 2.0),
+            Point3::new(0.0, 0.0, 0.0),
+            Vector3::z(),
+        )
+        .unwrap();
         vec![
             Camera::new(intr, Distortion::default(), down.inverse()).unwrap(),
-            Camera::new(intr, Distortion { k1: -0.1, ..Default::default() }, oblique.inverse()).unwrap(),
+            Camera::new(
+                intr,
+                Distortion {
+                    k1: -0.1,
+                    ..Default::default()
+                },
+                oblique.inverse(),
+            )
+            .unwrap(),
         ]
     }
 
@@ -138,7 +180,10 @@ mod tests {
     fn image_view(cam: &Camera, p: &Point3<f64>, heading_deg: f64) -> (Point2<f64>, f64) {
         let h = heading_deg.to_radians();
         let d = Vector3::new(h.cos(), h.sin(), 0.0) * 0.01;
-        let (a, b) = (cam.project(&(p - d)).unwrap(), cam.project(&(p + d)).unwrap());
+        let (a, b) = (
+            cam.project(&(p - d)).unwrap(),
+            cam.project(&(p + d)).unwrap(),
+        );
         let par = cam.intrinsics.par();
         let angle = (-(b.y - a.y)).atan2((b.x - a.x) * par).to_degrees();
         (cam.project(p).unwrap(), angle)
@@ -151,10 +196,19 @@ mod tests {
         for heading in [0.0, 17.0, 45.0, 90.0, 133.0, 200.0, 300.0] {
             for (ci, cam) in cams.iter().enumerate() {
                 let (c, angle) = image_view(cam, &p, heading);
-                let got = world_direction_deg(cam, c, axis_pixel_direction(angle, cam.intrinsics.par()), &p).unwrap();
+                let got = world_direction_deg(
+                    cam,
+                    c,
+                    axis_pixel_direction(angle, cam.intrinsics.par()),
+                    &p,
+                )
+                .unwrap();
                 let diff = ((got - heading) % 360.0 + 360.0) % 360.0;
                 // The oblique camera has distortion: a straight edge images slightly curved.
-                assert!(diff < 1e-3 || (diff - 360.0).abs() < 1e-3, "camera {ci} heading {heading}: {got}");
+                assert!(
+                    diff < 1e-3 || (diff - 360.0).abs() < 1e-3,
+                    "camera {ci} heading {heading}: {got}"
+                );
             }
         }
     }
@@ -170,16 +224,37 @@ mod tests {
             .map(|(i, cam)| {
                 let (c, angle) = image_view(cam, &p, heading);
                 // As moments give it: an axis in (−90, 90].
-                let axis = if angle > 90.0 { angle - 180.0 } else if angle <= -90.0 { angle + 180.0 } else { angle };
-                AxisView { camera: i, centroid_px: c, angle_deg: axis, directed: false, weight: 1.0 }
+                let axis = if angle > 90.0 {
+                    angle - 180.0
+                } else if angle <= -90.0 {
+                    angle + 180.0
+                } else {
+                    angle
+                };
+                AxisView {
+                    camera: i,
+                    centroid_px: c,
+                    angle_deg: axis,
+                    directed: false,
+                    weight: 1.0,
+                }
             })
             .collect();
         let f = fuse(&cams, &views, &p).unwrap();
-        assert!(!f.directed && (f.heading_deg - 70.0).abs() < 1e-3 && f.spread_deg < 1e-3, "{f:?}");
+        assert!(
+            !f.directed && (f.heading_deg - 70.0).abs() < 1e-3 && f.spread_deg < 1e-3,
+            "{f:?}"
+        );
         // One camera knows the direction: the fused heading takes the right half turn.
         let mut v2 = views.clone();
         let (c, angle) = image_view(&cams[1], &p, heading);
-        v2[1] = AxisView { camera: 1, centroid_px: c, angle_deg: angle.rem_euclid(360.0), directed: true, weight: 1.0 };
+        v2[1] = AxisView {
+            camera: 1,
+            centroid_px: c,
+            angle_deg: angle.rem_euclid(360.0),
+            directed: true,
+            weight: 1.0,
+        };
         let f = fuse(&cams, &v2, &p).unwrap();
         assert!(f.directed && (f.heading_deg - 250.0).abs() < 1e-3, "{f:?}");
         assert_eq!(fuse(&cams, &[], &p), None);
