@@ -6,6 +6,7 @@
 //!   objects in camera coordinates (Eq. 2.13).
 //! - [`camera`]: the pinhole camera with distortion (Eq. 2.4–2.8).
 //! - [`calibrate`]: calibration of one camera or a rig from target correspondences (§2.2.3).
+//! - [`dotgrid`]: a dot-grid target, rendered and detected with the moment engine.
 //! - [`lm`]: Levenberg–Marquardt for calibration-shaped problems.
 //! - [`depth`]: depth from blob area with one camera (Eq. 4.15–4.27).
 //! - [`triangulate`]: N-camera triangulation and the parallel rig (Eq. 4.28–4.38).
@@ -19,6 +20,7 @@ pub mod calibrate;
 pub mod camera;
 pub mod correspond;
 pub mod depth;
+pub mod dotgrid;
 pub mod error;
 pub mod lm;
 pub mod rig;
