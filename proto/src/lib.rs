@@ -5,4 +5,5 @@
 //! the serial packet codec join this crate as they are built.
 
 pub mod blobs;
+pub mod reports;
 pub mod rig;

@@ -368,9 +368,12 @@ fn shape_of(points: &[Point3<f64>], view: usize) -> Result<Shape, GeometryError>
     }
 }
 
+/// One view's target points and their pixels.
+type ViewPoints = (Vec<Point3<f64>>, Vec<Point2<f64>>);
+
 /// Intrinsics and per-view `cam_from_target` from linear estimates, for one camera.
 fn initial_camera(
-    views: &[(Vec<Point3<f64>>, Vec<Point2<f64>>)],
+    views: &[ViewPoints],
     camera: usize,
 ) -> Result<(Matrix3<f64>, Vec<Isometry3<f64>>), GeometryError> {
     let mut shapes = Vec::with_capacity(views.len());
@@ -628,7 +631,7 @@ pub fn calibrate_rig(
         let seen: Vec<usize> = (0..views.len())
             .filter(|&v| views[v].observations.iter().any(|o| o.0 == c))
             .collect();
-        let data: Vec<(Vec<Point3<f64>>, Vec<Point2<f64>>)> = seen
+        let data: Vec<ViewPoints> = seen
             .iter()
             .map(|&v| {
                 let obs: Vec<&(usize, usize, Point2<f64>)> =
@@ -839,7 +842,9 @@ mod tests {
                 target
                     .iter()
                     .filter_map(|p| {
-                        let px = c.project(p)?;
+                        let px = c
+                            .project(p)
+                            .filter(|q| q.x >= 0.0 && q.y >= 0.0 && q.x <= 639.0 && q.y <= 479.0)?;
                         Some((
                             *p,
                             Point2::new(

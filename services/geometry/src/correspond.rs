@@ -104,7 +104,7 @@ fn extend(
             }
         }
         let pairs: Vec<(usize, usize)> = assigner
-            .solve(&cost, open.len(), free.len())
+            .solve(cost, open.len(), free.len())
             .iter()
             .enumerate()
             .filter_map(|(r, k)| k.map(|k| (open[r], free[k])))

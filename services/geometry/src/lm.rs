@@ -123,12 +123,11 @@ fn linearise<P: BlockProblem>(p: &P, g: &[f64], views: &[Vec<f64>]) -> Option<Li
     })
 }
 
-/// Solves the damped normal equations by the Schur complement. Returns the global step, the
-/// view steps and the inverse of the reduced global matrix.
-fn solve_damped(
-    l: &Linearised,
-    lambda: f64,
-) -> Option<(DVector<f64>, Vec<DVector<f64>>, DMatrix<f64>)> {
+/// A damped step: global step, view steps, inverse of the reduced global matrix.
+type Step = (DVector<f64>, Vec<DVector<f64>>, DMatrix<f64>);
+
+/// Solves the damped normal equations by the Schur complement.
+fn solve_damped(l: &Linearised, lambda: f64) -> Option<Step> {
     let damp = |m: &DMatrix<f64>| {
         let mut d = m.clone();
         for k in 0..d.nrows() {

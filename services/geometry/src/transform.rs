@@ -81,7 +81,7 @@ pub fn look_at(
 ) -> Result<Isometry3<f64>, GeometryError> {
     let forward = target - position;
     let dist = forward.norm();
-    if !(dist.is_finite() && dist > 0.0) || !up.iter().all(|v| v.is_finite()) {
+    if !(dist.is_finite() && dist > 0.0 && up.iter().all(|v| v.is_finite())) {
         return Err(GeometryError::DegenerateLookAt {
             reason: "the camera position equals the target (or is not finite)",
         });

@@ -2,4 +2,8 @@
 //! `main.rs` only parses arguments and calls these.
 
 pub mod blobs;
+pub mod calibrate;
+pub mod csvin;
 pub mod example;
+pub mod fitdepth;
+pub mod triangulate;

@@ -4,6 +4,10 @@ use clap::{Parser, Subcommand};
 use std::path::PathBuf;
 use std::process::ExitCode;
 use stereoscope::blobs::{self, BlobsOptions};
+use stereoscope::calibrate::{self, CalibrateOptions, Source};
+use stereoscope::fitdepth::{self, FitDepthOptions};
+use stereoscope::triangulate::{self, TriangulateOptions};
+use stereoscope_geometry::calibrate::DistortionModel;
 use stereoscope_vision::{Connectivity, ThresholdMethod};
 
 #[derive(Parser, Debug)]
@@ -40,6 +44,97 @@ enum Command {
         #[arg(long)]
         json: bool,
     },
+    /// Calibrate a camera from target points (CSV view,X,Y,Z,u,v) or from dot-grid images.
+    Calibrate {
+        /// CSV with the header view,X,Y,Z,u,v: target coordinates and pixels, one row per point.
+        #[arg(long, conflicts_with = "dot_grid")]
+        points: Option<PathBuf>,
+        /// Image size WxH (needed with --points; read from the images otherwise).
+        #[arg(long, value_parser = parse_size)]
+        image_size: Option<(u32, u32)>,
+        /// Calibrate from images of a COLSxROWS dot grid (docs/geometry.md, the dot-grid target).
+        #[arg(long, value_parser = parse_size, requires = "spacing")]
+        dot_grid: Option<(u32, u32)>,
+        /// Dot spacing, in --units.
+        #[arg(long)]
+        spacing: Option<f64>,
+        /// Images of the dot grid.
+        images: Vec<PathBuf>,
+        /// Unit of target coordinates and of the output translations: m, cm or mm.
+        #[arg(long, default_value = "m")]
+        units: String,
+        /// Distortion terms to estimate: none, radial (k1 k2) or full (k1 k2 p1 p2 k3).
+        #[arg(long, default_value = "full", value_parser = parse_distortion)]
+        distortion: DistortionModel,
+        /// Camera id in the written camera table.
+        #[arg(long, default_value = "camera")]
+        id: String,
+        /// Also write the camera table (rig file format) to this file.
+        #[arg(long)]
+        out: Option<PathBuf>,
+        /// One JSON object instead of the report (docs/protocol.md).
+        #[arg(long)]
+        json: bool,
+    },
+    /// Fit the thesis's area-versus-distance models to samples (CSV area_px,distance).
+    FitDepth {
+        /// CSV with the header area_px,distance.
+        #[arg(long)]
+        samples: PathBuf,
+        /// One JSON object per model per line.
+        #[arg(long)]
+        json: bool,
+    },
+    /// Triangulate points seen by a rig's cameras (CSV point,camera,u,v).
+    Triangulate {
+        /// The rig file (docs/rig.md).
+        #[arg(long)]
+        rig: PathBuf,
+        /// CSV with the header point,camera,u,v (camera = a camera id of the rig).
+        #[arg(long)]
+        points: PathBuf,
+        /// One JSON object per point per line.
+        #[arg(long)]
+        json: bool,
+    },
+}
+
+fn parse_size(s: &str) -> Result<(u32, u32), String> {
+    let (w, h) = s
+        .split_once(['x', 'X'])
+        .ok_or_else(|| format!("{s:?} is not WxH (e.g. 640x480)"))?;
+    let p = |v: &str| {
+        v.trim()
+            .parse::<u32>()
+            .ok()
+            .filter(|&n| n > 0)
+            .ok_or_else(|| format!("{s:?} is not WxH with positive whole numbers"))
+    };
+    Ok((p(w)?, p(h)?))
+}
+
+fn parse_distortion(s: &str) -> Result<DistortionModel, String> {
+    match s {
+        "none" => Ok(DistortionModel::None),
+        "radial" => Ok(DistortionModel::Radial),
+        "full" => Ok(DistortionModel::Full),
+        _ => Err(format!(
+            "{s:?} is not a distortion model: give none, radial or full"
+        )),
+    }
+}
+
+/// Exit status for a command that processed several inputs: 0 if all went well, 1 if some
+/// failed (already reported), 1 with the message for a fatal error.
+fn finish(result: anyhow::Result<usize>) -> ExitCode {
+    match result {
+        Ok(0) => ExitCode::SUCCESS,
+        Ok(_) => ExitCode::from(1),
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            ExitCode::from(1)
+        }
+    }
 }
 
 fn parse_threshold(s: &str) -> Result<ThresholdMethod, String> {
@@ -83,6 +178,76 @@ fn main() -> ExitCode {
                     ExitCode::from(2)
                 }
             }
+        }
+        Command::Calibrate {
+            points,
+            image_size,
+            dot_grid,
+            spacing,
+            images,
+            units,
+            distortion,
+            id,
+            out,
+            json,
+        } => {
+            let source = match (points, dot_grid, spacing) {
+                (Some(p), None, _) if images.is_empty() => Source::Points(p),
+                (Some(_), None, _) => {
+                    eprintln!(
+                        "error: images are only read with --dot-grid (got --points and {} image(s))",
+                        images.len()
+                    );
+                    return ExitCode::from(2);
+                }
+                (None, Some((cols, rows)), Some(spacing)) if !images.is_empty() => {
+                    Source::DotGrid {
+                        images,
+                        cols: cols as usize,
+                        rows: rows as usize,
+                        spacing,
+                    }
+                }
+                (None, Some(_), _) => {
+                    eprintln!("error: --dot-grid needs --spacing and at least one image");
+                    return ExitCode::from(2);
+                }
+                _ => {
+                    eprintln!(
+                        "error: give --points FILE.csv, or --dot-grid COLSxROWS --spacing S IMAGE..."
+                    );
+                    return ExitCode::from(2);
+                }
+            };
+            let opts = CalibrateOptions {
+                source,
+                image_size,
+                units,
+                distortion,
+                id,
+                json,
+                out,
+            };
+            finish(calibrate::run(
+                &opts,
+                &mut std::io::stdout().lock(),
+                &mut std::io::stderr().lock(),
+            ))
+        }
+        Command::FitDepth { samples, json } => finish(
+            fitdepth::run(
+                &FitDepthOptions { samples, json },
+                &mut std::io::stdout().lock(),
+            )
+            .map(|()| 0),
+        ),
+        Command::Triangulate { rig, points, json } => {
+            let opts = TriangulateOptions { rig, points, json };
+            finish(triangulate::run(
+                &opts,
+                &mut std::io::stdout().lock(),
+                &mut std::io::stderr().lock(),
+            ))
         }
     }
 }
