@@ -1,1 +1,218 @@
-fn main() {}
+//! Criterion benchmarks of the geometry library: triangulating 1000 points from 4 cameras
+//! (DLT + refinement), and calibrating a camera from 20 views of 100 points.
+//! `cargo bench -p stereoscope-geometry --bench geometry`
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+
+use criterion::{Criterion, criterion_group, criterion_main};
+use nalgebra::{Isometry3, Point2, Point3, Vector3};
+use std::hint::black_box;
+use stereoscope_geometry::calibrate::{DistortionModel, calibrate_camera};
+use stereoscope_geometry::transform::look_at;
+use stereoscope_geometry::triangulate::{Observation, triangulate};
+use stereoscope_geometry::{Camera, Distortion, Intrinsics};
+use stereoscope_vision::raster::SplitMix64;
+
+fn cameras() -> Vec<Camera> {
+    (0..4)
+        .map(|i| {
+            let a = i as f64 * std::f64::consts::FRAC_PI_2 + 0.3;
+            let w = look_at(
+                Point3::new(2.5 * a.cos(), 2.5 * a.sin(), 1.8),
+                Point3::new(0.0, 0.0, 0.4),
+                Vector3::z(),
+            )
+            .unwrap();
+            let intr = Intrinsics::new(900.0, 895.0, 640.0, 360.0, 1280, 720).unwrap();
+            Camera::new(
+                intr,
+                Distortion {
+                    k1: -0.12,
+                    k2: 0.03,
+                    ..Default::default()
+                },
+                w.inverse(),
+            )
+            .unwrap()
+        })
+        .collect()
+}
+
+fn bench_triangulation(c: &mut Criterion) {
+    let cams = cameras();
+    let mut rng = SplitMix64::new(1);
+    let points: Vec<Vec<Observation>> = (0..1000)
+        .map(|_| {
+            let p = Point3::new(
+                rng.range(-0.5, 0.5),
+                rng.range(-0.5, 0.5),
+                rng.range(0.0, 0.9),
+            );
+            (0..4)
+                .map(|k| {
+                    let q = cams[k].project(&p).unwrap();
+                    Observation {
+                        camera: k,
+                        pixel: Point2::new(q.x + 0.5 * rng.normal(), q.y + 0.5 * rng.normal()),
+                    }
+                })
+                .collect()
+        })
+        .collect();
+    c.bench_function("triangulate 1000 points, 4 cameras", |b| {
+        b.iter(|| {
+            for obs in &points {
+                black_box(triangulate(&cams, obs).unwrap());
+            }
+        })
+    });
+}
+
+fn bench_calibration(c: &mut Criterion) {
+    let intr = Intrinsics::new(812.0, 798.0, 322.5, 236.0, 640, 480).unwrap();
+    let cam = Camera::new(
+        intr,
+        Distortion {
+            k1: -0.18,
+            k2: 0.07,
+            k3: 0.0,
+            p1: 0.0008,
+            p2: -0.0005,
+        },
+        Isometry3::identity(),
+    )
+    .unwrap();
+    let mut rng = SplitMix64::new(2);
+    let centre = Point3::new(0.225, 0.225, 0.0);
+    let views: Vec<Vec<(Point3<f64>, Point2<f64>)>> = (0..20)
+        .map(|_| {
+            let pos = centre
+                + Vector3::new(
+                    rng.range(-0.4, 0.4),
+                    rng.range(-0.4, 0.4),
+                    rng.range(0.9, 1.2),
+                );
+            let w = look_at(pos, centre, Vector3::new(rng.range(-0.3, 0.3), 1.0, 0.0)).unwrap();
+            let cv = Camera {
+                cam_from_world: w.inverse(),
+                ..cam
+            };
+            (0..100)
+                .map(|i| {
+                    let p = Point3::new((i % 10) as f64 * 0.05, (i / 10) as f64 * 0.05, 0.0);
+                    let q = cv.project(&p).unwrap();
+                    (
+                        p,
+                        Point2::new(q.x + 0.1 * rng.normal(), q.y + 0.1 * rng.normal()),
+                    )
+                })
+                .collect()
+        })
+        .collect();
+    let mut g = c.benchmark_group("calibration");
+    g.sample_size(10);
+    g.bench_function("calibrate from 20 views of 100 points", |b| {
+        b.iter(|| black_box(calibrate_camera(640, 480, &views, DistortionModel::Full).unwrap()))
+    });
+    g.finish();
+}
+
+/// The same input OpenCV is timed on by `opencv_reference.py` (tests/data).
+fn bench_fixtures(c: &mut Criterion) {
+    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data");
+    let Ok(csv) = std::fs::read_to_string(dir.join("calibration_points.csv")) else {
+        return;
+    };
+    let mut views: Vec<(String, Vec<(Point3<f64>, Point2<f64>)>)> = Vec::new();
+    for line in csv.lines().skip(1) {
+        let f: Vec<&str> = line.split(',').collect();
+        let n: Vec<f64> = f[1..].iter().map(|s| s.parse().unwrap()).collect();
+        if views.last().is_none_or(|v| v.0 != f[0]) {
+            views.push((f[0].to_string(), Vec::new()));
+        }
+        views
+            .last_mut()
+            .unwrap()
+            .1
+            .push((Point3::new(n[0], n[1], n[2]), Point2::new(n[3], n[4])));
+    }
+    let views: Vec<_> = views.into_iter().map(|v| v.1).collect();
+    let mut g = c.benchmark_group("same input as OpenCV");
+    g.sample_size(10);
+    g.bench_function("calibrate the fixture (20 views)", |b| {
+        b.iter(|| black_box(calibrate_camera(640, 480, &views, DistortionModel::Full).unwrap()))
+    });
+    let tri: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("triangulation.json")).unwrap())
+            .unwrap();
+    let f = |v: &serde_json::Value| v.as_f64().unwrap();
+    let cams: Vec<Camera> = tri["cameras"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| {
+            let k = &v["K"];
+            let intr = Intrinsics::new(
+                f(&k[0][0]),
+                f(&k[1][1]),
+                f(&k[0][2]),
+                f(&k[1][2]),
+                1280,
+                720,
+            )
+            .unwrap();
+            let d = &v["dist"];
+            let dist = Distortion {
+                k1: f(&d[0]),
+                k2: f(&d[1]),
+                p1: f(&d[2]),
+                p2: f(&d[3]),
+                k3: f(&d[4]),
+            };
+            let r = nalgebra::Matrix3::from_fn(|i, j| f(&v["R"][i][j]));
+            let t = Vector3::new(f(&v["t"][0]), f(&v["t"][1]), f(&v["t"][2]));
+            let pose = Isometry3::from_parts(
+                nalgebra::Translation3::from(t),
+                nalgebra::UnitQuaternion::from_rotation_matrix(
+                    &nalgebra::Rotation3::from_matrix_unchecked(r),
+                ),
+            );
+            Camera::new(intr, dist, pose).unwrap()
+        })
+        .collect();
+    let obs: Vec<Vec<Observation>> = tri["points"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|p| {
+            (0..2)
+                .map(|c| Observation {
+                    camera: c,
+                    pixel: Point2::new(f(&p["pixels"][c][0]), f(&p["pixels"][c][1])),
+                })
+                .collect()
+        })
+        .collect();
+    g.bench_function("triangulate 300 points, 2 views (DLT only)", |b| {
+        b.iter(|| {
+            for o in &obs {
+                black_box(stereoscope_geometry::triangulate::triangulate_dlt(&cams, o).unwrap());
+            }
+        })
+    });
+    g.bench_function("triangulate 300 points, 2 views (DLT + refinement)", |b| {
+        b.iter(|| {
+            for o in &obs {
+                black_box(triangulate(&cams, o).unwrap());
+            }
+        })
+    });
+    g.finish();
+}
+
+criterion_group!(
+    benches,
+    bench_triangulation,
+    bench_calibration,
+    bench_fixtures
+);
+criterion_main!(benches);

@@ -17,7 +17,7 @@
 
 use crate::camera::{Camera, Intrinsics};
 use crate::error::GeometryError;
-use nalgebra::{DMatrix, Matrix3, Point2, Point3, Vector2, Vector3};
+use nalgebra::{Matrix2, Matrix2x3, Matrix3, Matrix4, Point2, Point3, Vector2, Vector3};
 
 /// One camera's view of a point: the camera's index and the pixel.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -79,11 +79,12 @@ fn check_observations(cams: &[Camera], obs: &[Observation]) -> Result<(), Geomet
 }
 
 /// Linear triangulation (DLT) on undistorted normalised coordinates; each camera's two rows
-/// are scaled by its focal length so the algebraic error is roughly in pixels.
+/// are scaled by its focal length so the algebraic error is roughly in pixels. The solution
+/// is the eigenvector of AᵀA (4 × 4) with the smallest eigenvalue.
 pub fn triangulate_dlt(cams: &[Camera], obs: &[Observation]) -> Result<Point3<f64>, GeometryError> {
     check_observations(cams, obs)?;
-    let mut a = DMatrix::<f64>::zeros(2 * obs.len(), 4);
-    for (i, o) in obs.iter().enumerate() {
+    let mut ata = Matrix4::<f64>::zeros();
+    for o in obs {
         let cam = &cams[o.camera];
         let n = cam.normalised(o.pixel).ok_or_else(|| {
             GeometryError::Degenerate(format!(
@@ -93,25 +94,20 @@ pub fn triangulate_dlt(cams: &[Camera], obs: &[Observation]) -> Result<Point3<f6
         })?;
         let p = cam.cam_from_world.to_homogeneous();
         let s = 0.5 * (cam.intrinsics.fx + cam.intrinsics.fy);
-        for c in 0..4 {
-            a[(2 * i, c)] = s * (n.x * p[(2, c)] - p[(0, c)]);
-            a[(2 * i + 1, c)] = s * (n.y * p[(2, c)] - p[(1, c)]);
-        }
+        let r0 = (p.row(2) * n.x - p.row(0)) * s;
+        let r1 = (p.row(2) * n.y - p.row(1)) * s;
+        ata += r0.transpose() * r0 + r1.transpose() * r1;
     }
-    let svd = a.svd(false, true);
-    let v_t = svd
-        .v_t
-        .ok_or_else(|| GeometryError::Solver("SVD failed".into()))?;
-    // The right singular vector of the smallest singular value.
-    let (imin, _) =
-        svd.singular_values
-            .iter()
-            .enumerate()
-            .fold(
-                (0, f64::INFINITY),
-                |b, (i, &s)| if s < b.1 { (i, s) } else { b },
-            );
-    let x = v_t.row(imin);
+    let eig = ata.symmetric_eigen();
+    let (imin, _) = eig
+        .eigenvalues
+        .iter()
+        .enumerate()
+        .fold(
+            (0, f64::INFINITY),
+            |b, (i, &v)| if v < b.1 { (i, v) } else { b },
+        );
+    let x = eig.eigenvectors.column(imin);
     if x[3].abs() < 1e-12 * x.norm() {
         return Err(GeometryError::Degenerate(
             "the rays are parallel (point at infinity)".into(),
@@ -120,27 +116,25 @@ pub fn triangulate_dlt(cams: &[Camera], obs: &[Observation]) -> Result<Point3<f6
     Ok(Point3::new(x[0] / x[3], x[1] / x[3], x[2] / x[3]))
 }
 
-/// Reprojection residual vector (pixels) of a world point and its Jacobian (2n × 3).
-fn residuals_and_jacobian(
+/// The normal equations JᵀJ, Jᵀr and the cost Σr² of the reprojection error (pixels) at `p`,
+/// or `None` if `p` is behind a camera.
+fn normal_equations(
     cams: &[Camera],
     obs: &[Observation],
     p: &Point3<f64>,
-) -> Option<(Vec<f64>, DMatrix<f64>)> {
-    let mut r = Vec::with_capacity(2 * obs.len());
-    let mut j = DMatrix::<f64>::zeros(2 * obs.len(), 3);
-    for (i, o) in obs.iter().enumerate() {
+) -> Option<(Matrix3<f64>, Vector3<f64>, f64)> {
+    let (mut jtj, mut jtr, mut cost) = (Matrix3::zeros(), Vector3::zeros(), 0.0);
+    for o in obs {
         let cam = &cams[o.camera];
         let pc = cam.cam_from_world * p;
         if !(pc.z > 0.0) {
             return None;
         }
         let n = Vector2::new(pc.x / pc.z, pc.y / pc.z);
-        let d = cam.distortion.distort(n);
-        let px = cam.intrinsics.to_pixel(d);
-        r.push(px.x - o.pixel.x);
-        r.push(px.y - o.pixel.y);
+        let px = cam.intrinsics.to_pixel(cam.distortion.distort(n));
+        let r = Vector2::new(px.x - o.pixel.x, px.y - o.pixel.y);
         // d pixel / d p_world = diag(fx, fy) · J_dist · d n / d p_cam · R
-        let dn = nalgebra::Matrix2x3::new(
+        let dn = Matrix2x3::new(
             1.0 / pc.z,
             0.0,
             -pc.x / (pc.z * pc.z),
@@ -148,12 +142,14 @@ fn residuals_and_jacobian(
             1.0 / pc.z,
             -pc.y / (pc.z * pc.z),
         );
-        let k = nalgebra::Matrix2::new(cam.intrinsics.fx, 0.0, 0.0, cam.intrinsics.fy);
+        let k = Matrix2::new(cam.intrinsics.fx, 0.0, 0.0, cam.intrinsics.fy);
         let rot: Matrix3<f64> = *cam.cam_from_world.rotation.to_rotation_matrix().matrix();
-        let jj = k * cam.distortion.jacobian(n) * dn * rot;
-        j.fixed_view_mut::<2, 3>(2 * i, 0).copy_from(&jj);
+        let j = k * cam.distortion.jacobian(n) * dn * rot;
+        jtj += j.transpose() * j;
+        jtr += j.transpose() * r;
+        cost += r.norm_squared();
     }
-    Some((r, j))
+    Some((jtj, jtr, cost))
 }
 
 /// Gauss–Newton (with step halving) on the reprojection error in pixels.
@@ -164,32 +160,23 @@ pub fn refine_point(
 ) -> Result<Point3<f64>, GeometryError> {
     check_observations(cams, obs)?;
     let mut p = initial;
-    let cost = |p: &Point3<f64>| {
-        residuals_and_jacobian(cams, obs, p).map(|(r, _)| r.iter().map(|v| v * v).sum::<f64>())
-    };
-    let mut c = cost(&p).ok_or(GeometryError::BehindCamera {
-        camera: obs[0].camera,
-    })?;
+    let (mut jtj, mut jtr, mut c) =
+        normal_equations(cams, obs, &p).ok_or(GeometryError::BehindCamera {
+            camera: obs[0].camera,
+        })?;
     for _ in 0..30 {
-        let Some((r, j)) = residuals_and_jacobian(cams, obs, &p) else {
-            break;
-        };
-        let jt = j.transpose();
-        let h = &jt * &j;
-        let g = &jt * nalgebra::DVector::from_vec(r);
-        let Some(step) = h.clone().cholesky().map(|ch| ch.solve(&g)) else {
+        let Some(step) = jtj.cholesky().map(|ch| ch.solve(&jtr)) else {
             break;
         };
         let mut t = 1.0;
         let mut improved = false;
         for _ in 0..10 {
-            let cand = p - Vector3::new(step[0], step[1], step[2]) * t;
-            if let Some(cc) = cost(&cand)
+            let cand = p - step * t;
+            if let Some((a, b, cc)) = normal_equations(cams, obs, &cand)
                 && cc <= c
             {
                 let done = (c - cc) <= 1e-14 * c.max(1e-30);
-                p = cand;
-                c = cc;
+                (p, jtj, jtr, c) = (cand, a, b, cc);
                 improved = !done;
                 break;
             }

@@ -1,0 +1,141 @@
+//! Writes the inputs that `benches/opencv_reference.py` runs OpenCV on and
+//! `tests/opencv_comparison.rs` runs this library on (deterministic; committed under
+//! `tests/data/`): `cargo run -p stereoscope-geometry --example opencv_fixtures`.
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+
+use nalgebra::{Isometry3, Point3, Vector3};
+use std::fmt::Write as _;
+use stereoscope_geometry::transform::look_at;
+use stereoscope_geometry::{Camera, Distortion, Intrinsics};
+use stereoscope_vision::raster::SplitMix64;
+
+fn main() {
+    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data");
+    std::fs::create_dir_all(&dir).unwrap();
+
+    // Calibration: 20 views of a 10 × 10 grid, 5 cm spacing, 0.2 px noise, 640 × 480.
+    let intr = Intrinsics::new(812.0, 798.0, 322.5, 236.0, 640, 480).unwrap();
+    let cam = Camera::new(
+        intr,
+        Distortion {
+            k1: -0.18,
+            k2: 0.07,
+            k3: 0.0,
+            p1: 0.0008,
+            p2: -0.0005,
+        },
+        Isometry3::identity(),
+    )
+    .unwrap();
+    let mut rng = SplitMix64::new(2026);
+    let mut csv = String::from("view,X,Y,Z,u,v\n");
+    let centre = Point3::new(0.225, 0.225, 0.0);
+    for v in 0..20 {
+        let pos = centre
+            + Vector3::new(
+                rng.range(-0.5, 0.5),
+                rng.range(-0.5, 0.5),
+                rng.range(0.7, 1.0),
+            );
+        let w = look_at(pos, centre, Vector3::new(rng.range(-0.3, 0.3), 1.0, 0.0)).unwrap();
+        let c = Camera {
+            cam_from_world: w.inverse(),
+            ..cam
+        };
+        for r in 0..10 {
+            for k in 0..10 {
+                let p = Point3::new(k as f64 * 0.05, r as f64 * 0.05, 0.0);
+                if let Some(px) = c
+                    .project(&p)
+                    .filter(|q| q.x >= 0.0 && q.y >= 0.0 && q.x <= 639.0 && q.y <= 479.0)
+                {
+                    writeln!(
+                        csv,
+                        "{v},{},{},0,{:.6},{:.6}",
+                        p.x,
+                        p.y,
+                        px.x + 0.2 * rng.normal(),
+                        px.y + 0.2 * rng.normal()
+                    )
+                    .unwrap();
+                }
+            }
+        }
+    }
+    std::fs::write(dir.join("calibration_points.csv"), csv).unwrap();
+
+    // Triangulation: 4 cameras around a 1 m volume, 300 points, 0.5 px noise.
+    let mut cams = Vec::new();
+    for i in 0..4 {
+        let a = i as f64 * std::f64::consts::FRAC_PI_2 + 0.3;
+        let w = look_at(
+            Point3::new(2.5 * a.cos(), 2.5 * a.sin(), 1.8),
+            Point3::new(0.0, 0.0, 0.4),
+            Vector3::z(),
+        )
+        .unwrap();
+        let intr =
+            Intrinsics::new(900.0 + 20.0 * i as f64, 895.0, 640.0, 360.0, 1280, 720).unwrap();
+        cams.push(
+            Camera::new(
+                intr,
+                Distortion {
+                    k1: -0.12,
+                    k2: 0.03,
+                    ..Default::default()
+                },
+                w.inverse(),
+            )
+            .unwrap(),
+        );
+    }
+    let mut json = String::from("{\n\"cameras\": [\n");
+    for (i, c) in cams.iter().enumerate() {
+        let r = c.cam_from_world.rotation.to_rotation_matrix();
+        let m = r.matrix();
+        let t = c.cam_from_world.translation.vector;
+        let d = c.distortion;
+        write!(
+            json,
+            "{{\"size\": [{}, {}], \"K\": [[{}, 0, {}], [0, {}, {}], [0, 0, 1]], \"dist\": [{}, {}, {}, {}, {}], \"R\": [[{}, {}, {}], [{}, {}, {}], [{}, {}, {}]], \"t\": [{}, {}, {}]}}{}\n",
+            c.intrinsics.width, c.intrinsics.height, c.intrinsics.fx, c.intrinsics.cx, c.intrinsics.fy, c.intrinsics.cy,
+            d.k1, d.k2, d.p1, d.p2, d.k3,
+            m[(0, 0)], m[(0, 1)], m[(0, 2)], m[(1, 0)], m[(1, 1)], m[(1, 2)], m[(2, 0)], m[(2, 1)], m[(2, 2)],
+            t.x, t.y, t.z,
+            if i + 1 < cams.len() { "," } else { "" }
+        )
+        .unwrap();
+    }
+    json.push_str("],\n\"points\": [\n");
+    for k in 0..300 {
+        let p = Point3::new(
+            rng.range(-0.5, 0.5),
+            rng.range(-0.5, 0.5),
+            rng.range(0.0, 0.9),
+        );
+        let px: Vec<String> = cams
+            .iter()
+            .map(|c| {
+                let q = c.project(&p).unwrap();
+                format!(
+                    "[{:.6}, {:.6}]",
+                    q.x + 0.5 * rng.normal(),
+                    q.y + 0.5 * rng.normal()
+                )
+            })
+            .collect();
+        write!(
+            json,
+            "{{\"truth\": [{}, {}, {}], \"pixels\": [{}]}}{}\n",
+            p.x,
+            p.y,
+            p.z,
+            px.join(", "),
+            if k + 1 < 300 { "," } else { "" }
+        )
+        .unwrap();
+    }
+    json.push_str("]\n}\n");
+    std::fs::write(dir.join("triangulation.json"), json).unwrap();
+    println!("wrote {}", dir.display());
+}
