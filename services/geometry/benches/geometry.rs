@@ -3,6 +3,9 @@
 //! `cargo bench -p stereoscope-geometry --bench geometry`
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
+#[path = "../tests/fixtures/mod.rs"]
+mod fixtures;
+
 use criterion::{Criterion, criterion_group, criterion_main};
 use nalgebra::{Isometry3, Point2, Point3, Vector3};
 use std::hint::black_box;
@@ -118,76 +121,20 @@ fn bench_calibration(c: &mut Criterion) {
 
 /// The same input OpenCV is timed on by `opencv_reference.py` (tests/data).
 fn bench_fixtures(c: &mut Criterion) {
-    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data");
-    let Ok(csv) = std::fs::read_to_string(dir.join("calibration_points.csv")) else {
-        return;
-    };
-    let mut views: Vec<(String, Vec<(Point3<f64>, Point2<f64>)>)> = Vec::new();
-    for line in csv.lines().skip(1) {
-        let f: Vec<&str> = line.split(',').collect();
-        let n: Vec<f64> = f[1..].iter().map(|s| s.parse().unwrap()).collect();
-        if views.last().is_none_or(|v| v.0 != f[0]) {
-            views.push((f[0].to_string(), Vec::new()));
-        }
-        views
-            .last_mut()
-            .unwrap()
-            .1
-            .push((Point3::new(n[0], n[1], n[2]), Point2::new(n[3], n[4])));
-    }
-    let views: Vec<_> = views.into_iter().map(|v| v.1).collect();
+    let views = fixtures::calibration_views();
     let mut g = c.benchmark_group("same input as OpenCV");
     g.sample_size(10);
     g.bench_function("calibrate the fixture (20 views)", |b| {
         b.iter(|| black_box(calibrate_camera(640, 480, &views, DistortionModel::Full).unwrap()))
     });
-    let tri: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(dir.join("triangulation.json")).unwrap())
-            .unwrap();
-    let f = |v: &serde_json::Value| v.as_f64().unwrap();
-    let cams: Vec<Camera> = tri["cameras"]
-        .as_array()
-        .unwrap()
+    let (cams, points) = fixtures::triangulation();
+    let obs: Vec<Vec<Observation>> = points
         .iter()
-        .map(|v| {
-            let k = &v["K"];
-            let intr = Intrinsics::new(
-                f(&k[0][0]),
-                f(&k[1][1]),
-                f(&k[0][2]),
-                f(&k[1][2]),
-                1280,
-                720,
-            )
-            .unwrap();
-            let d = &v["dist"];
-            let dist = Distortion {
-                k1: f(&d[0]),
-                k2: f(&d[1]),
-                p1: f(&d[2]),
-                p2: f(&d[3]),
-                k3: f(&d[4]),
-            };
-            let r = nalgebra::Matrix3::from_fn(|i, j| f(&v["R"][i][j]));
-            let t = Vector3::new(f(&v["t"][0]), f(&v["t"][1]), f(&v["t"][2]));
-            let pose = Isometry3::from_parts(
-                nalgebra::Translation3::from(t),
-                nalgebra::UnitQuaternion::from_rotation_matrix(
-                    &nalgebra::Rotation3::from_matrix_unchecked(r),
-                ),
-            );
-            Camera::new(intr, dist, pose).unwrap()
-        })
-        .collect();
-    let obs: Vec<Vec<Observation>> = tri["points"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .map(|p| {
+        .map(|(_, px)| {
             (0..2)
                 .map(|c| Observation {
                     camera: c,
-                    pixel: Point2::new(f(&p["pixels"][c][0]), f(&p["pixels"][c][1])),
+                    pixel: px[c],
                 })
                 .collect()
         })

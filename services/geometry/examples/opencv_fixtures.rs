@@ -1,7 +1,7 @@
 //! Writes the inputs that `benches/opencv_reference.py` runs OpenCV on and
 //! `tests/opencv_comparison.rs` runs this library on (deterministic; committed under
 //! `tests/data/`): `cargo run -p stereoscope-geometry --example opencv_fixtures`.
-#![allow(clippy::unwrap_used, clippy::expect_used)]
+#![allow(clippy::unwrap_used, clippy::expect_used, clippy::write_with_newline)]
 
 use nalgebra::{Isometry3, Point3, Vector3};
 use std::fmt::Write as _;
