@@ -16,16 +16,39 @@
 //!
 //! Angles are degrees, counter-clockwise as seen on screen (`docs/conventions.md`).
 
+/// Wraps an angle into (−half, half] for a period of `2·half` (cheap for the few turns the
+/// tracker meets; exact remainder beyond).
+#[inline]
+fn wrap(d: f64, half: f64) -> f64 {
+    let period = 2.0 * half;
+    let mut w = if d.abs() > 4.0 * period {
+        d % period
+    } else {
+        d
+    };
+    while w > half {
+        w -= period;
+    }
+    while w <= -half {
+        w += period;
+    }
+    w
+}
+
 /// Wraps an angle difference into (−90, 90].
 pub fn wrap_half_turn_deg(d: f64) -> f64 {
-    let w = (d + 90.0).rem_euclid(180.0) - 90.0;
-    if w <= -90.0 { w + 180.0 } else { w }
+    wrap(d, 90.0)
 }
 
 /// Wraps an angle difference into (−180, 180].
 pub fn wrap_turn_deg(d: f64) -> f64 {
-    let w = (d + 180.0).rem_euclid(360.0) - 180.0;
-    if w <= -180.0 { w + 360.0 } else { w }
+    wrap(d, 180.0)
+}
+
+/// An angle in [0, 360).
+fn to_turn(d: f64) -> f64 {
+    let w = wrap(d, 180.0);
+    if w < 0.0 { w + 360.0 } else { w }
 }
 
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -123,8 +146,11 @@ impl HeadingTracker {
                 };
             }
             let (h, status) = match directed_deg {
-                Some(d) => (d.rem_euclid(360.0), HeadingStatus::Directed),
-                None => (axis_deg.rem_euclid(180.0), HeadingStatus::Initial),
+                Some(d) => (to_turn(d), HeadingStatus::Directed),
+                None => {
+                    let a = wrap(axis_deg, 90.0);
+                    (if a < 0.0 { a + 180.0 } else { a }, HeadingStatus::Initial)
+                }
             };
             self.heading_deg = Some(h);
             return HeadingUpdate {
@@ -166,7 +192,7 @@ impl HeadingTracker {
         } else {
             step
         };
-        let h = new.rem_euclid(360.0);
+        let h = to_turn(new);
         self.heading_deg = Some(h);
         HeadingUpdate {
             heading_deg: h,
@@ -266,6 +292,9 @@ mod tests {
         assert_eq!(t.heading_deg(), None);
         t.update(-30.0, 0.4, None);
         assert_eq!(t.heading_deg(), Some(150.0));
+        let mut t0 = HeadingTracker::new(HeadingConfig::default());
+        t0.update(0.0, 0.4, None);
+        assert_eq!(t0.heading_deg(), Some(0.0));
         let u = t.update(77.0, 0.95, None);
         assert_eq!(
             (u.heading_deg, u.status),
