@@ -7,6 +7,7 @@ use nalgebra::{Isometry3, Point2, Point3, Vector3};
 use std::fmt::Write as _;
 use stereoscope_geometry::dotgrid::{DotGrid, render};
 use stereoscope_geometry::rig::Rig;
+use stereoscope_geometry::synthetic::{ViewSpread, calibration_views, example_camera, grid};
 use stereoscope_geometry::transform::look_at;
 use stereoscope_geometry::{Camera, Distortion, Intrinsics};
 use stereoscope_proto::reports::{CalibrationReport, DepthFitReport, TriangulatedPoint};
@@ -15,55 +16,37 @@ use stereoscope_vision::raster::{SplitMix64, add_gaussian_noise};
 mod common;
 use common::{TempDir, repo_root, run, stderr};
 
-fn truth_camera() -> Camera {
-    let intr = Intrinsics::new(812.0, 798.0, 322.5, 236.0, 640, 480).unwrap();
-    Camera::new(
-        intr,
-        Distortion {
-            k1: -0.18,
-            k2: 0.07,
-            k3: 0.0,
-            p1: 0.0008,
-            p2: -0.0005,
-        },
-        Isometry3::identity(),
-    )
-    .unwrap()
-}
-
-/// A CSV of `views` views of a 12 × 9 grid with 10 cm spacing, coordinates in centimetres.
+/// A CSV of `views` tilted views (up to about 40°: straight-on views do not pin the focal
+/// length down) of a 12 × 9 grid with 10 cm spacing, coordinates in centimetres.
 fn calibration_csv(views: usize, noise: f64) -> String {
-    let cam = truth_camera();
-    let mut rng = SplitMix64::new(17);
+    let spread = ViewSpread {
+        lateral_m: 1.05,
+        distance_m: (1.3, 1.8),
+        aim_jitter_m: 0.0,
+        roll: 0.3,
+    };
     let mut csv = String::from("view,X,Y,Z,u,v\n");
-    for v in 0..views {
-        // Tilted views (up to about 40°) pin the focal length down; straight-on ones do not.
-        let pos = Point3::new(
-            0.55 + rng.range(-1.1, 1.1),
-            0.4 + rng.range(-1.0, 1.0),
-            rng.range(1.3, 1.8),
-        );
-        let w = look_at(
-            pos,
-            Point3::new(0.55, 0.4, 0.0),
-            Vector3::new(rng.range(-0.3, 0.3), 1.0, 0.0),
-        )
-        .unwrap();
-        let c = Camera {
-            cam_from_world: w.inverse(),
-            ..cam
-        };
-        for r in 0..9 {
-            for k in 0..12 {
-                let p = Point3::new(k as f64 * 0.1, r as f64 * 0.1, 0.0);
-                if let Some(px) = c
-                    .project(&p)
-                    .filter(|q| q.x >= 0.0 && q.y >= 0.0 && q.x <= 639.0 && q.y <= 479.0)
-                {
-                    let (u, vv) = (px.x + noise * rng.normal(), px.y + noise * rng.normal());
-                    writeln!(csv, "view{v},{},{},0,{u},{vv}", k * 10, r * 10).unwrap();
-                }
-            }
+    for (v, view) in calibration_views(
+        &example_camera(),
+        &grid(12, 9, 0.1),
+        views,
+        &spread,
+        noise,
+        17,
+    )
+    .iter()
+    .enumerate()
+    {
+        for (p, px) in view {
+            writeln!(
+                csv,
+                "view{v},{},{},0,{},{}",
+                (p.x * 100.0).round(),
+                (p.y * 100.0).round(),
+                px.x,
+                px.y
+            )
+            .unwrap();
         }
     }
     csv

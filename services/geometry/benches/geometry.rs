@@ -7,9 +7,10 @@
 mod fixtures;
 
 use criterion::{Criterion, criterion_group, criterion_main};
-use nalgebra::{Isometry3, Point2, Point3, Vector3};
+use nalgebra::{Point2, Point3, Vector3};
 use std::hint::black_box;
 use stereoscope_geometry::calibrate::{DistortionModel, calibrate_camera};
+use stereoscope_geometry::synthetic::{ViewSpread, calibration_views, example_camera, grid};
 use stereoscope_geometry::transform::look_at;
 use stereoscope_geometry::triangulate::{Observation, triangulate};
 use stereoscope_geometry::{Camera, Distortion, Intrinsics};
@@ -71,46 +72,13 @@ fn bench_triangulation(c: &mut Criterion) {
 }
 
 fn bench_calibration(c: &mut Criterion) {
-    let intr = Intrinsics::new(812.0, 798.0, 322.5, 236.0, 640, 480).unwrap();
-    let cam = Camera::new(
-        intr,
-        Distortion {
-            k1: -0.18,
-            k2: 0.07,
-            k3: 0.0,
-            p1: 0.0008,
-            p2: -0.0005,
-        },
-        Isometry3::identity(),
-    )
-    .unwrap();
-    let mut rng = SplitMix64::new(2);
-    let centre = Point3::new(0.225, 0.225, 0.0);
-    let views: Vec<Vec<(Point3<f64>, Point2<f64>)>> = (0..20)
-        .map(|_| {
-            let pos = centre
-                + Vector3::new(
-                    rng.range(-0.4, 0.4),
-                    rng.range(-0.4, 0.4),
-                    rng.range(0.9, 1.2),
-                );
-            let w = look_at(pos, centre, Vector3::new(rng.range(-0.3, 0.3), 1.0, 0.0)).unwrap();
-            let cv = Camera {
-                cam_from_world: w.inverse(),
-                ..cam
-            };
-            (0..100)
-                .map(|i| {
-                    let p = Point3::new((i % 10) as f64 * 0.05, (i / 10) as f64 * 0.05, 0.0);
-                    let q = cv.project(&p).unwrap();
-                    (
-                        p,
-                        Point2::new(q.x + 0.1 * rng.normal(), q.y + 0.1 * rng.normal()),
-                    )
-                })
-                .collect()
-        })
-        .collect();
+    let spread = ViewSpread {
+        lateral_m: 0.4,
+        distance_m: (0.9, 1.2),
+        aim_jitter_m: 0.0,
+        roll: 0.3,
+    };
+    let views = calibration_views(&example_camera(), &grid(10, 10, 0.05), 20, &spread, 0.1, 2);
     let mut g = c.benchmark_group("calibration");
     g.sample_size(10);
     g.bench_function("calibrate from 20 views of 100 points", |b| {

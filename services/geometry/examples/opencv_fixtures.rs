@@ -3,8 +3,9 @@
 //! `tests/data/`): `cargo run -p stereoscope-geometry --example opencv_fixtures`.
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::write_with_newline)]
 
-use nalgebra::{Isometry3, Point3, Vector3};
+use nalgebra::{Point3, Vector3};
 use std::fmt::Write as _;
+use stereoscope_geometry::synthetic::{ViewSpread, calibration_views, example_camera, grid};
 use stereoscope_geometry::transform::look_at;
 use stereoscope_geometry::{Camera, Distortion, Intrinsics};
 use stereoscope_vision::raster::SplitMix64;
@@ -14,57 +15,30 @@ fn main() {
     std::fs::create_dir_all(&dir).unwrap();
 
     // Calibration: 20 views of a 10 × 10 grid, 5 cm spacing, 0.2 px noise, 640 × 480.
-    let intr = Intrinsics::new(812.0, 798.0, 322.5, 236.0, 640, 480).unwrap();
-    let cam = Camera::new(
-        intr,
-        Distortion {
-            k1: -0.18,
-            k2: 0.07,
-            k3: 0.0,
-            p1: 0.0008,
-            p2: -0.0005,
-        },
-        Isometry3::identity(),
-    )
-    .unwrap();
-    let mut rng = SplitMix64::new(2026);
+    let spread = ViewSpread {
+        lateral_m: 0.5,
+        distance_m: (0.7, 1.0),
+        aim_jitter_m: 0.0,
+        roll: 0.3,
+    };
+    let views = calibration_views(
+        &example_camera(),
+        &grid(10, 10, 0.05),
+        20,
+        &spread,
+        0.2,
+        2026,
+    );
     let mut csv = String::from("view,X,Y,Z,u,v\n");
-    let centre = Point3::new(0.225, 0.225, 0.0);
-    for v in 0..20 {
-        let pos = centre
-            + Vector3::new(
-                rng.range(-0.5, 0.5),
-                rng.range(-0.5, 0.5),
-                rng.range(0.7, 1.0),
-            );
-        let w = look_at(pos, centre, Vector3::new(rng.range(-0.3, 0.3), 1.0, 0.0)).unwrap();
-        let c = Camera {
-            cam_from_world: w.inverse(),
-            ..cam
-        };
-        for r in 0..10 {
-            for k in 0..10 {
-                let p = Point3::new(k as f64 * 0.05, r as f64 * 0.05, 0.0);
-                if let Some(px) = c
-                    .project(&p)
-                    .filter(|q| q.x >= 0.0 && q.y >= 0.0 && q.x <= 639.0 && q.y <= 479.0)
-                {
-                    writeln!(
-                        csv,
-                        "{v},{},{},0,{:.6},{:.6}",
-                        p.x,
-                        p.y,
-                        px.x + 0.2 * rng.normal(),
-                        px.y + 0.2 * rng.normal()
-                    )
-                    .unwrap();
-                }
-            }
+    for (v, view) in views.iter().enumerate() {
+        for (p, px) in view {
+            writeln!(csv, "{v},{},{},0,{:.6},{:.6}", p.x, p.y, px.x, px.y).unwrap();
         }
     }
     std::fs::write(dir.join("calibration_points.csv"), csv).unwrap();
 
     // Triangulation: 4 cameras around a 1 m volume, 300 points, 0.5 px noise.
+    let mut rng = SplitMix64::new(2026);
     let mut cams = Vec::new();
     for i in 0..4 {
         let a = i as f64 * std::f64::consts::FRAC_PI_2 + 0.3;

@@ -147,14 +147,7 @@ fn smallest_right_singular_vector(a: &DMatrix<f64>) -> Option<Vec<f64>> {
     // Through AᵀA so that short matrices still give the full right basis.
     let ata = a.transpose() * a;
     let eig = ata.symmetric_eigen();
-    let (imin, _) = eig
-        .eigenvalues
-        .iter()
-        .enumerate()
-        .fold(
-            (0, f64::INFINITY),
-            |b, (i, &v)| if v < b.1 { (i, v) } else { b },
-        );
+    let imin = crate::index_of_min(eig.eigenvalues.iter().copied());
     let v: Vec<f64> = eig.eigenvectors.column(imin).iter().copied().collect();
     v.iter().all(|x| x.is_finite()).then_some(v)
 }
@@ -792,24 +785,10 @@ mod tests {
     use crate::transform::look_at;
     use stereoscope_vision::raster::SplitMix64;
 
-    pub(crate) fn grid(cols: usize, rows: usize, spacing: f64) -> Vec<Point3<f64>> {
-        (0..rows)
-            .flat_map(|r| {
-                (0..cols).map(move |c| Point3::new(c as f64 * spacing, r as f64 * spacing, 0.0))
-            })
-            .collect()
-    }
+    use crate::synthetic::{ViewSpread, calibration_views, example_camera, grid};
 
     fn truth() -> Camera {
-        let intr = Intrinsics::new(812.0, 798.0, 322.5, 236.0, 640, 480).unwrap();
-        let dist = Distortion {
-            k1: -0.18,
-            k2: 0.07,
-            k3: 0.0,
-            p1: 0.0008,
-            p2: -0.0005,
-        };
-        Camera::new(intr, dist, Isometry3::identity()).unwrap()
+        example_camera()
     }
 
     /// Views of a 10 × 10 grid (10 cm) from varied poses, pixels with Gaussian noise.
@@ -819,43 +798,13 @@ mod tests {
         noise_px: f64,
         seed: u64,
     ) -> Vec<Vec<(Point3<f64>, Point2<f64>)>> {
-        let target = grid(10, 10, 0.1);
-        let mut rng = SplitMix64::new(seed);
-        (0..n)
-            .map(|_| {
-                let centre = Point3::new(0.45, 0.45, 0.0);
-                let pos = Point3::new(
-                    0.45 + rng.range(-0.8, 0.8),
-                    0.45 + rng.range(-0.8, 0.8),
-                    rng.range(1.4, 2.2),
-                );
-                let world_from_cam = look_at(
-                    pos,
-                    centre + Vector3::new(rng.range(-0.1, 0.1), rng.range(-0.1, 0.1), 0.0),
-                    Vector3::new(rng.range(-0.3, 0.3), 1.0, 0.0),
-                )
-                .unwrap();
-                let c = Camera {
-                    cam_from_world: world_from_cam.inverse(),
-                    ..*cam
-                };
-                target
-                    .iter()
-                    .filter_map(|p| {
-                        let px = c
-                            .project(p)
-                            .filter(|q| q.x >= 0.0 && q.y >= 0.0 && q.x <= 639.0 && q.y <= 479.0)?;
-                        Some((
-                            *p,
-                            Point2::new(
-                                px.x + noise_px * rng.normal(),
-                                px.y + noise_px * rng.normal(),
-                            ),
-                        ))
-                    })
-                    .collect()
-            })
-            .collect()
+        let spread = ViewSpread {
+            lateral_m: 0.8,
+            distance_m: (1.4, 2.2),
+            aim_jitter_m: 0.1,
+            roll: 0.3,
+        };
+        calibration_views(cam, &grid(10, 10, 0.1), n, &spread, noise_px, seed)
     }
 
     #[test]

@@ -12,6 +12,7 @@
 //! - [`triangulate`]: N-camera triangulation and the parallel rig (Eq. 4.28–4.38).
 //! - [`correspond`]: which blob is which across cameras (epipolar + global assignment).
 //! - [`rig`]: rig files checked and turned into cameras (`docs/rig.md`).
+//! - [`synthetic`]: a reference camera and calibration views with known truth.
 //! - [`world_heading`]: heading in the world from blob axes (§4.1.1, generalised).
 //!
 //! Frames, units and conventions: `docs/geometry.md` and `docs/conventions.md`.
@@ -24,9 +25,21 @@ pub mod dotgrid;
 pub mod error;
 pub mod lm;
 pub mod rig;
+pub mod synthetic;
 pub mod transform;
 pub mod triangulate;
 pub mod world_heading;
 
 pub use camera::{Camera, Distortion, Intrinsics};
 pub use error::GeometryError;
+
+/// Index of the smallest value (the first one on ties; 0 for an empty sequence).
+pub(crate) fn index_of_min(values: impl Iterator<Item = f64>) -> usize {
+    values
+        .enumerate()
+        .fold(
+            (0, f64::INFINITY),
+            |best, (i, v)| if v < best.1 { (i, v) } else { best },
+        )
+        .0
+}

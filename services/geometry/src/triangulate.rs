@@ -99,14 +99,7 @@ pub fn triangulate_dlt(cams: &[Camera], obs: &[Observation]) -> Result<Point3<f6
         ata += r0.transpose() * r0 + r1.transpose() * r1;
     }
     let eig = ata.symmetric_eigen();
-    let (imin, _) = eig
-        .eigenvalues
-        .iter()
-        .enumerate()
-        .fold(
-            (0, f64::INFINITY),
-            |b, (i, &v)| if v < b.1 { (i, v) } else { b },
-        );
+    let imin = crate::index_of_min(eig.eigenvalues.iter().copied());
     let x = eig.eigenvectors.column(imin);
     if x[3].abs() < 1e-12 * x.norm() {
         return Err(GeometryError::Degenerate(
