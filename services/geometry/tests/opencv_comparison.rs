@@ -63,7 +63,7 @@ fn triangulation_is_no_worse_than_opencv_and_better_refined() {
     let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len() as f64 * 1000.0;
     let (cv, d2, r2, r4) = (mean(&cv_err), mean(&dlt2), mean(&ref2), mean(&ref4));
     println!(
-        "mean triangulation error over {} points (0.5 px noise): OpenCV triangulatePoints (2 views) {cv:.3} mm; ours DLT (2 views) {d2:.3} mm, refined (2 views) {r2:.3} mm, refined (4 views) {r4:.3} mm",
+        "mean triangulation error over {} points (0.5 px noise): OpenCV triangulatePoints (2 views) {cv:.4} mm; ours DLT (2 views) {d2:.4} mm, refined (2 views) {r2:.4} mm, refined (4 views) {r4:.4} mm",
         cv_err.len()
     );
     assert!(d2 <= cv * 1.01, "linear: ours {d2} mm vs OpenCV {cv} mm");
