@@ -432,6 +432,23 @@ mod tests {
     }
 
     #[test]
+    fn mutated_rig_files_never_panic() {
+        let mut rng = stereoscope_vision::raster::SplitMix64::new(5);
+        let bytes = THESIS_LAB.as_bytes();
+        let alphabet = b"0123456789-.e[]{}=,\"abcxyz \n";
+        for _ in 0..2000 {
+            let mut b = bytes.to_vec();
+            for _ in 0..1 + rng.next_u64() % 3 {
+                let i = (rng.next_u64() % b.len() as u64) as usize;
+                b[i] = alphabet[(rng.next_u64() % alphabet.len() as u64) as usize];
+            }
+            if let Ok(text) = std::str::from_utf8(&b) {
+                let _ = Rig::from_toml(text);
+            }
+        }
+    }
+
+    #[test]
     fn calibrated_camera_round_trips_through_a_rig_table() {
         let rig = Rig::from_toml(THESIS_LAB).unwrap();
         let cam = rig.cameras[1].camera;
