@@ -7,42 +7,17 @@
 mod fixtures;
 
 use criterion::{Criterion, criterion_group, criterion_main};
-use nalgebra::{Point2, Point3, Vector3};
+use nalgebra::{Point2, Point3};
 use std::hint::black_box;
 use stereoscope_geometry::calibrate::{DistortionModel, calibrate_camera};
-use stereoscope_geometry::synthetic::{ViewSpread, calibration_views, example_camera, grid};
-use stereoscope_geometry::transform::look_at;
+use stereoscope_geometry::synthetic::{
+    ViewSpread, calibration_views, example_camera, grid, ring_cameras,
+};
 use stereoscope_geometry::triangulate::{Observation, triangulate};
-use stereoscope_geometry::{Camera, Distortion, Intrinsics};
 use stereoscope_vision::raster::SplitMix64;
 
-fn cameras() -> Vec<Camera> {
-    (0..4)
-        .map(|i| {
-            let a = i as f64 * std::f64::consts::FRAC_PI_2 + 0.3;
-            let w = look_at(
-                Point3::new(2.5 * a.cos(), 2.5 * a.sin(), 1.8),
-                Point3::new(0.0, 0.0, 0.4),
-                Vector3::z(),
-            )
-            .unwrap();
-            let intr = Intrinsics::new(900.0, 895.0, 640.0, 360.0, 1280, 720).unwrap();
-            Camera::new(
-                intr,
-                Distortion {
-                    k1: -0.12,
-                    k2: 0.03,
-                    ..Default::default()
-                },
-                w.inverse(),
-            )
-            .unwrap()
-        })
-        .collect()
-}
-
 fn bench_triangulation(c: &mut Criterion) {
-    let cams = cameras();
+    let cams = ring_cameras(4);
     let mut rng = SplitMix64::new(1);
     let points: Vec<Vec<Observation>> = (0..1000)
         .map(|_| {

@@ -3,11 +3,11 @@
 //! `tests/data/`): `cargo run -p stereoscope-geometry --example opencv_fixtures`.
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::write_with_newline)]
 
-use nalgebra::{Point3, Vector3};
+use nalgebra::Point3;
 use std::fmt::Write as _;
-use stereoscope_geometry::synthetic::{ViewSpread, calibration_views, example_camera, grid};
-use stereoscope_geometry::transform::look_at;
-use stereoscope_geometry::{Camera, Distortion, Intrinsics};
+use stereoscope_geometry::synthetic::{
+    ViewSpread, calibration_views, example_camera, grid, ring_cameras,
+};
 use stereoscope_vision::raster::SplitMix64;
 
 fn main() {
@@ -39,30 +39,7 @@ fn main() {
 
     // Triangulation: 4 cameras around a 1 m volume, 300 points, 0.5 px noise.
     let mut rng = SplitMix64::new(2026);
-    let mut cams = Vec::new();
-    for i in 0..4 {
-        let a = i as f64 * std::f64::consts::FRAC_PI_2 + 0.3;
-        let w = look_at(
-            Point3::new(2.5 * a.cos(), 2.5 * a.sin(), 1.8),
-            Point3::new(0.0, 0.0, 0.4),
-            Vector3::z(),
-        )
-        .unwrap();
-        let intr =
-            Intrinsics::new(900.0 + 20.0 * i as f64, 895.0, 640.0, 360.0, 1280, 720).unwrap();
-        cams.push(
-            Camera::new(
-                intr,
-                Distortion {
-                    k1: -0.12,
-                    k2: 0.03,
-                    ..Default::default()
-                },
-                w.inverse(),
-            )
-            .unwrap(),
-        );
-    }
+    let cams = ring_cameras(4);
     let mut json = String::from("{\n\"cameras\": [\n");
     for (i, c) in cams.iter().enumerate() {
         let r = c.cam_from_world.rotation.to_rotation_matrix();

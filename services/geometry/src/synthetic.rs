@@ -110,3 +110,37 @@ pub fn calibration_views(
     }
     views
 }
+
+/// `n` cameras (1280 × 720, fx 900 + 20·i, k1 −0.12, k2 0.03) on a 2.5 m circle, 1.8 m up,
+/// all aimed at (0, 0, 0.4): a motion-capture ring around a 1 m volume.
+pub fn ring_cameras(n: usize) -> Vec<Camera> {
+    (0..n)
+        .filter_map(|i| {
+            let a = i as f64 * std::f64::consts::TAU / n.max(1) as f64 + 0.3;
+            let world_from_cam = look_at(
+                Point3::new(2.5 * a.cos(), 2.5 * a.sin(), 1.8),
+                Point3::new(0.0, 0.0, 0.4),
+                Vector3::z(),
+            )
+            .ok()?;
+            let intrinsics = Intrinsics {
+                fx: 900.0 + 20.0 * i as f64,
+                fy: 895.0,
+                cx: 640.0,
+                cy: 360.0,
+                width: 1280,
+                height: 720,
+            };
+            let distortion = Distortion {
+                k1: -0.12,
+                k2: 0.03,
+                ..Default::default()
+            };
+            Some(Camera {
+                intrinsics,
+                distortion,
+                cam_from_world: world_from_cam.inverse(),
+            })
+        })
+        .collect()
+}
