@@ -6,4 +6,5 @@ pub mod calibrate;
 pub mod csvin;
 pub mod example;
 pub mod fitdepth;
+pub mod reproduce;
 pub mod triangulate;

@@ -85,6 +85,20 @@ enum Command {
         #[arg(long)]
         json: bool,
     },
+    /// Repeat the thesis's four experiments in a simulation of its lab (docs/reproduce.md).
+    Reproduce {
+        /// Folder for the tables, plots and summary (replaced as a whole).
+        #[arg(long, default_value = "reproduce")]
+        out: PathBuf,
+        #[arg(long, default_value_t = 1994)]
+        seed: u64,
+        /// Readings per height (the thesis took 25).
+        #[arg(long, default_value_t = 25)]
+        readings: usize,
+        /// Gaussian noise, grey levels.
+        #[arg(long, default_value_t = 2.0)]
+        noise: f64,
+    },
     /// Triangulate points seen by a rig's cameras (CSV point,camera,u,v).
     Triangulate {
         /// The rig file (docs/rig.md).
@@ -233,6 +247,26 @@ fn main() -> ExitCode {
                 &mut std::io::stdout().lock(),
                 &mut std::io::stderr().lock(),
             ))
+        }
+        Command::Reproduce {
+            out,
+            seed,
+            readings,
+            noise,
+        } => {
+            let opts = stereoscope::reproduce::ReproduceOptions {
+                seed,
+                readings: readings.max(1),
+                noise_sigma: noise,
+                ..stereoscope::reproduce::ReproduceOptions::realistic(out)
+            };
+            let result = stereoscope::reproduce::run(&opts).and_then(|r| {
+                stereoscope::reproduce::write(&r, &opts)?;
+                print!("{}", stereoscope::reproduce::summary_md(&r, &opts));
+                println!("\nTables and plots in {}", opts.out.display());
+                Ok(0)
+            });
+            finish(result)
         }
         Command::FitDepth { samples, json } => finish(
             fitdepth::run(

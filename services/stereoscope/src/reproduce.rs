@@ -1,0 +1,657 @@
+//! `stereoscope reproduce`: the thesis's four experiments (chapter 4, Tables 4.1–4.4) repeated
+//! in a simulation of its lab, through the project's own libraries.
+//!
+//! The lab (`deploy/rigs/thesis-lab.toml`): two parallel cameras looking down from a 280 cm
+//! ceiling (camera 1 at 277.5 cm), 20 cm apart, 12.5 mm lenses, 320 × 240, PAR 0.86; the target
+//! is two 40 mm ping-pong balls glued together. As a user would:
+//!
+//! 1. **calibrate** both cameras jointly from rendered images of a dot-grid board held tilted
+//!    at several heights, and the world frame from the board lying on the floor;
+//! 2. **fit the area models** of camera 0 from the target on stands of known height;
+//! 3. **measure**: 25 readings at each height — 2–202 cm for one camera with the two- and
+//!    three-parameter models (Tables 4.1, 4.2), 2–152 cm for two cameras at the board's centre
+//!    and near its corner (Tables 4.3, 4.4) — each reading a freshly rendered, noisy frame.
+//!
+//! Each reading uses the moment engine (auto threshold, grey-level moments: the "area" is
+//! Σ(pixel − background)/contrast, far less noisy than a pixel count) and the geometry library
+//! (depth from area and the centroid's ray; or triangulation with the calibrated cameras).
+//! Heights are of the target's underside, as the thesis measured them. Error = actual −
+//! measured, as in the thesis's tables.
+
+use crate::csvin;
+use anyhow::{Context, anyhow};
+use nalgebra::{Isometry3, Point2, Point3, Translation3, UnitQuaternion, Vector3};
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+use stereoscope_geometry::Camera;
+use stereoscope_geometry::calibrate::{DistortionModel, RigView, calibrate_rig};
+use stereoscope_geometry::depth::{
+    DepthFit, fit_three_parameter, fit_two_parameter, point_from_depth,
+};
+use stereoscope_geometry::dotgrid::{DotGrid, detect, render as render_grid};
+use stereoscope_geometry::rig::Rig;
+use stereoscope_geometry::triangulate::{Observation, triangulate};
+use stereoscope_render::{Background, RenderOptions, Scene, Shape, State, Target, render_u8};
+use stereoscope_vision::raster::{SplitMix64, add_gaussian_noise};
+use stereoscope_vision::{
+    ExtractConfig, Extractor, GrayImage, Histogram, ThresholdMethod, Weighting,
+};
+
+/// The thesis's lab as shipped in `deploy/rigs/thesis-lab.toml`.
+pub const THESIS_LAB: &str = include_str!("../../../deploy/rigs/thesis-lab.toml");
+const BALL_RADIUS_M: f64 = 0.02;
+const BACKGROUND: f64 = 20.0;
+/// A font every machine of this kind has (Debian's fonts-dejavu-core), for the plots' text.
+pub const FONT: &str = "/usr/share/fonts/truetype/dejavu/DejaVuSans.ttf";
+
+/// The realistic setting is the default (docs/reproduce.md).
+#[derive(Debug, Clone)]
+pub struct ReproduceOptions {
+    pub out: PathBuf,
+    pub seed: u64,
+    /// Readings per height (the thesis took 25).
+    pub readings: usize,
+    pub noise_sigma: f64,
+    pub blur_sigma_px: f64,
+    /// Target brightness above the background, grey levels.
+    pub contrast: f64,
+    pub plots: bool,
+}
+
+impl ReproduceOptions {
+    pub fn realistic(out: PathBuf) -> Self {
+        ReproduceOptions {
+            out,
+            seed: 1994,
+            readings: 25,
+            noise_sigma: 2.0,
+            blur_sigma_px: 0.5,
+            contrast: 190.0,
+            plots: true,
+        }
+    }
+}
+
+/// One row of a thesis table.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Row {
+    pub actual_cm: f64,
+    pub mean_cm: f64,
+    pub sd_cm: f64,
+    /// Actual − measured, as the thesis's tables.
+    pub error_cm: f64,
+}
+
+/// One experiment's table.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Experiment {
+    pub key: &'static str,
+    pub title: &'static str,
+    pub thesis_table: &'static str,
+    pub thesis_rms_cm: f64,
+    pub rows: Vec<Row>,
+    pub rms_cm: f64,
+}
+
+impl Experiment {
+    /// The goal: one fifth of the thesis's RMS.
+    pub fn goal_cm(&self) -> f64 {
+        self.thesis_rms_cm / 5.0
+    }
+}
+
+/// Everything the run measured.
+#[derive(Debug, Clone)]
+pub struct Report {
+    pub calibration_rms_px: f64,
+    pub calibration_views: usize,
+    pub experiments: Vec<Experiment>,
+    pub fit_two: DepthFit,
+    pub fit_three: DepthFit,
+    /// `(height cm, grey-level area px)` of the fitting sweep.
+    pub area_samples: Vec<(f64, f64)>,
+}
+
+/// The blob of the target in a frame: grey-level area (px) and grey-level centroid.
+fn measure(img: &GrayImage<u8>, contrast: f64) -> Option<(f64, Point2<f64>)> {
+    let hist = Histogram::of(&img.view());
+    let bg = hist.mode().ok()?;
+    let thr = hist
+        .threshold::<u8>(ThresholdMethod::Triangle)
+        .ok()?
+        .max(bg + 12)
+        .min(255);
+    let mut ex = Extractor::new(ExtractConfig {
+        weighting: Weighting::Intensity { background: bg },
+        min_area_px: 10,
+        ..Default::default()
+    });
+    let blobs = ex.extract(img.view(), thr, &[]).ok()?;
+    let b = blobs.iter().max_by_key(|b| b.area_px())?;
+    let w = b.weighted?;
+    let (x, y) = w.centroid_px()?;
+    Some((w.w00 as f64 / contrast, Point2::new(x, y)))
+}
+
+struct Lab {
+    truth: Vec<Camera>,
+    calibrated: Vec<Camera>,
+    opts: ReproduceOptions,
+    rng: SplitMix64,
+}
+
+impl Lab {
+    fn frame(
+        &mut self,
+        cam: usize,
+        x: f64,
+        y: f64,
+        height_m: f64,
+    ) -> anyhow::Result<GrayImage<u8>> {
+        let state = State {
+            position: Point3::new(x, y, height_m + BALL_RADIUS_M),
+            heading_deg: 30.0,
+        };
+        let scene = Scene {
+            targets: vec![Target {
+                shape: Shape::DoubleSphere {
+                    radius_m: BALL_RADIUS_M,
+                },
+                world_from_body: state.world_from_body(),
+                contrast: self.opts.contrast,
+            }],
+            background: Background {
+                level: BACKGROUND,
+                gradient_per_px: (0.0, 0.0),
+            },
+            ..Scene::default()
+        };
+        let ro = RenderOptions {
+            samples: 4,
+            blur_sigma_px: self.opts.blur_sigma_px,
+            noise_sigma: self.opts.noise_sigma,
+            shot_noise_gain: None,
+            seed: self.rng.next_u64(),
+        };
+        Ok(render_u8(&self.truth[cam], &scene, &ro)?.image)
+    }
+}
+
+/// Board poses for calibration: tilted at several heights, then flat on the floor (last).
+fn board_poses(grid: &DotGrid, rng: &mut SplitMix64) -> Vec<Isometry3<f64>> {
+    let half = Vector3::new(
+        (grid.cols - 1) as f64 * grid.spacing / 2.0,
+        (grid.rows - 1) as f64 * grid.spacing / 2.0,
+        0.0,
+    );
+    let mut poses = Vec::new();
+    for _ in 0..12 {
+        let centre = Vector3::new(
+            rng.range(-0.12, 0.12),
+            rng.range(-0.1, 0.1),
+            rng.range(0.4, 1.3),
+        );
+        let axis_angle = rng.range(0.0, std::f64::consts::TAU);
+        let axis =
+            nalgebra::Unit::new_normalize(Vector3::new(axis_angle.cos(), axis_angle.sin(), 0.0));
+        let tilt = UnitQuaternion::from_axis_angle(&axis, rng.range(15.0, 35.0).to_radians());
+        let yaw = UnitQuaternion::from_axis_angle(
+            &Vector3::z_axis(),
+            rng.range(-20.0, 20.0).to_radians(),
+        );
+        let rot = tilt * yaw;
+        poses.push(Isometry3::from_parts(
+            Translation3::from(centre - rot * half),
+            rot,
+        ));
+    }
+    poses.push(Isometry3::translation(-half.x, -half.y, 0.0));
+    poses
+}
+
+fn calibrate_lab(
+    truth: &[Camera],
+    opts: &ReproduceOptions,
+    rng: &mut SplitMix64,
+) -> anyhow::Result<(Vec<Camera>, f64, usize)> {
+    let grid = DotGrid::new(9, 7, 0.08)?;
+    let poses = board_poses(&grid, rng);
+    let target: Vec<Point3<f64>> = (0..grid.len()).map(|i| grid.point(i)).collect();
+    let mut views = Vec::new();
+    let mut flat_view = None;
+    for (k, world_from_target) in poses.iter().enumerate() {
+        let mut obs = Vec::new();
+        let mut seen_by = 0;
+        for (c, cam) in truth.iter().enumerate() {
+            let mut img = render_grid(
+                cam,
+                &(cam.cam_from_world * world_from_target),
+                &grid,
+                BACKGROUND,
+                BACKGROUND + opts.contrast,
+                4,
+            )?;
+            add_gaussian_noise(&mut img, opts.noise_sigma, rng);
+            if let Ok(dots) = detect(img.view(), &grid) {
+                seen_by += 1;
+                obs.extend(dots.into_iter().map(|(i, px)| (c, i, px)));
+            }
+        }
+        if seen_by == truth.len() {
+            if k + 1 == poses.len() {
+                flat_view = Some(views.len());
+            }
+            views.push(RigView {
+                target: target.clone(),
+                observations: obs,
+            });
+        }
+    }
+    let flat = flat_view
+        .ok_or_else(|| anyhow!("the board lying on the floor was not found in both cameras"))?;
+    let sizes: Vec<(u32, u32)> = truth
+        .iter()
+        .map(|c| (c.intrinsics.width, c.intrinsics.height))
+        .collect();
+    let cal = calibrate_rig(&sizes, &views, DistortionModel::Radial)
+        .context("calibrating the lab's cameras")?;
+    let cam0_from_world = cal.cam0_from_target[flat];
+    let cams = cal
+        .cameras
+        .iter()
+        .map(|c| Camera {
+            intrinsics: c.intrinsics,
+            distortion: c.distortion,
+            cam_from_world: c.cam_from_cam0 * cam0_from_world,
+        })
+        .collect();
+    Ok((cams, cal.rms_px, views.len()))
+}
+
+fn row(actual_m: f64, readings: &[f64]) -> Row {
+    let n = readings.len().max(1) as f64;
+    let mean = readings.iter().sum::<f64>() / n;
+    let sd = (readings.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / n).sqrt();
+    Row {
+        actual_cm: actual_m * 100.0,
+        mean_cm: mean * 100.0,
+        sd_cm: sd * 100.0,
+        error_cm: (actual_m - mean) * 100.0,
+    }
+}
+
+fn rms(rows: &[Row]) -> f64 {
+    (rows.iter().map(|r| r.error_cm * r.error_cm).sum::<f64>() / rows.len().max(1) as f64).sqrt()
+}
+
+/// Runs the experiments (no files written): see [`write`] for the outputs.
+pub fn run(opts: &ReproduceOptions) -> anyhow::Result<Report> {
+    let rig = Rig::from_toml(THESIS_LAB).map_err(|e| anyhow!("the built-in thesis lab: {e}"))?;
+    let truth = rig.cameras();
+    let mut rng = SplitMix64::new(opts.seed);
+    let (calibrated, calibration_rms_px, calibration_views) =
+        calibrate_lab(&truth, opts, &mut rng)?;
+    let mut lab = Lab {
+        truth: truth.clone(),
+        calibrated,
+        opts: opts.clone(),
+        rng,
+    };
+    // Where the target stands: under camera 0 for one camera; for two, between the cameras
+    // and near the corner of what both see at the top height.
+    let under0 = truth[0].position_world();
+    let cam0_height = lab.calibrated[0].position_world().z;
+    // Fit the area models from stands at 7–197 cm (between the test heights), 5 readings each.
+    let mut samples = Vec::new();
+    let mut area_samples = Vec::new();
+    for k in 0..20 {
+        let h = 0.07 + 0.10 * k as f64;
+        let mut area = 0.0;
+        for _ in 0..5 {
+            let img = lab.frame(0, under0.x, under0.y, h)?;
+            area += measure(&img, opts.contrast)
+                .ok_or_else(|| anyhow!("no target found at {:.0} cm while fitting", h * 100.0))?
+                .0
+                / 5.0;
+        }
+        samples.push((area, cam0_height - (h + BALL_RADIUS_M)));
+        area_samples.push((h * 100.0, area));
+    }
+    let fit_two = fit_two_parameter(&samples)?;
+    let fit_three = fit_three_parameter(&samples)?;
+    let mut experiments = Vec::new();
+    for (key, title, table, thesis_rms, fit) in [
+        (
+            "one_camera_two_parameter",
+            "One camera, two-parameter area model",
+            "4.1",
+            1.90,
+            &fit_two,
+        ),
+        (
+            "one_camera_three_parameter",
+            "One camera, three-parameter area model",
+            "4.2",
+            0.79,
+            &fit_three,
+        ),
+    ] {
+        let mut rows = Vec::new();
+        for k in 0..21 {
+            let h = 0.02 + 0.10 * k as f64;
+            let mut readings = Vec::with_capacity(opts.readings);
+            for _ in 0..opts.readings {
+                let img = lab.frame(0, under0.x, under0.y, h)?;
+                let (area, c) = measure(&img, opts.contrast)
+                    .ok_or_else(|| anyhow!("no target found at {:.0} cm", h * 100.0))?;
+                let d = fit.model.depth_from_area(area, fit.range)?;
+                let p = point_from_depth(&lab.calibrated[0], c, d.depth)?;
+                readings.push(p.z - BALL_RADIUS_M);
+            }
+            rows.push(row(h, &readings));
+        }
+        let rms_cm = rms(&rows);
+        experiments.push(Experiment {
+            key,
+            title,
+            thesis_table: table,
+            thesis_rms_cm: thesis_rms,
+            rows,
+            rms_cm,
+        });
+    }
+    for (key, title, table, thesis_rms, x, y) in [
+        (
+            "two_cameras_centre",
+            "Two cameras, board centre",
+            "4.3",
+            0.6290,
+            0.0,
+            0.0,
+        ),
+        (
+            "two_cameras_corner",
+            "Two cameras, near the corner of the shared view",
+            "4.4",
+            1.0173,
+            0.20,
+            0.15,
+        ),
+    ] {
+        let mut rows = Vec::new();
+        for k in 0..16 {
+            let h = 0.02 + 0.10 * k as f64;
+            let mut readings = Vec::with_capacity(opts.readings);
+            for _ in 0..opts.readings {
+                let mut obs = Vec::new();
+                for c in 0..2 {
+                    let img = lab.frame(c, x, y, h)?;
+                    let (_, px) = measure(&img, opts.contrast).ok_or_else(|| {
+                        anyhow!("camera {c} found no target at {:.0} cm", h * 100.0)
+                    })?;
+                    obs.push(Observation {
+                        camera: c,
+                        pixel: px,
+                    });
+                }
+                let t = triangulate(&lab.calibrated, &obs)?;
+                readings.push(t.point_world.z - BALL_RADIUS_M);
+            }
+            rows.push(row(h, &readings));
+        }
+        let rms_cm = rms(&rows);
+        experiments.push(Experiment {
+            key,
+            title,
+            thesis_table: table,
+            thesis_rms_cm: thesis_rms,
+            rows,
+            rms_cm,
+        });
+    }
+    Ok(Report {
+        calibration_rms_px,
+        calibration_views,
+        experiments,
+        fit_two,
+        fit_three,
+        area_samples,
+    })
+}
+
+fn table_md(e: &Experiment) -> String {
+    let mut s = format!("# {} (thesis Table {})\n\n", e.title, e.thesis_table);
+    s.push_str("| Actual height (cm) | Measured height (cm), mean | Standard deviation (cm) | Error (cm) |\n|---|---|---|---|\n");
+    for r in &e.rows {
+        let _ = writeln!(
+            s,
+            "| {:.1} | {:.2} | {:.2} | {:.2} |",
+            r.actual_cm, r.mean_cm, r.sd_cm, r.error_cm
+        );
+    }
+    let _ = writeln!(
+        s,
+        "\nRoot-mean-square error: **{:.3} cm** (thesis: {:.2} cm; goal: {:.3} cm).",
+        e.rms_cm,
+        e.thesis_rms_cm,
+        e.goal_cm()
+    );
+    s
+}
+
+fn table_csv(e: &Experiment) -> String {
+    let mut s =
+        String::from("actual_height_cm,measured_height_cm,standard_deviation_cm,error_cm\n");
+    for r in &e.rows {
+        let _ = writeln!(
+            s,
+            "{:.1},{:.4},{:.4},{:.4}",
+            r.actual_cm, r.mean_cm, r.sd_cm, r.error_cm
+        );
+    }
+    s
+}
+
+/// The summary table: the thesis's RMS next to ours.
+pub fn summary_md(r: &Report, opts: &ReproduceOptions) -> String {
+    let mut s = String::from("# The thesis's experiments, reproduced\n\n");
+    let _ = writeln!(
+        s,
+        "Setting: 320 × 240 cameras with PAR 0.86, Gaussian noise σ = {} grey levels, defocus blur σ = {} px, target {} levels above a background of {}; {} readings per height; seed {}. Calibration: {} views of a 9 × 7 dot grid (8 cm), RMS reprojection error {:.3} px.\n",
+        opts.noise_sigma,
+        opts.blur_sigma_px,
+        opts.contrast,
+        BACKGROUND,
+        opts.readings,
+        opts.seed,
+        r.calibration_views,
+        r.calibration_rms_px
+    );
+    s.push_str("| experiment | thesis table | thesis RMS (cm) | ours RMS (cm) | goal: ⅕ of the thesis (cm) | met |\n|---|---|---|---|---|---|\n");
+    for e in &r.experiments {
+        let _ = writeln!(
+            s,
+            "| {} | {} | {:.2} | {:.3} | {:.3} | {} |",
+            e.title,
+            e.thesis_table,
+            e.thesis_rms_cm,
+            e.rms_cm,
+            e.goal_cm(),
+            if e.rms_cm <= e.goal_cm() { "yes" } else { "no" }
+        );
+    }
+    s
+}
+
+fn plot_measured(path: &Path, e: &Experiment) -> anyhow::Result<()> {
+    use plotters::prelude::*;
+    let root = BitMapBackend::new(path, (640, 480)).into_drawing_area();
+    root.fill(&WHITE).map_err(|e| anyhow!("{e}"))?;
+    let top = e
+        .rows
+        .iter()
+        .map(|r| r.actual_cm.max(r.mean_cm))
+        .fold(0.0, f64::max)
+        + 10.0;
+    let mut chart = ChartBuilder::on(&root)
+        .caption(
+            format!("{} (RMS {:.3} cm)", e.title, e.rms_cm),
+            ("sans-serif", 18),
+        )
+        .margin(12)
+        .x_label_area_size(40)
+        .y_label_area_size(50)
+        .build_cartesian_2d(0f64..top, 0f64..top)
+        .map_err(|e| anyhow!("{e}"))?;
+    chart
+        .configure_mesh()
+        .x_desc("actual height (cm)")
+        .y_desc("measured height (cm)")
+        .draw()
+        .map_err(|e| anyhow!("{e}"))?;
+    chart
+        .draw_series(LineSeries::new([(0.0, 0.0), (top, top)], &BLACK))
+        .map_err(|e| anyhow!("{e}"))?;
+    chart
+        .draw_series(
+            e.rows
+                .iter()
+                .map(|r| Circle::new((r.actual_cm, r.mean_cm), 3, RED.filled())),
+        )
+        .map_err(|e| anyhow!("{e}"))?;
+    root.present().map_err(|e| anyhow!("{e}"))?;
+    Ok(())
+}
+
+fn plot_area(path: &Path, r: &Report, cam0_height_cm: f64) -> anyhow::Result<()> {
+    use plotters::prelude::*;
+    let root = BitMapBackend::new(path, (640, 480)).into_drawing_area();
+    root.fill(&WHITE).map_err(|e| anyhow!("{e}"))?;
+    let max_area = r.area_samples.iter().map(|s| s.1).fold(0.0, f64::max) * 1.1;
+    let mut chart = ChartBuilder::on(&root)
+        .caption(
+            "Grey-level area vs height, with the fitted models",
+            ("sans-serif", 18),
+        )
+        .margin(12)
+        .x_label_area_size(40)
+        .y_label_area_size(60)
+        .build_cartesian_2d(0f64..210f64, 0f64..max_area)
+        .map_err(|e| anyhow!("{e}"))?;
+    chart
+        .configure_mesh()
+        .x_desc("height (cm)")
+        .y_desc("area (px)")
+        .draw()
+        .map_err(|e| anyhow!("{e}"))?;
+    chart
+        .draw_series(
+            r.area_samples
+                .iter()
+                .map(|&(h, a)| Circle::new((h, a), 3, RED.filled())),
+        )
+        .map_err(|e| anyhow!("{e}"))?;
+    for (fit, colour) in [(&r.fit_two, BLUE), (&r.fit_three, BLACK)] {
+        let curve = (0..=200).map(|h| {
+            let d = cam0_height_cm / 100.0 - (h as f64 / 100.0 + BALL_RADIUS_M);
+            (h as f64, fit.model.area_at(d))
+        });
+        chart
+            .draw_series(LineSeries::new(curve, &colour))
+            .map_err(|e| anyhow!("{e}"))?;
+    }
+    root.present().map_err(|e| anyhow!("{e}"))?;
+    Ok(())
+}
+
+/// Writes the tables (Markdown and CSV), the plots and the summary to `opts.out`, all or
+/// nothing: into a fresh folder beside it, renamed into place at the end.
+pub fn write(r: &Report, opts: &ReproduceOptions) -> anyhow::Result<()> {
+    let out = &opts.out;
+    let parent = out
+        .parent()
+        .filter(|p| !p.as_os_str().is_empty())
+        .unwrap_or(Path::new("."));
+    let staging = parent.join(format!(
+        ".{}.partial-{}",
+        out.file_name()
+            .and_then(|n| n.to_str())
+            .unwrap_or("reproduce"),
+        std::process::id()
+    ));
+    let _ = std::fs::remove_dir_all(&staging);
+    std::fs::create_dir_all(&staging)
+        .with_context(|| format!("{}: cannot create the output folder", out.display()))?;
+    let result = (|| -> anyhow::Result<()> {
+        for e in &r.experiments {
+            std::fs::write(staging.join(format!("{}.md", e.key)), table_md(e))?;
+            std::fs::write(staging.join(format!("{}.csv", e.key)), table_csv(e))?;
+        }
+        std::fs::write(staging.join("summary.md"), summary_md(r, opts))?;
+        if opts.plots {
+            let font = std::fs::read(FONT).with_context(|| {
+                format!(
+                    "cannot read the font {FONT} for the plots (Debian package fonts-dejavu-core)"
+                )
+            })?;
+            let font: &'static [u8] = Box::leak(font.into_boxed_slice());
+            plotters::style::register_font("sans-serif", plotters::style::FontStyle::Normal, font)
+                .map_err(|_| anyhow!("{FONT} is not a usable font"))?;
+            for e in &r.experiments {
+                plot_measured(&staging.join(format!("{}.png", e.key)), e)?;
+            }
+            let h0 = Rig::from_toml(THESIS_LAB)
+                .map_err(|e| anyhow!("{e}"))?
+                .cameras[0]
+                .camera
+                .position_world()
+                .z
+                * 100.0;
+            plot_area(&staging.join("area_vs_height.png"), r, h0)?;
+        }
+        Ok(())
+    })();
+    if let Err(e) = result {
+        let _ = std::fs::remove_dir_all(&staging);
+        return Err(e.context(format!(
+            "{}: writing the results failed; nothing was written there",
+            out.display()
+        )));
+    }
+    if out.exists() {
+        std::fs::remove_dir_all(out)
+            .with_context(|| format!("{}: cannot replace the old results", out.display()))?;
+    }
+    std::fs::rename(&staging, out)
+        .with_context(|| format!("{}: cannot move the results into place", out.display()))?;
+    Ok(())
+}
+
+/// Reads a table CSV written by [`write`] (for checks).
+pub fn read_table(path: &Path) -> anyhow::Result<Vec<Row>> {
+    let rows = csvin::read(
+        path,
+        &[
+            "actual_height_cm",
+            "measured_height_cm",
+            "standard_deviation_cm",
+            "error_cm",
+        ],
+    )?;
+    rows.iter()
+        .map(|r| {
+            Ok(Row {
+                actual_cm: r
+                    .number(0, "actual_height_cm")
+                    .map_err(anyhow::Error::msg)?,
+                mean_cm: r
+                    .number(1, "measured_height_cm")
+                    .map_err(anyhow::Error::msg)?,
+                sd_cm: r
+                    .number(2, "standard_deviation_cm")
+                    .map_err(anyhow::Error::msg)?,
+                error_cm: r.number(3, "error_cm").map_err(anyhow::Error::msg)?,
+            })
+        })
+        .collect()
+}

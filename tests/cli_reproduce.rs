@@ -1,0 +1,84 @@
+//! System tests of `stereoscope reproduce`: a reduced run (3 readings per height) through the
+//! real binary, and an output folder that cannot be written.
+#![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)] // test helpers may fail loudly
+
+mod common;
+use common::{TempDir, run_with_limit, stderr};
+use std::time::Duration;
+use stereoscope::reproduce::read_table;
+
+#[test]
+fn reduced_reproduce_writes_every_table_and_beats_the_thesis() {
+    let dir = TempDir::new("reproduce");
+    let out = dir.0.join("results");
+    let o = run_with_limit(
+        &[
+            "reproduce",
+            "--out",
+            out.to_str().unwrap(),
+            "--readings",
+            "3",
+        ],
+        Duration::from_secs(300),
+    );
+    assert!(o.status.success(), "{}", stderr(&o));
+    for (key, heights, thesis_rms) in [
+        ("one_camera_two_parameter", 21, 1.90),
+        ("one_camera_three_parameter", 21, 0.79),
+        ("two_cameras_centre", 16, 0.6290),
+        ("two_cameras_corner", 16, 1.0173),
+    ] {
+        let rows = read_table(&out.join(format!("{key}.csv"))).unwrap();
+        assert_eq!(rows.len(), heights, "{key}");
+        assert_eq!(
+            (rows[0].actual_cm, rows[heights - 1].actual_cm),
+            (2.0, 2.0 + 10.0 * (heights - 1) as f64)
+        );
+        let rms =
+            (rows.iter().map(|r| r.error_cm * r.error_cm).sum::<f64>() / rows.len() as f64).sqrt();
+        // Far better than the thesis's lab (the goal of a fifth is not met everywhere yet:
+        // docs/reproduce.md).
+        assert!(
+            rms < thesis_rms / 2.0,
+            "{key}: RMS {rms} cm vs the thesis's {thesis_rms} cm"
+        );
+        assert!(out.join(format!("{key}.md")).exists() && out.join(format!("{key}.png")).exists());
+    }
+    let summary = std::fs::read_to_string(out.join("summary.md")).unwrap();
+    assert!(
+        summary.contains("| One camera, three-parameter area model | 4.2 | 0.79 |"),
+        "{summary}"
+    );
+    assert!(out.join("area_vs_height.png").exists());
+}
+
+#[test]
+fn an_unwritable_output_folder_is_named_and_nothing_is_left() {
+    let dir = TempDir::new("reproduce-bad");
+    // A file where the output's parent folder should be.
+    let blocker = dir.0.join("not-a-folder");
+    std::fs::write(&blocker, "x").unwrap();
+    let out = blocker.join("results");
+    let o = run_with_limit(
+        &[
+            "reproduce",
+            "--out",
+            out.to_str().unwrap(),
+            "--readings",
+            "1",
+        ],
+        Duration::from_secs(300),
+    );
+    assert_eq!(o.status.code(), Some(1));
+    let e = stderr(&o);
+    assert!(
+        e.contains("not-a-folder/results") && e.contains("cannot create"),
+        "{e}"
+    );
+    assert!(!out.exists());
+    let leftovers: Vec<_> = std::fs::read_dir(&dir.0)
+        .unwrap()
+        .map(|e| e.unwrap().file_name())
+        .collect();
+    assert_eq!(leftovers.len(), 1, "{leftovers:?}");
+}
