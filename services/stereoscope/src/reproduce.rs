@@ -41,6 +41,12 @@ use stereoscope_vision::{
 pub const THESIS_LAB: &str = include_str!("../../../deploy/rigs/thesis-lab.toml");
 const BALL_RADIUS_M: f64 = 0.02;
 const BACKGROUND: f64 = 20.0;
+/// Where coverage saturates, grey levels above the background: just below the darkest part of
+/// the target, its rim (the lit ball's rim is 60 % of the 190-level contrast, 114), which a
+/// user reads off any frame of the target.
+const FULL_ABOVE_BACKGROUND: u32 = 110;
+/// Calibration views with the board held tilted.
+const TILTED_VIEWS: usize = 24;
 /// A font every machine of this kind has (Debian's fonts-dejavu-core), for the plots' text.
 pub const FONT: &str = "/usr/share/fonts/truetype/dejavu/DejaVuSans.ttf";
 
@@ -112,7 +118,16 @@ pub struct Report {
     pub area_samples: Vec<(f64, f64)>,
 }
 
-/// The blob of the target in a frame: grey-level area (px) and grey-level centroid.
+/// The target in a frame: its grey-level area (px) and its coverage centroid.
+///
+/// Two weightings of the same blob, each where it is best. The **area** is the grey-level area
+/// Σ(pixel − background)/contrast: every pixel weighs its full brightness, so pixel noise
+/// hardly moves it, and the ball's shading is the same at every height for a camera looking
+/// down (a pixel count is about six times noisier). The **centroid** uses coverage weights
+/// (`Weighting::Coverage`) saturating `FULL_ABOVE_BACKGROUND` levels above the background —
+/// below the ball's darkest part, its rim — i.e. the silhouette with sub-pixel edges: grey-level
+/// weights pull it towards the lit top of the ball, which the two cameras see from different
+/// sides, a 2–3 mm height bias when triangulating.
 fn measure(img: &GrayImage<u8>, contrast: f64) -> Option<(f64, Point2<f64>)> {
     let hist = Histogram::of(&img.view());
     let bg = hist.mode().ok()?;
@@ -120,17 +135,24 @@ fn measure(img: &GrayImage<u8>, contrast: f64) -> Option<(f64, Point2<f64>)> {
         .threshold::<u8>(ThresholdMethod::Triangle)
         .ok()?
         .max(bg + 12)
-        .min(255);
-    let mut ex = Extractor::new(ExtractConfig {
-        weighting: Weighting::Intensity { background: bg },
-        min_area_px: 10,
-        ..Default::default()
-    });
-    let blobs = ex.extract(img.view(), thr, &[]).ok()?;
-    let b = blobs.iter().max_by_key(|b| b.area_px())?;
-    let w = b.weighted?;
-    let (x, y) = w.centroid_px()?;
-    Some((w.w00 as f64 / contrast, Point2::new(x, y)))
+        .min(254);
+    let blob = |weighting| -> Option<stereoscope_vision::moments::WeightedMoments> {
+        let mut ex = Extractor::new(ExtractConfig {
+            weighting,
+            min_area_px: 10,
+            ..Default::default()
+        });
+        let blobs = ex.extract(img.view(), thr, &[]).ok()?;
+        blobs.iter().max_by_key(|b| b.area_px())?.weighted
+    };
+    let area = blob(Weighting::Intensity { background: bg })?.w00 as f64 / contrast;
+    let full = (bg + FULL_ABOVE_BACKGROUND).max(thr + 1);
+    let (x, y) = blob(Weighting::Coverage {
+        background: bg,
+        full,
+    })?
+    .centroid_px()?;
+    Some((area, Point2::new(x, y)))
 }
 
 struct Lab {
@@ -185,7 +207,7 @@ fn board_poses(grid: &DotGrid, rng: &mut SplitMix64) -> Vec<Isometry3<f64>> {
         0.0,
     );
     let mut poses = Vec::new();
-    for _ in 0..12 {
+    for _ in 0..TILTED_VIEWS {
         let centre = Vector3::new(
             rng.range(-0.12, 0.12),
             rng.range(-0.1, 0.1),
@@ -237,8 +259,11 @@ fn calibrate_lab(
                 obs.extend(dots.into_iter().map(|(i, px)| (c, i, px)));
             }
         }
-        if seen_by == truth.len() {
-            if k + 1 == poses.len() {
+        // A tilted view seen by one camera still helps that camera's intrinsics; the view on
+        // the floor, which fixes the world frame, must be seen by both.
+        let flat = k + 1 == poses.len();
+        if seen_by == truth.len() || (!flat && seen_by > 0) {
+            if flat {
                 flat_view = Some(views.len());
             }
             views.push(RigView {
@@ -301,18 +326,19 @@ pub fn run(opts: &ReproduceOptions) -> anyhow::Result<Report> {
     // and near the corner of what both see at the top height.
     let under0 = truth[0].position_world();
     let cam0_height = lab.calibrated[0].position_world().z;
-    // Fit the area models from stands at 7–197 cm (between the test heights), 5 readings each.
+    // Fit the area models from stands at 7–197 cm (between the test heights), as many readings
+    // each as the experiments take.
     let mut samples = Vec::new();
     let mut area_samples = Vec::new();
     for k in 0..20 {
         let h = 0.07 + 0.10 * k as f64;
         let mut area = 0.0;
-        for _ in 0..5 {
+        for _ in 0..opts.readings {
             let img = lab.frame(0, under0.x, under0.y, h)?;
             area += measure(&img, opts.contrast)
                 .ok_or_else(|| anyhow!("no target found at {:.0} cm while fitting", h * 100.0))?
                 .0
-                / 5.0;
+                / opts.readings as f64;
         }
         samples.push((area, cam0_height - (h + BALL_RADIUS_M)));
         area_samples.push((h * 100.0, area));

@@ -143,6 +143,25 @@ pub enum Weighting {
     /// Also grey-level moments with weight `pixel − background` over each blob's pixels.
     /// `background` must be below every threshold used.
     Intensity { background: u32 },
+    /// Also coverage moments: weight `min(pixel − background, full − background)`, i.e. each
+    /// pixel's estimated coverage by the target times `full − background`. Pixels at or above
+    /// `full` count as fully covered whatever their shading, edge pixels in proportion, so the
+    /// weighted centroid is the silhouette's with sub-pixel edges (no pull towards the lit side
+    /// of a ball) and `w00 / (full − background)` its area in pixels.
+    Coverage { background: u32, full: u32 },
+}
+
+impl Weighting {
+    /// `(background, largest weight)` when grey-level moments are computed.
+    fn levels(self) -> Option<(u32, u32)> {
+        match self {
+            Weighting::Binary => None,
+            Weighting::Intensity { background } => Some((background, u32::MAX)),
+            Weighting::Coverage { background, full } => {
+                Some((background, full.saturating_sub(background)))
+            }
+        }
+    }
 }
 
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -675,10 +694,7 @@ impl Scratch {
             Connectivity::Eight => 1u32,
             Connectivity::Four => 0u32,
         };
-        let background = match cfg.weighting {
-            Weighting::Binary => None,
-            Weighting::Intensity { background } => Some(background),
-        };
+        let background = cfg.weighting.levels();
         let mut prev_y: Option<u32> = None;
         for (bi, band) in region.bands.iter().enumerate() {
             let (y0, y1) = (band.y0.max(ya), band.y1.min(yb));
@@ -807,10 +823,10 @@ impl Scratch {
                     if clipped {
                         a.flags.insert(BlobFlags::CLIPPED);
                     }
-                    if let Some(bg) = background {
+                    if let Some((bg, cap)) = background {
                         let (mut sw, mut swx, mut swxx) = (0u64, 0u64, 0u64);
                         for (x, p) in (x0..=x1).zip(&row[x0 as usize..=x1 as usize]) {
-                            let w = p.value().saturating_sub(bg) as u64;
+                            let w = p.value().saturating_sub(bg).min(cap) as u64;
                             let xf = x as u64;
                             sw += w;
                             swx += w * xf;
@@ -903,7 +919,7 @@ impl Extractor {
         windows: &[Window],
     ) -> Result<&[Blob], VisionError> {
         check_threshold::<P>(threshold)?;
-        if let Weighting::Intensity { background } = self.cfg.weighting {
+        if let Some((background, _)) = self.cfg.weighting.levels() {
             let min_thr = windows
                 .iter()
                 .filter_map(|w| w.threshold)
@@ -973,7 +989,7 @@ impl Extractor {
             Connectivity::Eight => 1u32,
             Connectivity::Four => 0u32,
         };
-        let weighted = matches!(self.cfg.weighting, Weighting::Intensity { .. });
+        let weighted = self.cfg.weighting.levels().is_some();
         self.gparent.clear();
         self.gacc.clear();
         self.gwacc.clear();
@@ -1434,6 +1450,69 @@ mod tests {
         assert_eq!(s.regions, 10);
         assert_eq!(s.below_min_area, 6);
         assert_eq!(s.dropped_over_capacity, 1);
+    }
+
+    #[test]
+    fn coverage_weights_give_the_silhouette_not_the_lit_side() {
+        // A disc of radius 8, 80 levels bright at its rim, with a highlight off-centre (a lit
+        // ball): grey-level weights pull the centroid to the highlight; coverage weights,
+        // saturating below the rim's level, give the silhouette.
+        let (cx, cy, r) = (40.3, 30.6, 8.0);
+        let mut img = GrayImage::filled(80, 60, 20u8).unwrap();
+        let n = 16;
+        for y in 0..60u32 {
+            for x in 0..80u32 {
+                let mut cov = 0.0;
+                for j in 0..n {
+                    for i in 0..n {
+                        let (sx, sy) = (
+                            x as f64 - 0.5 + (i as f64 + 0.5) / n as f64,
+                            y as f64 - 0.5 + (j as f64 + 0.5) / n as f64,
+                        );
+                        if (sx - cx).powi(2) + (sy - cy).powi(2) <= r * r {
+                            cov += 1.0 / (n * n) as f64;
+                        }
+                    }
+                }
+                let d2 = (x as f64 - cx - 3.0).powi(2) + (y as f64 - cy).powi(2);
+                let shade = 80.0 + 100.0 * (-d2 / 8.0).exp();
+                img.set(x, y, (20.0 + cov * shade).round() as u8);
+            }
+        }
+        let mut intensity = Extractor::new(ExtractConfig {
+            weighting: Weighting::Intensity { background: 20 },
+            ..Default::default()
+        });
+        let bi = intensity.extract(img.view(), 25, &[]).unwrap()[0];
+        let mut coverage = Extractor::new(ExtractConfig {
+            weighting: Weighting::Coverage {
+                background: 20,
+                full: 100,
+            },
+            ..Default::default()
+        });
+        let bc = coverage.extract(img.view(), 25, &[]).unwrap()[0];
+        let (ix, _) = bi.best_centroid_px();
+        let (kx, ky) = bc.best_centroid_px();
+        assert!(ix - cx > 0.2, "grey-level centroid {ix} should lean right");
+        assert!(
+            (kx - cx).abs() < 0.05 && (ky - cy).abs() < 0.05,
+            "coverage centroid ({kx}, {ky})"
+        );
+        let area = bc.weighted.unwrap().w00 as f64 / 80.0;
+        let truth = std::f64::consts::PI * r * r;
+        assert!(
+            (area - truth).abs() / truth < 0.02,
+            "area {area} vs {truth}"
+        );
+        let mut bad = Extractor::new(ExtractConfig {
+            weighting: Weighting::Coverage {
+                background: 30,
+                full: 60,
+            },
+            ..Default::default()
+        });
+        assert!(bad.extract(img.view(), 25, &[]).is_err());
     }
 
     #[test]
