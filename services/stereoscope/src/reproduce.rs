@@ -31,6 +31,7 @@ use stereoscope_geometry::depth::{
 use stereoscope_geometry::dotgrid::{DotGrid, detect, render as render_grid};
 use stereoscope_geometry::rig::Rig;
 use stereoscope_geometry::triangulate::{Observation, triangulate};
+use stereoscope_geometry::world_heading::{AxisView, fuse};
 use stereoscope_render::{Background, RenderOptions, Scene, Shape, State, Target, render_u8};
 use stereoscope_vision::raster::{SplitMix64, add_gaussian_noise};
 use stereoscope_vision::{
@@ -62,6 +63,8 @@ pub struct ReproduceOptions {
     /// Target brightness above the background, grey levels.
     pub contrast: f64,
     pub plots: bool,
+    /// Also rerun the four experiments at other noise levels (the noise table).
+    pub noise_sweep: bool,
 }
 
 impl ReproduceOptions {
@@ -74,6 +77,7 @@ impl ReproduceOptions {
             blur_sigma_px: 0.5,
             contrast: 190.0,
             plots: true,
+            noise_sweep: true,
         }
     }
 }
@@ -116,6 +120,29 @@ pub struct Report {
     pub fit_three: DepthFit,
     /// `(height cm, grey-level area px)` of the fitting sweep.
     pub area_samples: Vec<(f64, f64)>,
+    /// The double ball's heading from both cameras: `(height cm, true °, measured °, error °)`
+    /// per reading; an axis, so compared modulo 180°.
+    pub heading: Vec<(f64, f64, f64, f64)>,
+    /// Two-camera height error over the shared view at `HEAT_HEIGHT_M`: `(x cm, y cm, mean
+    /// error cm)`, NaN where a camera did not see the target.
+    pub heat: Vec<(f64, f64, f64)>,
+    /// `(noise σ, RMS of the four experiments in order)` at other noise levels.
+    pub noise: Vec<(f64, [f64; 4])>,
+}
+
+/// Height of the heat-map sweep.
+pub const HEAT_HEIGHT_M: f64 = 0.52;
+
+impl Report {
+    /// RMS and largest heading error, degrees.
+    pub fn heading_error_deg(&self) -> (f64, f64) {
+        let n = self.heading.len().max(1) as f64;
+        let rms = (self.heading.iter().map(|h| h.3 * h.3).sum::<f64>() / n).sqrt();
+        (
+            rms,
+            self.heading.iter().map(|h| h.3.abs()).fold(0.0, f64::max),
+        )
+    }
 }
 
 /// The target in a frame: its grey-level area (px) and its coverage centroid.
@@ -155,6 +182,32 @@ fn measure(img: &GrayImage<u8>, contrast: f64) -> Option<(f64, Point2<f64>)> {
     Some((area, Point2::new(x, y)))
 }
 
+/// The target's coverage centroid, major-axis angle (degrees CCW on screen, PAR-corrected) and
+/// roundness in a frame.
+fn measure_axis(img: &GrayImage<u8>, par: f64) -> Option<(Point2<f64>, f64, f64)> {
+    let hist = Histogram::of(&img.view());
+    let bg = hist.mode().ok()?;
+    let thr = hist
+        .threshold::<u8>(ThresholdMethod::Triangle)
+        .ok()?
+        .max(bg + 12)
+        .min(254);
+    let full = (bg + FULL_ABOVE_BACKGROUND).max(thr + 1);
+    let mut ex = Extractor::new(ExtractConfig {
+        weighting: Weighting::Coverage {
+            background: bg,
+            full,
+        },
+        min_area_px: 10,
+        ..Default::default()
+    });
+    let blobs = ex.extract(img.view(), thr, &[]).ok()?;
+    let b = blobs.iter().max_by_key(|b| b.area_px())?;
+    let (x, y) = b.best_centroid_px();
+    let shape = b.best_central().axis_shape(par);
+    Some((Point2::new(x, y), shape.angle_deg, shape.roundness()))
+}
+
 struct Lab {
     truth: Vec<Camera>,
     calibrated: Vec<Camera>,
@@ -170,9 +223,20 @@ impl Lab {
         y: f64,
         height_m: f64,
     ) -> anyhow::Result<GrayImage<u8>> {
+        self.frame_heading(cam, x, y, height_m, 30.0)
+    }
+
+    fn frame_heading(
+        &mut self,
+        cam: usize,
+        x: f64,
+        y: f64,
+        height_m: f64,
+        heading_deg: f64,
+    ) -> anyhow::Result<GrayImage<u8>> {
         let state = State {
             position: Point3::new(x, y, height_m + BALL_RADIUS_M),
-            heading_deg: 30.0,
+            heading_deg,
         };
         let scene = Scene {
             targets: vec![Target {
@@ -435,6 +499,91 @@ pub fn run(opts: &ReproduceOptions) -> anyhow::Result<Report> {
             rms_cm,
         });
     }
+    // Heading: the double ball at the centre, six heights, headings every 10°, both cameras.
+    let mut heading = Vec::new();
+    for k in 0..6 {
+        let h = 0.02 + 0.30 * k as f64;
+        for step in 0..18 {
+            let truth_deg = 10.0 * step as f64 + 3.0;
+            let mut views = Vec::new();
+            let mut point_obs = Vec::new();
+            for c in 0..2 {
+                let img = lab.frame_heading(c, 0.0, 0.0, h, truth_deg)?;
+                let par = lab.calibrated[c].intrinsics.par();
+                let (px, angle, roundness) = measure_axis(&img, par)
+                    .ok_or_else(|| anyhow!("camera {c} found no target for the heading"))?;
+                views.push(AxisView {
+                    camera: c,
+                    centroid_px: px,
+                    angle_deg: angle,
+                    directed: false,
+                    weight: (1.0 - roundness).max(1e-3),
+                });
+                point_obs.push(Observation {
+                    camera: c,
+                    pixel: px,
+                });
+            }
+            let p = triangulate(&lab.calibrated, &point_obs)?.point_world;
+            let fused = fuse(&lab.calibrated, &views, &p)
+                .ok_or_else(|| anyhow!("no heading at {:.0} cm", h * 100.0))?;
+            let err =
+                stereoscope_vision::heading::wrap_half_turn_deg(fused.heading_deg - truth_deg);
+            heading.push((h * 100.0, truth_deg, fused.heading_deg, err));
+        }
+    }
+    // The height error over the shared view.
+    let mut heat = Vec::new();
+    for iy in 0..7 {
+        for ix in 0..7 {
+            let (x, y) = (-0.45 + 0.15 * ix as f64, -0.45 + 0.15 * iy as f64);
+            let mut sum = 0.0;
+            let n = opts.readings.clamp(1, 5);
+            let mut seen = true;
+            for _ in 0..n {
+                let mut obs = Vec::new();
+                for c in 0..2 {
+                    let img = lab.frame(c, x, y, HEAT_HEIGHT_M)?;
+                    match measure(&img, opts.contrast) {
+                        Some((_, px)) => obs.push(Observation {
+                            camera: c,
+                            pixel: px,
+                        }),
+                        None => seen = false,
+                    }
+                }
+                if !seen {
+                    break;
+                }
+                sum += triangulate(&lab.calibrated, &obs)?.point_world.z - BALL_RADIUS_M;
+            }
+            let err = if seen {
+                (HEAT_HEIGHT_M - sum / n as f64) * 100.0
+            } else {
+                f64::NAN
+            };
+            heat.push((x * 100.0, y * 100.0, err));
+        }
+    }
+    // The same four experiments at other noise levels (fewer readings, no further sweep).
+    let mut noise = Vec::new();
+    if opts.noise_sweep {
+        for sigma in [0.0, 1.0, 2.0, 4.0, 8.0] {
+            let sub = ReproduceOptions {
+                noise_sigma: sigma,
+                readings: opts.readings.min(10),
+                noise_sweep: false,
+                plots: false,
+                ..opts.clone()
+            };
+            let r = run(&sub)?;
+            let mut rms = [0.0; 4];
+            for (slot, e) in rms.iter_mut().zip(&r.experiments) {
+                *slot = e.rms_cm;
+            }
+            noise.push((sigma, rms));
+        }
+    }
     Ok(Report {
         calibration_rms_px,
         calibration_views,
@@ -442,6 +591,9 @@ pub fn run(opts: &ReproduceOptions) -> anyhow::Result<Report> {
         fit_two,
         fit_three,
         area_samples,
+        heading,
+        heat,
+        noise,
     })
 }
 
@@ -505,6 +657,43 @@ pub fn summary_md(r: &Report, opts: &ReproduceOptions) -> String {
             e.goal_cm(),
             if e.rms_cm <= e.goal_cm() { "yes" } else { "no" }
         );
+    }
+    let (h_rms, h_max) = r.heading_error_deg();
+    let _ = writeln!(
+        s,
+        "\nHeading of the double ball (an axis: modulo 180°), both cameras, {} readings at the centre, 2–152 cm, headings every 10°: RMS error **{:.3}°**, largest {:.2}° (goal ≤ 1° RMS: {}). The thesis did not measure it.",
+        r.heading.len(),
+        h_rms,
+        h_max,
+        if h_rms <= 1.0 { "met" } else { "not met" }
+    );
+    let cells: Vec<f64> = r
+        .heat
+        .iter()
+        .map(|h| h.2)
+        .filter(|e| e.is_finite())
+        .collect();
+    if !cells.is_empty() {
+        let rms = (cells.iter().map(|e| e * e).sum::<f64>() / cells.len() as f64).sqrt();
+        let worst = cells.iter().map(|e| e.abs()).fold(0.0, f64::max);
+        let _ = writeln!(
+            s,
+            "\nTwo-camera height error across the shared view at {:.0} cm ({} cells, 15 cm apart; `heat_map.csv`, `heat_map.png`): RMS {:.3} cm, largest {:.3} cm.",
+            HEAT_HEIGHT_M * 100.0,
+            cells.len(),
+            rms,
+            worst
+        );
+    }
+    if !r.noise.is_empty() {
+        s.push_str("\nRMS (cm) as the pixel noise grows (other settings as above, at most 10 readings per height):\n\n| noise σ (grey levels) | one camera, 2 parameters | one camera, 3 parameters | two cameras, centre | two cameras, corner |\n|---|---|---|---|---|\n");
+        for (sigma, rms) in &r.noise {
+            let _ = writeln!(
+                s,
+                "| {sigma} | {:.3} | {:.3} | {:.3} | {:.3} |",
+                rms[0], rms[1], rms[2], rms[3]
+            );
+        }
     }
     s
 }
@@ -590,6 +779,62 @@ fn plot_area(path: &Path, r: &Report, cam0_height_cm: f64) -> anyhow::Result<()>
     Ok(())
 }
 
+fn plot_heat(path: &Path, r: &Report) -> anyhow::Result<()> {
+    use plotters::prelude::*;
+    let root = BitMapBackend::new(path, (640, 560)).into_drawing_area();
+    root.fill(&WHITE).map_err(|e| anyhow!("{e}"))?;
+    let limit = r
+        .heat
+        .iter()
+        .map(|h| h.2.abs())
+        .filter(|e| e.is_finite())
+        .fold(0.05, f64::max);
+    let mut chart = ChartBuilder::on(&root)
+        .caption(
+            format!(
+                "Height error (cm) at {:.0} cm, two cameras; colour range ±{limit:.2} cm",
+                HEAT_HEIGHT_M * 100.0
+            ),
+            ("sans-serif", 16),
+        )
+        .margin(12)
+        .x_label_area_size(40)
+        .y_label_area_size(50)
+        .build_cartesian_2d(-52.5f64..52.5f64, -52.5f64..52.5f64)
+        .map_err(|e| anyhow!("{e}"))?;
+    chart
+        .configure_mesh()
+        .x_desc("x (cm)")
+        .y_desc("y (cm)")
+        .disable_mesh()
+        .draw()
+        .map_err(|e| anyhow!("{e}"))?;
+    chart
+        .draw_series(r.heat.iter().map(|&(x, y, e)| {
+            let colour = if e.is_finite() {
+                let t = (e / limit).clamp(-1.0, 1.0);
+                // Blue below zero, red above, white at zero.
+                let (rr, gg, bb) = if t >= 0.0 {
+                    (255.0, 255.0 * (1.0 - t), 255.0 * (1.0 - t))
+                } else {
+                    (255.0 * (1.0 + t), 255.0 * (1.0 + t), 255.0)
+                };
+                RGBColor(rr as u8, gg as u8, bb as u8)
+            } else {
+                RGBColor(160, 160, 160)
+            };
+            Rectangle::new([(x - 7.5, y - 7.5), (x + 7.5, y + 7.5)], colour.filled())
+        }))
+        .map_err(|e| anyhow!("{e}"))?;
+    chart
+        .draw_series(r.heat.iter().filter(|h| h.2.is_finite()).map(|&(x, y, e)| {
+            Text::new(format!("{e:+.2}"), (x - 5.0, y + 2.0), ("sans-serif", 12))
+        }))
+        .map_err(|e| anyhow!("{e}"))?;
+    root.present().map_err(|e| anyhow!("{e}"))?;
+    Ok(())
+}
+
 /// Writes the tables (Markdown and CSV), the plots and the summary to `opts.out`, all or
 /// nothing: into a fresh folder beside it, renamed into place at the end.
 pub fn write(r: &Report, opts: &ReproduceOptions) -> anyhow::Result<()> {
@@ -614,6 +859,16 @@ pub fn write(r: &Report, opts: &ReproduceOptions) -> anyhow::Result<()> {
             std::fs::write(staging.join(format!("{}.csv", e.key)), table_csv(e))?;
         }
         std::fs::write(staging.join("summary.md"), summary_md(r, opts))?;
+        let mut h = String::from("height_cm,true_heading_deg,measured_heading_deg,error_deg\n");
+        for (hc, t, m, e) in &r.heading {
+            let _ = writeln!(h, "{hc:.1},{t:.1},{m:.4},{e:.4}");
+        }
+        std::fs::write(staging.join("heading.csv"), h)?;
+        let mut hm = String::from("x_cm,y_cm,mean_error_cm\n");
+        for (x, y, e) in &r.heat {
+            let _ = writeln!(hm, "{x:.1},{y:.1},{e:.4}");
+        }
+        std::fs::write(staging.join("heat_map.csv"), hm)?;
         if opts.plots {
             let font = std::fs::read(FONT).with_context(|| {
                 format!(
@@ -634,6 +889,7 @@ pub fn write(r: &Report, opts: &ReproduceOptions) -> anyhow::Result<()> {
                 .z
                 * 100.0;
             plot_area(&staging.join("area_vs_height.png"), r, h0)?;
+            plot_heat(&staging.join("heat_map.png"), r)?;
         }
         Ok(())
     })();
