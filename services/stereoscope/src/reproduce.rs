@@ -156,53 +156,55 @@ impl Report {
 /// weights pull it towards the lit top of the ball, which the two cameras see from different
 /// sides, a 2–3 mm height bias when triangulating.
 fn measure(img: &GrayImage<u8>, contrast: f64) -> Option<(f64, Point2<f64>)> {
-    let hist = Histogram::of(&img.view());
-    let bg = hist.mode().ok()?;
-    let thr = hist
-        .threshold::<u8>(ThresholdMethod::Triangle)
-        .ok()?
-        .max(bg + 12)
-        .min(254);
-    let blob = |weighting| -> Option<stereoscope_vision::moments::WeightedMoments> {
-        let mut ex = Extractor::new(ExtractConfig {
-            weighting,
-            min_area_px: 10,
-            ..Default::default()
-        });
-        let blobs = ex.extract(img.view(), thr, &[]).ok()?;
-        blobs.iter().max_by_key(|b| b.area_px())?.weighted
-    };
-    let area = blob(Weighting::Intensity { background: bg })?.w00 as f64 / contrast;
-    let full = (bg + FULL_ABOVE_BACKGROUND).max(thr + 1);
-    let (x, y) = blob(Weighting::Coverage {
-        background: bg,
-        full,
-    })?
-    .centroid_px()?;
+    let bg = background(img)?;
+    let area = target_blob(img, Weighting::Intensity { background: bg })?
+        .weighted?
+        .w00 as f64
+        / contrast;
+    let (x, y) = target_blob(img, coverage(img, bg)?)?.best_centroid_px();
     Some((area, Point2::new(x, y)))
+}
+
+/// The background level: the histogram's mode.
+fn background(img: &GrayImage<u8>) -> Option<u32> {
+    Histogram::of(&img.view()).mode().ok()
+}
+
+/// The blob threshold: the histogram's background knee, at least 12 levels above it.
+fn threshold(img: &GrayImage<u8>, bg: u32) -> Option<u32> {
+    Some(
+        Histogram::of(&img.view())
+            .threshold::<u8>(ThresholdMethod::Triangle)
+            .ok()?
+            .max(bg + 12)
+            .min(254),
+    )
+}
+
+/// Coverage weights saturating `FULL_ABOVE_BACKGROUND` above the background.
+fn coverage(img: &GrayImage<u8>, bg: u32) -> Option<Weighting> {
+    Some(Weighting::Coverage {
+        background: bg,
+        full: (bg + FULL_ABOVE_BACKGROUND).max(threshold(img, bg)? + 1),
+    })
+}
+
+/// The largest blob (the target) with the given weights.
+fn target_blob(img: &GrayImage<u8>, weighting: Weighting) -> Option<stereoscope_vision::Blob> {
+    let bg = background(img)?;
+    let mut ex = Extractor::new(ExtractConfig {
+        weighting,
+        min_area_px: 10,
+        ..Default::default()
+    });
+    let blobs = ex.extract(img.view(), threshold(img, bg)?, &[]).ok()?;
+    blobs.iter().max_by_key(|b| b.area_px()).copied()
 }
 
 /// The target's coverage centroid, major-axis angle (degrees CCW on screen, PAR-corrected) and
 /// roundness in a frame.
 fn measure_axis(img: &GrayImage<u8>, par: f64) -> Option<(Point2<f64>, f64, f64)> {
-    let hist = Histogram::of(&img.view());
-    let bg = hist.mode().ok()?;
-    let thr = hist
-        .threshold::<u8>(ThresholdMethod::Triangle)
-        .ok()?
-        .max(bg + 12)
-        .min(254);
-    let full = (bg + FULL_ABOVE_BACKGROUND).max(thr + 1);
-    let mut ex = Extractor::new(ExtractConfig {
-        weighting: Weighting::Coverage {
-            background: bg,
-            full,
-        },
-        min_area_px: 10,
-        ..Default::default()
-    });
-    let blobs = ex.extract(img.view(), thr, &[]).ok()?;
-    let b = blobs.iter().max_by_key(|b| b.area_px())?;
+    let b = target_blob(img, coverage(img, background(img)?)?)?;
     let (x, y) = b.best_centroid_px();
     let shape = b.best_central().axis_shape(par);
     Some((Point2::new(x, y), shape.angle_deg, shape.roundness()))
