@@ -293,8 +293,53 @@ fn board_poses(grid: &DotGrid, rng: &mut SplitMix64) -> Vec<Isometry3<f64>> {
             rot,
         ));
     }
-    poses.push(Isometry3::translation(-half.x, -half.y, 0.0));
+    // On the floor: the first placement is the world frame (centred, square to the world
+    // axes); the others are moved and turned, and all of them together fix the floor's plane.
+    for (dx, dy, yaw_deg) in FLOOR_PLACEMENTS {
+        let rot = UnitQuaternion::from_axis_angle(&Vector3::z_axis(), yaw_deg.to_radians());
+        poses.push(Isometry3::from_parts(
+            Translation3::new(dx, dy, 0.0) * Translation3::from(-(rot * half)),
+            rot,
+        ));
+    }
     poses
+}
+
+/// Where the board lies on the floor for calibration: offset (m) and turn (°); the first one
+/// defines the world frame.
+const FLOOR_PLACEMENTS: [(f64, f64, f64); 4] = [
+    (0.0, 0.0, 0.0),
+    (0.2, 0.15, 12.0),
+    (-0.2, 0.12, -9.0),
+    (0.05, -0.18, 5.0),
+];
+
+/// The world frame from the board lying on the floor in several placements (`cam0_from_target`
+/// of each, the first defining the origin and the x axis): the floor plane is the mean of the
+/// placements' planes, so one placement's small tilt does not tilt every height.
+fn world_from_floor(placements: &[Isometry3<f64>]) -> Option<Isometry3<f64>> {
+    let first = placements.first()?;
+    let n = placements
+        .iter()
+        .fold(Vector3::zeros(), |a, p| a + p.rotation * Vector3::z())
+        .normalize();
+    let d = placements
+        .iter()
+        .map(|p| n.dot(&p.translation.vector))
+        .sum::<f64>()
+        / placements.len() as f64;
+    // Origin: the first placement's origin dropped onto the mean plane; x: its x axis made
+    // perpendicular to the mean normal.
+    let o = first.translation.vector - n * (n.dot(&first.translation.vector) - d);
+    let x =
+        (first.rotation * Vector3::x() - n * n.dot(&(first.rotation * Vector3::x()))).normalize();
+    let y = n.cross(&x);
+    let rot =
+        nalgebra::Rotation3::from_matrix_unchecked(nalgebra::Matrix3::from_columns(&[x, y, n]));
+    Some(Isometry3::from_parts(
+        Translation3::from(o),
+        UnitQuaternion::from_rotation_matrix(&rot),
+    ))
 }
 
 fn calibrate_lab(
@@ -306,7 +351,8 @@ fn calibrate_lab(
     let poses = board_poses(&grid, rng);
     let target: Vec<Point3<f64>> = (0..grid.len()).map(|i| grid.point(i)).collect();
     let mut views = Vec::new();
-    let mut flat_view = None;
+    let mut flat_views = Vec::new();
+    let first_flat = poses.len() - FLOOR_PLACEMENTS.len();
     for (k, world_from_target) in poses.iter().enumerate() {
         let mut obs = Vec::new();
         let mut seen_by = 0;
@@ -325,12 +371,17 @@ fn calibrate_lab(
                 obs.extend(dots.into_iter().map(|(i, px)| (c, i, px)));
             }
         }
-        // A tilted view seen by one camera still helps that camera's intrinsics; the view on
-        // the floor, which fixes the world frame, must be seen by both.
-        let flat = k + 1 == poses.len();
+        // A tilted view seen by one camera still helps that camera's intrinsics; the views on
+        // the floor, which fix the world frame, must be seen by both (the first one at least).
+        let flat = k >= first_flat;
+        if k == first_flat && seen_by < truth.len() {
+            return Err(anyhow!(
+                "the board lying at the floor's centre was not found in both cameras"
+            ));
+        }
         if seen_by == truth.len() || (!flat && seen_by > 0) {
             if flat {
-                flat_view = Some(views.len());
+                flat_views.push(views.len());
             }
             views.push(RigView {
                 target: target.clone(),
@@ -338,15 +389,18 @@ fn calibrate_lab(
             });
         }
     }
-    let flat = flat_view
-        .ok_or_else(|| anyhow!("the board lying on the floor was not found in both cameras"))?;
     let sizes: Vec<(u32, u32)> = truth
         .iter()
         .map(|c| (c.intrinsics.width, c.intrinsics.height))
         .collect();
     let cal = calibrate_rig(&sizes, &views, DistortionModel::Radial)
         .context("calibrating the lab's cameras")?;
-    let cam0_from_world = cal.cam0_from_target[flat];
+    let placements: Vec<Isometry3<f64>> = flat_views
+        .iter()
+        .map(|&v| cal.cam0_from_target[v])
+        .collect();
+    let cam0_from_world =
+        world_from_floor(&placements).ok_or_else(|| anyhow!("no floor placement was seen"))?;
     let cams = cal
         .cameras
         .iter()
