@@ -54,6 +54,48 @@ pub enum Motion {
         extent_m: Vector3<f64>,
         seed: u64,
     },
+    /// A random walk: every `step_s` seconds a Gaussian step of `step_m` standard deviation per
+    /// axis, reflected back inside `extent_m` of `centre`; straight between steps, heading along
+    /// the motion. Starts at `centre`.
+    RandomWalk {
+        centre: Point3<f64>,
+        extent_m: Vector3<f64>,
+        step_m: f64,
+        step_s: f64,
+        seed: u64,
+    },
+}
+
+/// The walk's positions at steps `0..=n` (deterministic from the seed).
+fn walk(
+    centre: &Point3<f64>,
+    extent: &Vector3<f64>,
+    step_m: f64,
+    n: usize,
+    seed: u64,
+) -> Vec<Point3<f64>> {
+    let mut rng = SplitMix64::new(seed);
+    let mut p = *centre;
+    let mut out = Vec::with_capacity(n + 1);
+    out.push(p);
+    for _ in 0..n {
+        for i in 0..3 {
+            let mut v = p[i] + step_m * rng.normal();
+            let (lo, hi) = (centre[i] - extent[i], centre[i] + extent[i]);
+            // Reflect at the bounds (twice at most for steps smaller than the box).
+            for _ in 0..2 {
+                if v > hi {
+                    v = 2.0 * hi - v;
+                }
+                if v < lo {
+                    v = 2.0 * lo - v;
+                }
+            }
+            p[i] = v.clamp(lo, hi);
+        }
+        out.push(p);
+    }
+    out
 }
 
 fn wander_terms(seed: u64) -> [[(f64, f64, f64); 3]; 3] {
@@ -114,6 +156,23 @@ impl Motion {
                 position: *position,
                 heading_deg: (deg_per_s * t_s).rem_euclid(360.0),
             },
+            Motion::RandomWalk {
+                centre,
+                extent_m,
+                step_m,
+                step_s,
+                seed,
+            } => {
+                let t = t_s.max(0.0) / step_s.max(1e-9);
+                let k = t.floor() as usize;
+                let pts = walk(centre, extent_m, *step_m, k + 1, *seed);
+                let (a, b) = (pts[k], pts[k + 1]);
+                let d = b - a;
+                State {
+                    position: a + d * (t - k as f64),
+                    heading_deg: d.y.atan2(d.x).to_degrees().rem_euclid(360.0),
+                }
+            }
             Motion::Wander {
                 centre,
                 extent_m,

@@ -326,6 +326,27 @@ fn motions_are_deterministic_and_in_bounds() {
         );
     }
     assert_eq!(wander.at(3.3), wander.at(3.3));
+    let walk = Motion::RandomWalk {
+        centre: Point3::new(0.0, 0.0, 0.5),
+        extent_m: Vector3::new(0.3, 0.3, 0.1),
+        step_m: 0.05,
+        step_s: 0.1,
+        seed: 3,
+    };
+    let mut prev = walk.at(0.0).position;
+    assert_eq!(prev, Point3::new(0.0, 0.0, 0.5));
+    for k in 1..300 {
+        let p = walk.at(k as f64 * 0.05).position;
+        assert!(
+            p.x.abs() <= 0.3 + 1e-12
+                && p.y.abs() <= 0.3 + 1e-12
+                && (p.z - 0.5).abs() <= 0.1 + 1e-12
+        );
+        // Continuous: half a step apart in time, never more than a few step sizes apart.
+        assert!((p - prev).norm() < 0.5, "{k}");
+        prev = p;
+    }
+    assert_eq!(walk.at(7.77), walk.at(7.77));
     let actors = [Actor {
         shape: Shape::Sphere { radius_m: 0.02 },
         contrast: 150.0,

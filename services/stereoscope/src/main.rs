@@ -98,6 +98,12 @@ enum Command {
         /// Gaussian noise, grey levels.
         #[arg(long, default_value_t = 2.0)]
         noise: f64,
+        /// Skip the table of results at other noise levels (five more runs).
+        #[arg(long)]
+        no_noise_table: bool,
+        /// Another lab: a rig file whose first two cameras look down at the floor.
+        #[arg(long)]
+        rig: Option<PathBuf>,
     },
     /// Triangulate points seen by a rig's cameras (CSV point,camera,u,v).
     Triangulate {
@@ -253,11 +259,15 @@ fn main() -> ExitCode {
             seed,
             readings,
             noise,
+            no_noise_table,
+            rig,
         } => {
             let opts = stereoscope::reproduce::ReproduceOptions {
                 seed,
                 readings: readings.max(1),
                 noise_sigma: noise,
+                noise_sweep: !no_noise_table,
+                rig,
                 ..stereoscope::reproduce::ReproduceOptions::realistic(out)
             };
             let result = stereoscope::reproduce::run(&opts).and_then(|r| {
