@@ -432,6 +432,44 @@ fn calibrate_lab(
     Ok((cams, cal.rms_px, views.len()))
 }
 
+/// The thesis's sweep: heights 2, 12, … cm (`heights` of them), `readings` measured heights
+/// (metres) each, one table row per height.
+fn sweep(
+    heights: usize,
+    readings: usize,
+    mut read: impl FnMut(f64) -> anyhow::Result<f64>,
+) -> anyhow::Result<Vec<Row>> {
+    (0..heights)
+        .map(|k| {
+            let h = 0.02 + 0.10 * k as f64;
+            let values = (0..readings)
+                .map(|_| read(h))
+                .collect::<anyhow::Result<Vec<f64>>>()?;
+            Ok(row(h, &values))
+        })
+        .collect()
+}
+
+impl Experiment {
+    fn new(
+        key: &'static str,
+        title: &'static str,
+        thesis_table: &'static str,
+        thesis_rms_cm: f64,
+        rows: Vec<Row>,
+    ) -> Self {
+        let rms_cm = rms(&rows);
+        Experiment {
+            key,
+            title,
+            thesis_table,
+            thesis_rms_cm,
+            rows,
+            rms_cm,
+        }
+    }
+}
+
 fn row(actual_m: f64, readings: &[f64]) -> Row {
     let n = readings.len().max(1) as f64;
     let mean = readings.iter().sum::<f64>() / n;
@@ -516,29 +554,14 @@ pub fn run(opts: &ReproduceOptions) -> anyhow::Result<Report> {
             &fit_three,
         ),
     ] {
-        let mut rows = Vec::new();
-        for k in 0..21 {
-            let h = 0.02 + 0.10 * k as f64;
-            let mut readings = Vec::with_capacity(opts.readings);
-            for _ in 0..opts.readings {
-                let img = lab.frame(0, under0.x, under0.y, h)?;
-                let (area, c) = measure(&img, opts.contrast)
-                    .ok_or_else(|| anyhow!("no target found at {:.0} cm", h * 100.0))?;
-                let d = fit.model.depth_from_area(area, fit.range)?;
-                let p = point_from_depth(&lab.calibrated[0], c, d.depth)?;
-                readings.push(p.z - BALL_RADIUS_M);
-            }
-            rows.push(row(h, &readings));
-        }
-        let rms_cm = rms(&rows);
-        experiments.push(Experiment {
-            key,
-            title,
-            thesis_table: table,
-            thesis_rms_cm: thesis_rms,
-            rows,
-            rms_cm,
-        });
+        let rows = sweep(21, opts.readings, |h| {
+            let img = lab.frame(0, under0.x, under0.y, h)?;
+            let (area, c) = measure(&img, opts.contrast)
+                .ok_or_else(|| anyhow!("no target found at {:.0} cm", h * 100.0))?;
+            let d = fit.model.depth_from_area(area, fit.range)?;
+            Ok(point_from_depth(&lab.calibrated[0], c, d.depth)?.z - BALL_RADIUS_M)
+        })?;
+        experiments.push(Experiment::new(key, title, table, thesis_rms, rows));
     }
     for (key, title, table, thesis_rms, x, y) in [
         (
@@ -558,36 +581,20 @@ pub fn run(opts: &ReproduceOptions) -> anyhow::Result<Report> {
             0.15,
         ),
     ] {
-        let mut rows = Vec::new();
-        for k in 0..16 {
-            let h = 0.02 + 0.10 * k as f64;
-            let mut readings = Vec::with_capacity(opts.readings);
-            for _ in 0..opts.readings {
-                let mut obs = Vec::new();
-                for c in 0..2 {
-                    let img = lab.frame(c, x, y, h)?;
-                    let (_, px) = measure(&img, opts.contrast).ok_or_else(|| {
-                        anyhow!("camera {c} found no target at {:.0} cm", h * 100.0)
-                    })?;
-                    obs.push(Observation {
-                        camera: c,
-                        pixel: px,
-                    });
-                }
-                let t = triangulate(&lab.calibrated, &obs)?;
-                readings.push(t.point_world.z - BALL_RADIUS_M);
+        let rows = sweep(16, opts.readings, |h| {
+            let mut obs = Vec::new();
+            for c in 0..2 {
+                let img = lab.frame(c, x, y, h)?;
+                let (_, px) = measure(&img, opts.contrast)
+                    .ok_or_else(|| anyhow!("camera {c} found no target at {:.0} cm", h * 100.0))?;
+                obs.push(Observation {
+                    camera: c,
+                    pixel: px,
+                });
             }
-            rows.push(row(h, &readings));
-        }
-        let rms_cm = rms(&rows);
-        experiments.push(Experiment {
-            key,
-            title,
-            thesis_table: table,
-            thesis_rms_cm: thesis_rms,
-            rows,
-            rms_cm,
-        });
+            Ok(triangulate(&lab.calibrated, &obs)?.point_world.z - BALL_RADIUS_M)
+        })?;
+        experiments.push(Experiment::new(key, title, table, thesis_rms, rows));
     }
     // Heading: the double ball at the centre, six heights, headings every 10°, both cameras.
     let mut heading = Vec::new();
