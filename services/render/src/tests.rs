@@ -13,6 +13,19 @@ fn down_camera(dist: Distortion) -> Camera {
     Camera::new(intr, dist, w.inverse()).unwrap()
 }
 
+/// Renders with 8 × 8 samples at edges, no noise: the truth tests' setting.
+fn fine(cam: &Camera, scene: &Scene) -> Frame<u8> {
+    render_u8(
+        cam,
+        scene,
+        &RenderOptions {
+            samples: 8,
+            ..Default::default()
+        },
+    )
+    .unwrap()
+}
+
 fn one(shape: Shape, at: Point3<f64>, heading_deg: f64) -> Scene {
     let state = State {
         position: at,
@@ -34,15 +47,10 @@ fn sphere_on_the_axis_has_the_closed_form_area() {
     for h in [0.02, 0.5, 1.5, 2.0] {
         let r = 0.02;
         let d = 2.8 - h;
-        let f = render_u8(
+        let f = fine(
             &cam,
             &one(Shape::Sphere { radius_m: r }, Point3::new(0.0, 0.0, h), 0.0),
-            &RenderOptions {
-                samples: 8,
-                ..Default::default()
-            },
-        )
-        .unwrap();
+        );
         let t = f.truth[0];
         // Silhouette of a sphere on the axis: a cone of half-angle asin(r/D); normalised radius
         // r/√(D² − r²); area π·fx·fy·ρ².
@@ -62,15 +70,7 @@ fn disc_parallel_to_the_image_projects_exactly_anywhere() {
     let cam = down_camera(Distortion::default());
     for (x, y) in [(0.0, 0.0), (0.3, -0.2), (-0.5, 0.4)] {
         let at = Point3::new(x, y, 0.3);
-        let f = render_u8(
-            &cam,
-            &one(Shape::Disc { radius_m: 0.03 }, at, 0.0),
-            &RenderOptions {
-                samples: 8,
-                ..Default::default()
-            },
-        )
-        .unwrap();
+        let f = fine(&cam, &one(Shape::Disc { radius_m: 0.03 }, at, 0.0));
         let t = f.truth[0];
         let d = 2.5;
         let want =
@@ -97,15 +97,7 @@ fn distortion_moves_a_small_disc_with_its_centre() {
         ..Default::default()
     });
     let at = Point3::new(0.55, 0.45, 0.0);
-    let f = render_u8(
-        &cam,
-        &one(Shape::Disc { radius_m: 0.01 }, at, 0.0),
-        &RenderOptions {
-            samples: 8,
-            ..Default::default()
-        },
-    )
-    .unwrap();
+    let f = fine(&cam, &one(Shape::Disc { radius_m: 0.01 }, at, 0.0));
     let c = cam.project(&at).unwrap();
     assert!(
         (f.truth[0].centroid_px - c).norm() < 0.05,
@@ -134,28 +126,15 @@ fn nearer_targets_hide_farther_ones() {
     // target at 0.062 m on the floor straddles it.
     let x = 0.062;
     scene.targets[0].world_from_body = Isometry3::translation(x, 0.0, 0.0);
-    let f = render_u8(
-        &cam,
-        &scene,
-        &RenderOptions {
-            samples: 8,
-            ..Default::default()
-        },
-    )
-    .unwrap();
-    let alone = render_u8(
+    let f = fine(&cam, &scene);
+    let alone = fine(
         &cam,
         &one(
             Shape::Sphere { radius_m: 0.02 },
             Point3::new(x, 0.0, 0.0),
             0.0,
         ),
-        &RenderOptions {
-            samples: 8,
-            ..Default::default()
-        },
-    )
-    .unwrap();
+    );
     assert!(f.truth[0].area_px > 0.0 && f.truth[0].area_px < alone.truth[0].area_px * 0.9);
 }
 
