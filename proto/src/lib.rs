@@ -1,11 +1,19 @@
 //! Everything that crosses a process boundary in Stereoscope, defined once.
 //!
-//! So far: the JSON that `stereoscope blobs --json` prints, one object per image per line
-//! (`docs/protocol.md`), the rig file every service reads (`docs/rig.md`), the commands'
-//! JSON reports, and the serial-link packets with their decoders. Services' shared-memory frames, observation and pose messages, and
-//! the serial packet codec join this crate as they are built.
+//! - [`frame`]: the shared-memory frame header (iceoryx2 user header) and its checks;
+//! - [`messages`]: observations, poses, ground truth and health, as JSON (Zenoh) and postcard
+//!   (iceoryx2);
+//! - [`names`]: iceoryx2 service names with their sizes, Zenoh key expressions;
+//! - [`rig`]: the rig file every service reads (`docs/rig.md`), with its deployment sections;
+//! - [`serial`]: the serial-link packets with their decoders;
+//! - [`blobs`], [`reports`]: the commands' JSON output.
+//!
+//! Every message and key is documented in `docs/protocol.md`.
 
 pub mod blobs;
+pub mod frame;
+pub mod messages;
+pub mod names;
 pub mod reports;
 pub mod rig;
 pub mod serial;

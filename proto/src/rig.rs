@@ -15,6 +15,224 @@ pub struct RigFile {
     pub units: String,
     #[serde(rename = "camera", default)]
     pub cameras: Vec<CameraSpec>,
+    /// The PCs of the rig and how their services reach each other (`docs/deploy.md`).
+    #[serde(rename = "host", default, skip_serializing_if = "Vec::is_empty")]
+    pub hosts: Vec<HostSpec>,
+    /// The fusion service's settings and host.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub fusion: Option<FusionSpec>,
+    /// The scene synthetic cameras render.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub synthetic: Option<SyntheticSpec>,
+}
+
+/// One PC of a rig.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct HostSpec {
+    pub name: String,
+    /// Zenoh endpoints the launcher's router on this PC listens on (`tcp/192.168.1.10:7447`).
+    #[serde(default)]
+    pub zenoh_listen: Vec<String>,
+    /// Zenoh endpoints of other PCs' routers this PC connects to.
+    #[serde(default)]
+    pub zenoh_connect: Vec<String>,
+    /// Prefix of this PC's iceoryx2 files (two rigs on one PC need different prefixes).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub iceoryx2_prefix: Option<String>,
+}
+
+/// Where a camera's frames come from.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
+pub enum SourceSpec {
+    /// The rig's `[synthetic]` scene rendered through this camera.
+    Synthetic {
+        fps: f64,
+        /// Render this many frames once and repeat them (for benchmarks at rates the renderer
+        /// cannot reach live); absent renders every frame.
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        loop_frames: Option<u32>,
+        /// 8 (default) or 16.
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        bit_depth: Option<u32>,
+    },
+    /// A V4L2 camera (`--features v4l`).
+    V4l {
+        device: String,
+        /// "GREY", "Y16", "YUYV" or "MJPG"; the first the camera offers if absent.
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        format: Option<String>,
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        fps: Option<f64>,
+        /// Exposure time, 100 µs units (V4L2's `exposure_time_absolute`).
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        exposure: Option<i64>,
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        gain: Option<i64>,
+    },
+    /// A YUV4MPEG2 file or pipe (a FIFO that `ffmpeg … -f yuv4mpegpipe` writes).
+    Y4m {
+        path: String,
+        /// Pace frames at the file's frame rate (default) or read as fast as the worker takes
+        /// them.
+        #[serde(default = "yes")]
+        realtime: bool,
+        /// Start again at the end (files only).
+        #[serde(default)]
+        repeat: bool,
+    },
+    /// A sequence of PGM or PNG files, in name order.
+    Images {
+        /// A folder (every `.pgm`/`.png` in it) or one file.
+        path: String,
+        fps: f64,
+        #[serde(default = "yes")]
+        realtime: bool,
+        #[serde(default)]
+        repeat: bool,
+    },
+}
+
+fn yes() -> bool {
+    true
+}
+
+/// A camera's moment worker.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Default)]
+#[serde(deny_unknown_fields)]
+pub struct MomentsSpec {
+    /// "auto" (default), "otsu", "triangle", or a grey level.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub threshold: Option<ThresholdSpec>,
+    /// Threshold each tracking window from its own histogram with this method.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub window_threshold: Option<String>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub max_objects: Option<usize>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub min_area_px: Option<u64>,
+    /// 4 or 8 (default).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub connectivity: Option<u8>,
+    /// "binary", "intensity" or "coverage" (default): how centroids are weighted.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub weighting: Option<String>,
+    /// Grey level of a fully covered target pixel for "coverage" (default: the threshold's
+    /// distance above the background, doubled).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub full_level: Option<u32>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub search_every_frames: Option<u32>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub min_half_width_px: Option<u32>,
+    /// Frames between fresh automatic thresholds (default 30).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub threshold_every_frames: Option<u32>,
+}
+
+/// A threshold: a method name or a grey level.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(untagged)]
+pub enum ThresholdSpec {
+    Level(u32),
+    Method(String),
+}
+
+/// Fusion's settings.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Default)]
+#[serde(deny_unknown_fields)]
+pub struct FusionSpec {
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub host: Option<String>,
+    /// Frames of different cameras within this of each other form one set (default 5 ms).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub max_skew_ms: Option<f64>,
+    /// How long to wait for a live camera's frame before fusing without it (default 20 ms).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub max_wait_ms: Option<f64>,
+    /// A camera silent this long counts as gone until it is heard again (default 500 ms).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub camera_timeout_ms: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub max_epipolar_px: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub max_residual_px: Option<f64>,
+    /// Largest distance from an object's prediction for a point to continue it, file unit
+    /// (default 0.1 m).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub association_gate: Option<f64>,
+    /// An object unseen this long is dropped (default 1 s).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub drop_after_s: Option<f64>,
+    /// "auto" (default: iceoryx2 for cameras on fusion's host, Zenoh for the others),
+    /// "zenoh" (every camera over the network).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub observations: Option<String>,
+}
+
+/// The scene synthetic cameras render (lengths in the file's unit).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Default)]
+#[serde(deny_unknown_fields)]
+pub struct SyntheticSpec {
+    #[serde(default)]
+    pub seed: u64,
+    /// Read noise, grey levels (default 2).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub noise_sigma: Option<f64>,
+    /// Defocus blur, pixels (default 0.6).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub blur_sigma_px: Option<f64>,
+    /// Background grey level (default 20).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub background: Option<f64>,
+    /// Supersampling per axis near targets (default 3).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub samples: Option<u32>,
+    #[serde(rename = "target", default)]
+    pub targets: Vec<SyntheticTarget>,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SyntheticTarget {
+    /// "sphere", "double_sphere" (the thesis's two glued balls) or "disc".
+    pub shape: String,
+    pub radius: f64,
+    /// Brightness above the background, grey levels (default 180).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub contrast: Option<f64>,
+    pub motion: MotionSpec,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
+pub enum MotionSpec {
+    Static {
+        position: [f64; 3],
+        #[serde(default)]
+        heading_deg: f64,
+    },
+    Line {
+        from: [f64; 3],
+        to: [f64; 3],
+        period_s: f64,
+    },
+    Circle {
+        centre: [f64; 3],
+        radius: f64,
+        period_s: f64,
+    },
+    Spin {
+        position: [f64; 3],
+        deg_per_s: f64,
+    },
+    Wander {
+        centre: [f64; 3],
+        extent: [f64; 3],
+        #[serde(default)]
+        seed: u64,
+    },
 }
 
 /// One camera.
@@ -47,6 +265,15 @@ pub struct CameraSpec {
     /// Single-camera depth from blob area, if calibrated.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub depth_from_area: Option<DepthFromAreaSpec>,
+    /// The PC the camera is attached to (a `[[host]]` name); the only host if absent.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub host: Option<String>,
+    /// Where its frames come from; needed to run the rig.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub source: Option<SourceSpec>,
+    /// Its moment worker's settings.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub moments: Option<MomentsSpec>,
 }
 
 /// Brown–Conrady coefficients (OpenCV's k1 k2 p1 p2 k3); absent ones are zero.

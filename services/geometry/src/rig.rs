@@ -362,6 +362,9 @@ pub fn camera_spec(id: &str, camera: &Camera, units: &str) -> Result<CameraSpec,
             ..Default::default()
         },
         depth_from_area: None,
+        host: None,
+        source: None,
+        moments: None,
     })
 }
 
@@ -457,6 +460,9 @@ mod tests {
             name: "x".into(),
             units: "cm".into(),
             cameras: vec![spec],
+            hosts: Vec::new(),
+            fusion: None,
+            synthetic: None,
         };
         let back = Rig::from_file(&RigFile::from_toml(&file.to_toml().unwrap()).unwrap()).unwrap();
         let b = back.cameras[0].camera;

@@ -212,6 +212,17 @@ impl Tracker {
         &self.cfg
     }
 
+    /// The extraction settings (weighting, connectivity, capacity).
+    pub fn extract_config(&self) -> &ExtractConfig {
+        self.extractor.config()
+    }
+
+    /// Changes the extraction settings from the next step on (e.g. new grey-level weights
+    /// after a fresh threshold); tracks are kept.
+    pub fn set_extract_config(&mut self, cfg: ExtractConfig) {
+        self.extractor.set_config(cfg);
+    }
+
     pub fn tracks(&self) -> &[Track] {
         &self.tracks
     }

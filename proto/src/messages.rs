@@ -1,0 +1,326 @@
+//! The messages services exchange (`docs/protocol.md`, "Live messages"): one serde type each,
+//! carried as JSON on Zenoh (so a client in any language can read them) and as postcard, a
+//! compact binary form of the same type, in iceoryx2 samples on the same PC.
+//!
+//! Units are in the field names: `_px` image pixels (`docs/conventions.md`), `_m` metres in the
+//! rig's world frame, `_deg` degrees, `_ns` nanoseconds since the Unix epoch (CLOCK_REALTIME).
+
+use serde::{Deserialize, Serialize};
+
+/// Version of every message schema below; a receiver rejects a message with another.
+pub const SCHEMA_VERSION: u32 = 1;
+
+/// What a moment worker reports about one tracked blob.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct BlobObservation {
+    /// The worker's track id (stable while the camera keeps the object; per camera).
+    pub track_id: u32,
+    /// "new" (first seen this frame), "tracked", or "lost" (not found; position predicted).
+    pub status: TrackState,
+    /// Area in pixels (binary count).
+    pub area_px: f64,
+    /// Centroid, pixels (grey-level weighted when the worker computes weights).
+    pub x_px: f64,
+    pub y_px: f64,
+    /// Central second moments, sums over pixels (OpenCV's `mu20` convention).
+    pub mu20: f64,
+    pub mu02: f64,
+    pub mu11: f64,
+    /// Major-axis angle, degrees CCW on screen from +x, (−90, 90], PAR-corrected.
+    pub orientation_deg: f64,
+    /// Minor/major axis ratio (1 = round: the axis means nothing).
+    pub roundness: f64,
+    /// The camera's continuous heading of the blob, [0, 360).
+    pub heading_deg: f64,
+    /// `heading_deg` points along the target (third-order moments), not just along its axis.
+    pub directed: bool,
+    /// The heading step was ambiguous (≥ 90° from the prediction) or the blob near-circular.
+    pub heading_ambiguous: bool,
+    /// The blob touches the frame border or its window's edge (moments are of a cut shape).
+    pub clipped: bool,
+    /// Tracking window searched this frame, `[x0, y0, x1, y1]` inclusive.
+    pub window_px: [u32; 4],
+    /// Bounding box, `[x0, y0, x1, y1]` inclusive.
+    pub bbox_px: [u32; 4],
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum TrackState {
+    New,
+    Tracked,
+    Lost,
+}
+
+/// One camera's result for one frame.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Observation {
+    pub schema: u32,
+    pub rig: String,
+    pub camera: String,
+    /// The frame's sequence number (capture's count).
+    pub sequence: u64,
+    /// Exposure time of the frame.
+    pub timestamp_ns: u64,
+    /// When capture published the frame.
+    pub frame_published_ns: u64,
+    /// When the worker published this observation.
+    pub published_ns: u64,
+    pub width_px: u32,
+    pub height_px: u32,
+    /// Foreground threshold used for the frame (`pixel >= threshold`).
+    pub threshold: u32,
+    /// The whole frame was searched (no object tracked, or looking for new ones).
+    pub full_frame: bool,
+    /// Blobs found but not reported (over capacity).
+    pub dropped_blobs: u32,
+    pub blobs: Vec<BlobObservation>,
+}
+
+/// How a position was recovered.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum PoseMethod {
+    /// Triangulated from two or more cameras (Eq. 4.28–4.38 generalised).
+    Triangulated,
+    /// One camera, depth from the blob's area (Eq. 4.15–4.27).
+    DepthFromArea,
+}
+
+/// One object's pose.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Pose {
+    /// Fusion's object id, stable over time; never reused while fusion runs.
+    pub object_id: u32,
+    pub position_m: [f64; 3],
+    /// Velocity, metres per second.
+    pub velocity_m_per_s: [f64; 3],
+    /// Heading about world +z, counter-clockwise from +x seen from above, unwrapped over
+    /// frames, [0, 360). `None` while no camera sees an axis.
+    pub heading_deg: Option<f64>,
+    /// The heading points along the target; when false it is an axis and may be 180° off.
+    pub heading_directed: bool,
+    pub method: PoseMethod,
+    /// Cameras whose blobs gave the position.
+    pub cameras: Vec<String>,
+    /// RMS reprojection residual of the position over those cameras, pixels (0 for one camera).
+    pub residual_px: f64,
+    /// Depth from area was outside its calibrated range (the value is not to be trusted).
+    pub out_of_range: bool,
+}
+
+/// All poses fusion recovered from one set of frames.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PoseFrame {
+    pub schema: u32,
+    pub rig: String,
+    /// Fusion's count of frame sets.
+    pub sequence: u64,
+    /// Exposure time of the frame set (the earliest of its frames).
+    pub timestamp_ns: u64,
+    /// Latest publication time of the frames used.
+    pub frame_published_ns: u64,
+    /// When fusion published the poses.
+    pub published_ns: u64,
+    /// Cameras whose observations are in the set.
+    pub cameras: Vec<String>,
+    pub poses: Vec<Pose>,
+}
+
+/// One object's pose on its own key (`stereoscope/<rig>/pose/<object_id>`), with the times
+/// of the frame set it came from.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PoseUpdate {
+    pub schema: u32,
+    pub rig: String,
+    pub sequence: u64,
+    pub timestamp_ns: u64,
+    pub frame_published_ns: u64,
+    pub published_ns: u64,
+    pub pose: Pose,
+}
+
+/// A synthetic camera's ground truth for one frame.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Truth {
+    pub schema: u32,
+    pub camera: String,
+    pub sequence: u64,
+    pub timestamp_ns: u64,
+    pub targets: Vec<TargetTruth>,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TargetTruth {
+    /// Index of the target in the scene.
+    pub target: u32,
+    pub position_m: [f64; 3],
+    pub heading_deg: f64,
+    /// The target is symmetric end to end: its heading is only defined modulo 180°.
+    pub symmetric: bool,
+    pub visible: bool,
+    pub area_px: f64,
+    pub centroid_px: [f64; 2],
+}
+
+/// A service's periodic report of itself.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Health {
+    pub schema: u32,
+    pub rig: String,
+    pub host: String,
+    /// "capture/cam0", "moments/cam0", "fusion".
+    pub service: String,
+    pub pid: u32,
+    pub started_ns: u64,
+    pub published_ns: u64,
+    /// Items handled (frames, observations or frame sets) since start.
+    pub processed: u64,
+    /// Items handled per second over the last report interval.
+    pub rate_hz: f64,
+    /// Items lost (frames dropped for a slow consumer, skipped sequence numbers).
+    pub dropped: u64,
+    /// Bad inputs rejected (undecodable payloads, inconsistent frames).
+    pub rejected: u64,
+    /// The last problem met, if any, with what it concerned.
+    pub last_error: Option<String>,
+    /// Service-specific figures (threshold, tracked objects, cameras live …).
+    #[serde(default)]
+    pub detail: std::collections::BTreeMap<String, String>,
+}
+
+/// Why a message could not be decoded.
+#[derive(Debug)]
+pub enum DecodeError {
+    Json(serde_json::Error),
+    Binary(postcard::Error),
+    Schema { found: u32 },
+}
+
+impl std::fmt::Display for DecodeError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            DecodeError::Json(e) => write!(f, "not a valid JSON message: {e}"),
+            DecodeError::Binary(e) => write!(f, "not a valid binary message: {e}"),
+            DecodeError::Schema { found } => {
+                write!(f, "schema {found} is not {SCHEMA_VERSION}")
+            }
+        }
+    }
+}
+
+impl std::error::Error for DecodeError {}
+
+/// A message with a schema number, encodable both ways.
+pub trait Message: Serialize + for<'de> Deserialize<'de> {
+    fn schema(&self) -> u32;
+
+    fn to_json(&self) -> Vec<u8> {
+        // Serialising these plain structs cannot fail (no maps with non-string keys).
+        serde_json::to_vec(self).unwrap_or_default()
+    }
+
+    fn from_json(bytes: &[u8]) -> Result<Self, DecodeError> {
+        let m: Self = serde_json::from_slice(bytes).map_err(DecodeError::Json)?;
+        m.check()
+    }
+
+    fn to_binary(&self) -> Vec<u8> {
+        postcard::to_allocvec(self).unwrap_or_default()
+    }
+
+    fn from_binary(bytes: &[u8]) -> Result<Self, DecodeError> {
+        let m: Self = postcard::from_bytes(bytes).map_err(DecodeError::Binary)?;
+        m.check()
+    }
+
+    fn check(self) -> Result<Self, DecodeError> {
+        if self.schema() == SCHEMA_VERSION {
+            Ok(self)
+        } else {
+            Err(DecodeError::Schema {
+                found: self.schema(),
+            })
+        }
+    }
+}
+
+macro_rules! message {
+    ($($t:ty),*) => {$(
+        impl Message for $t {
+            fn schema(&self) -> u32 {
+                self.schema
+            }
+        }
+    )*};
+}
+message!(Observation, PoseFrame, PoseUpdate, Truth, Health);
+
+/// Nanoseconds since the Unix epoch now (CLOCK_REALTIME).
+pub fn now_ns() -> u64 {
+    std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map(|d| d.as_nanos() as u64)
+        .unwrap_or(0)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn sample() -> PoseFrame {
+        PoseFrame {
+            schema: SCHEMA_VERSION,
+            rig: "lab".into(),
+            sequence: 3,
+            timestamp_ns: 10,
+            frame_published_ns: 11,
+            published_ns: 12,
+            cameras: vec!["cam0".into(), "cam1".into()],
+            poses: vec![Pose {
+                object_id: 1,
+                position_m: [0.1, -0.2, 0.5],
+                velocity_m_per_s: [0.0; 3],
+                heading_deg: Some(45.0),
+                heading_directed: false,
+                method: PoseMethod::Triangulated,
+                cameras: vec!["cam0".into(), "cam1".into()],
+                residual_px: 0.2,
+                out_of_range: false,
+            }],
+        }
+    }
+
+    #[test]
+    fn both_encodings_round_trip() {
+        let p = sample();
+        assert_eq!(PoseFrame::from_json(&p.to_json()).unwrap(), p);
+        assert_eq!(PoseFrame::from_binary(&p.to_binary()).unwrap(), p);
+        let text = String::from_utf8(p.to_json()).unwrap();
+        assert!(text.contains("\"method\":\"triangulated\""), "{text}");
+    }
+
+    #[test]
+    fn bad_payloads_are_errors_not_panics() {
+        let p = sample();
+        let json = p.to_json();
+        assert!(PoseFrame::from_json(&json[..json.len() / 2]).is_err());
+        assert!(PoseFrame::from_json(b"\xff\x00garbage").is_err());
+        let bin = p.to_binary();
+        assert!(PoseFrame::from_binary(&bin[..bin.len() / 2]).is_err());
+        let mut other = p.clone();
+        other.schema = 2;
+        let e = PoseFrame::from_json(&other.to_json()).unwrap_err();
+        assert!(e.to_string().contains("schema 2"), "{e}");
+        let unknown = String::from_utf8(json).unwrap().replacen("\"rig\"", "\"rigg\"", 1);
+        assert!(PoseFrame::from_json(unknown.as_bytes()).is_err());
+    }
+}

@@ -1,0 +1,279 @@
+//! The capture service: one camera's frames into shared memory, once each, for the camera's
+//! moment worker (and anything else on the PC) to read in place. The source is chosen by the
+//! camera's `source` in the rig file (`docs/services.md`): a V4L2 camera (feature `v4l`), a
+//! Y4M file or pipe, a PGM/PNG sequence, or the synthetic scene — whose ground truth goes out
+//! on its own channel (iceoryx2 and Zenoh).
+//!
+//! Never blocks on a slow reader: subscribers keep the newest frames only (safe overflow), and
+//! the worker counts what it missed from sequence gaps. Real-time sources are paced on a
+//! fixed grid (frame k at start + k / fps; a frame that is late is published at once and the
+//! grid is kept, frames are never bunched), the others as fast as the reader takes them.
+
+pub mod images;
+pub mod source;
+pub mod synthetic;
+#[cfg(feature = "v4l")]
+pub mod v4l;
+pub mod y4m;
+
+use source::{FrameSource, Read, SourceError};
+use std::time::{Duration, Instant};
+use stereoscope_proto::frame::FrameHeader;
+use stereoscope_proto::messages::{SCHEMA_VERSION, Truth, now_ns};
+use stereoscope_proto::names::{iox as iox_names, zenoh as keys};
+use stereoscope_proto::rig::SourceSpec;
+use stereoscope_transport::iox::{FramePublisher, MessagePublisher};
+use stereoscope_transport::net::JsonPublisher;
+use stereoscope_transport::{Context, Counters, HealthReporter, Shutdown, net};
+
+/// What to run.
+#[derive(Debug, Clone)]
+pub struct CaptureConfig {
+    pub ctx: Context,
+    pub camera: String,
+    /// Stop after this many frames (tests, benchmarks).
+    pub max_frames: Option<u64>,
+    /// Override the source's pacing: `Some(false)` reads files as fast as possible.
+    pub realtime: Option<bool>,
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum CaptureError {
+    #[error("camera {camera}: {message}")]
+    Setup { camera: String, message: String },
+    #[error("camera {camera}: {source}")]
+    Source {
+        camera: String,
+        #[source]
+        source: SourceError,
+    },
+}
+
+/// What a run did.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct CaptureSummary {
+    pub frames: u64,
+    pub bad_frames: u64,
+}
+
+/// Opens the camera's source as the rig file describes it.
+pub fn open_source(ctx: &Context, camera: &str) -> Result<Box<dyn FrameSource>, CaptureError> {
+    let setup = |message: String| CaptureError::Setup {
+        camera: camera.to_string(),
+        message,
+    };
+    let index = ctx
+        .rig
+        .camera_index(camera)
+        .ok_or_else(|| setup(format!("not a camera of {}", ctx.rig_path.display())))?;
+    let spec = &ctx.rig_file.cameras[index];
+    let src = spec.source.as_ref().ok_or_else(|| {
+        setup(format!(
+            "camera[{index}].source is missing in {}: say where its frames come from",
+            ctx.rig_path.display()
+        ))
+    })?;
+    let wrap = |source: SourceError| CaptureError::Source {
+        camera: camera.to_string(),
+        source,
+    };
+    let rel = |p: &str| -> String {
+        let path = std::path::Path::new(p);
+        if path.is_absolute() || p == "-" {
+            p.to_string()
+        } else {
+            ctx.rig_path
+                .parent()
+                .map(|d| d.join(path))
+                .unwrap_or_else(|| path.to_path_buf())
+                .display()
+                .to_string()
+        }
+    };
+    let source: Box<dyn FrameSource> = match src {
+        SourceSpec::Synthetic {
+            fps,
+            loop_frames,
+            bit_depth,
+        } => Box::new(
+            synthetic::SyntheticSource::new(
+                &ctx.rig_file,
+                ctx.rig.cameras[index].camera,
+                index,
+                *fps,
+                *loop_frames,
+                *bit_depth,
+            )
+            .map_err(wrap)?,
+        ),
+        SourceSpec::Y4m {
+            path,
+            realtime,
+            repeat,
+        } => Box::new(y4m::Y4mSource::open(&rel(path), *realtime, *repeat).map_err(wrap)?),
+        SourceSpec::Images {
+            path,
+            fps,
+            realtime,
+            repeat,
+        } => Box::new(
+            images::ImageSource::open(&rel(path), *fps, *realtime, *repeat).map_err(wrap)?,
+        ),
+        #[cfg(feature = "v4l")]
+        SourceSpec::V4l {
+            device,
+            format,
+            fps,
+            exposure,
+            gain,
+        } => Box::new(
+            v4l::V4lSource::open(device, format.as_deref(), *fps, *exposure, *gain)
+                .map_err(wrap)?,
+        ),
+        #[cfg(not(feature = "v4l"))]
+        SourceSpec::V4l { device, .. } => {
+            return Err(setup(format!(
+                "{device}: this build has no V4L2 support; build with `--features v4l` (needs libclang-dev)"
+            )));
+        }
+    };
+    let (w, h) = source.size();
+    let [rw, rh] = spec.image_size;
+    if (w, h) != (rw, rh) {
+        return Err(setup(format!(
+            "the source gives {w}×{h} frames but camera[{index}].image_size is {rw}×{rh}"
+        )));
+    }
+    Ok(source)
+}
+
+/// Runs until the source ends, `max_frames`, or shutdown.
+pub fn run(cfg: CaptureConfig, shutdown: Shutdown) -> Result<CaptureSummary, CaptureError> {
+    let cam = cfg.camera.clone();
+    let setup = |message: String| CaptureError::Setup {
+        camera: cam.clone(),
+        message,
+    };
+    let ctx = &cfg.ctx;
+    let rig = &ctx.rig_file.name;
+    let mut source = open_source(ctx, &cam)?;
+    let (w, h) = source.size();
+    let format = source.format();
+    let header0 = FrameHeader::new(&cam, format, w, h).map_err(|e| setup(e.to_string()))?;
+    let node = stereoscope_transport::iox::node(&ctx.iox_prefix, &format!("capture-{cam}"))
+        .map_err(|e| setup(e.to_string()))?;
+    let frames = FramePublisher::new(
+        &node,
+        &iox_names::frames(rig, &cam),
+        header0.payload_len() as usize,
+    )
+    .map_err(|e| setup(e.to_string()))?;
+    let session = net::open(&ctx.zenoh).map_err(|e| setup(e.to_string()))?;
+    let mut health = HealthReporter::new(&session, rig, &ctx.host, &format!("capture/{cam}"))
+        .map_err(|e| setup(e.to_string()))?;
+    let has_truth = source.truth().is_some();
+    let truth_iox = if has_truth {
+        Some(
+            MessagePublisher::new(&node, &iox_names::truth(rig, &cam), &[])
+                .map_err(|e| setup(e.to_string()))?,
+        )
+    } else {
+        None
+    };
+    let truth_net = if has_truth {
+        Some(JsonPublisher::new(&session, &keys::truth(rig, &cam)).map_err(|e| setup(e.to_string()))?)
+    } else {
+        None
+    };
+    tracing::info!(camera = %cam, "capturing from {}", source.describe());
+
+    let realtime = cfg.realtime.unwrap_or(source.realtime());
+    let period_ns = source
+        .fps()
+        .filter(|f| *f > 0.0 && f.is_finite())
+        .map(|f| (1e9 / f).round().max(1.0) as u64);
+    // Real-time frames sit on a grid shared by every camera of the same rate: slot n is due
+    // at n · period since the Unix epoch, so cameras on one clock expose "together" and a
+    // synthetic scene is rendered at the same instant in every camera.
+    let start = Instant::now();
+    let start_ns = now_ns();
+    let first_slot = period_ns.map(|p| start_ns / p + 1).unwrap_or(0);
+    let mut counters = Counters::default();
+    counters.detail.insert("source".into(), source.describe());
+    let mut summary = CaptureSummary::default();
+    let mut index: u64 = 0;
+    while !shutdown.requested() && cfg.max_frames.is_none_or(|m| index < m) {
+        let (slot, scene_time_s, nominal_ns) = match (realtime, period_ns) {
+            (true, Some(p)) => {
+                let slot = first_slot + index;
+                let due_ns = slot * p;
+                let wait_ns = due_ns.saturating_sub(start_ns);
+                let due = Duration::from_nanos(wait_ns);
+                let now = start.elapsed();
+                if due > now && shutdown.sleep(due - now) {
+                    break;
+                }
+                (slot, due_ns as f64 / 1e9, due_ns)
+            }
+            (_, p) => (
+                index,
+                p.map(|p| (index * p) as f64 / 1e9).unwrap_or(0.0),
+                now_ns(),
+            ),
+        };
+        let mut header = header0;
+        header.sequence = index;
+        header.timestamp_ns = nominal_ns;
+        let result = frames.publish(header, |buf| match source.read(slot, scene_time_s, buf) {
+            Ok(Read::Frame { timestamp_ns }) => Ok(timestamp_ns),
+            Ok(Read::End) => Err(None),
+            Err(e) => Err(Some(e)),
+        });
+        match result {
+            Ok(Ok(_)) => {}
+            Ok(Err(None)) => {
+                tracing::info!(camera = %cam, frames = index, "end of source");
+                break;
+            }
+            Ok(Err(Some(SourceError::BadFrame(m)))) => {
+                tracing::warn!(camera = %cam, "skipped a frame: {m}");
+                counters.rejected += 1;
+                counters.last_error = Some(m);
+                summary.bad_frames += 1;
+                index += 1;
+                continue;
+            }
+            Ok(Err(Some(e))) => {
+                return Err(CaptureError::Source {
+                    camera: cam.clone(),
+                    source: e,
+                });
+            }
+            Err(e) => return Err(setup(e.to_string())),
+        }
+        if let Some(truth) = source.truth() {
+            let t = Truth {
+                schema: SCHEMA_VERSION,
+                camera: cam.clone(),
+                sequence: index,
+                timestamp_ns: nominal_ns,
+                targets: truth,
+            };
+            if let Some(p) = &truth_iox
+                && let Err(e) = p.publish(&t)
+            {
+                counters.last_error = Some(e.to_string());
+            }
+            if let Some(p) = &truth_net
+                && let Err(e) = p.put(&t)
+            {
+                counters.last_error = Some(e.to_string());
+            }
+        }
+        index += 1;
+        summary.frames += 1;
+        counters.processed = summary.frames;
+        health.tick(&counters);
+    }
+    Ok(summary)
+}

@@ -1,0 +1,245 @@
+//! The synthetic camera: the rig's `[synthetic]` scene rendered through this camera's
+//! calibrated model by `stereoscope_render`, with ground truth per frame. Frame `k` shows the
+//! scene at `k / fps` seconds; with `loop_frames` the first N frames are rendered once and
+//! repeated (so a benchmark can run at rates the renderer cannot reach live).
+
+use crate::source::{FrameSource, Read, SourceError};
+use nalgebra::{Point3, Vector3};
+use stereoscope_geometry::Camera;
+use stereoscope_geometry::rig::unit_scale;
+use stereoscope_proto::frame::PixelFormat;
+use stereoscope_proto::messages::TargetTruth;
+use stereoscope_proto::rig::{MotionSpec, RigFile, SyntheticSpec};
+use stereoscope_render::{
+    Actor, Background, Motion, RenderOptions, Scene, Shape, render_u8, render_u16, scene_at,
+};
+
+pub struct SyntheticSource {
+    camera: Camera,
+    actors: Vec<Actor>,
+    base: Scene,
+    opts: RenderOptions,
+    fps: f64,
+    format: PixelFormat,
+    looped: Option<Vec<(Vec<u8>, Vec<TargetTruth>)>>,
+    last_truth: Vec<TargetTruth>,
+    symmetric: Vec<bool>,
+}
+
+impl std::fmt::Debug for SyntheticSource {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "SyntheticSource({} targets)", self.actors.len())
+    }
+}
+
+fn p3(v: [f64; 3], s: f64) -> Point3<f64> {
+    Point3::new(v[0] * s, v[1] * s, v[2] * s)
+}
+
+/// The scene's actors (metres) from the rig file's `[synthetic]` section (file units).
+pub fn actors(spec: &SyntheticSpec, scale: f64) -> Vec<(Actor, bool)> {
+    spec.targets
+        .iter()
+        .map(|t| {
+            let r = t.radius * scale;
+            let (shape, symmetric) = match t.shape.as_str() {
+                "double_sphere" => (Shape::DoubleSphere { radius_m: r }, true),
+                "disc" => (Shape::Disc { radius_m: r }, true),
+                _ => (Shape::Sphere { radius_m: r }, true),
+            };
+            let motion = match &t.motion {
+                MotionSpec::Static {
+                    position,
+                    heading_deg,
+                } => Motion::Static {
+                    position: p3(*position, scale),
+                    heading_deg: *heading_deg,
+                },
+                MotionSpec::Line { from, to, period_s } => Motion::Line {
+                    from: p3(*from, scale),
+                    to: p3(*to, scale),
+                    period_s: *period_s,
+                },
+                MotionSpec::Circle {
+                    centre,
+                    radius,
+                    period_s,
+                } => Motion::Circle {
+                    centre: p3(*centre, scale),
+                    radius_m: radius * scale,
+                    period_s: *period_s,
+                },
+                MotionSpec::Spin {
+                    position,
+                    deg_per_s,
+                } => Motion::Spin {
+                    position: p3(*position, scale),
+                    deg_per_s: *deg_per_s,
+                },
+                MotionSpec::Wander {
+                    centre,
+                    extent,
+                    seed,
+                } => Motion::Wander {
+                    centre: p3(*centre, scale),
+                    extent_m: Vector3::new(extent[0], extent[1], extent[2]) * scale,
+                    seed: *seed ^ spec.seed,
+                },
+            };
+            (
+                Actor {
+                    shape,
+                    contrast: t.contrast.unwrap_or(180.0),
+                    motion,
+                },
+                symmetric,
+            )
+        })
+        .collect()
+}
+
+impl SyntheticSource {
+    pub fn new(
+        file: &RigFile,
+        camera: Camera,
+        camera_index: usize,
+        fps: f64,
+        loop_frames: Option<u32>,
+        bit_depth: Option<u32>,
+    ) -> Result<Self, SourceError> {
+        let spec = file
+            .synthetic
+            .as_ref()
+            .ok_or_else(|| SourceError::Fatal("the rig file has no [synthetic] scene".into()))?;
+        let scale = unit_scale(&file.units).map_err(|e| SourceError::Fatal(e.to_string()))?;
+        let (actors, symmetric): (Vec<Actor>, Vec<bool>) = actors(spec, scale).into_iter().unzip();
+        let base = Scene {
+            background: Background {
+                level: spec.background.unwrap_or(20.0),
+                gradient_per_px: (0.0, 0.0),
+            },
+            ..Scene::default()
+        };
+        let opts = RenderOptions {
+            samples: spec.samples.unwrap_or(3),
+            blur_sigma_px: spec.blur_sigma_px.unwrap_or(0.6),
+            noise_sigma: spec.noise_sigma.unwrap_or(2.0),
+            shot_noise_gain: None,
+            seed: spec.seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ camera_index as u64,
+        };
+        let format = if bit_depth == Some(16) {
+            PixelFormat::Gray16
+        } else {
+            PixelFormat::Gray8
+        };
+        let mut s = SyntheticSource {
+            camera,
+            actors,
+            base,
+            opts,
+            fps,
+            format,
+            looped: None,
+            last_truth: Vec::new(),
+            symmetric,
+        };
+        if let Some(n) = loop_frames {
+            let (w, h) = s.size();
+            let len = w as usize * h as usize * s.format.bytes_per_pixel();
+            let mut frames = Vec::with_capacity(n as usize);
+            for k in 0..n as u64 {
+                let mut buf = vec![0u8; len];
+                s.render(k, k as f64 / fps, &mut buf)?;
+                frames.push((buf, s.last_truth.clone()));
+            }
+            s.looped = Some(frames);
+        }
+        Ok(s)
+    }
+
+    fn render(&mut self, index: u64, t_s: f64, out: &mut [u8]) -> Result<(), SourceError> {
+        let (scene, states) = scene_at(&self.base, &self.actors, t_s);
+        let opts = RenderOptions {
+            seed: self.opts.seed ^ index.wrapping_mul(0xD1B5_4A32_D192_ED03),
+            ..self.opts
+        };
+        let bad = |e: stereoscope_vision::VisionError| SourceError::Fatal(format!("render: {e}"));
+        let truth = match self.format {
+            PixelFormat::Gray8 => {
+                let f = render_u8(&self.camera, &scene, &opts).map_err(bad)?;
+                out.copy_from_slice(f.image.as_slice());
+                f.truth
+            }
+            PixelFormat::Gray16 => {
+                let f = render_u16(&self.camera, &scene, &opts, 256.0).map_err(bad)?;
+                for (d, s) in out.chunks_exact_mut(2).zip(f.image.as_slice()) {
+                    d.copy_from_slice(&s.to_le_bytes());
+                }
+                f.truth
+            }
+        };
+        self.last_truth = states
+            .iter()
+            .zip(&truth)
+            .enumerate()
+            .map(|(i, (s, t))| TargetTruth {
+                target: i as u32,
+                position_m: [s.position.x, s.position.y, s.position.z],
+                heading_deg: s.heading_deg.rem_euclid(360.0),
+                symmetric: self.symmetric.get(i).copied().unwrap_or(true),
+                visible: t.visible,
+                area_px: t.area_px,
+                centroid_px: [t.centroid_px.x, t.centroid_px.y],
+            })
+            .collect();
+        Ok(())
+    }
+}
+
+impl FrameSource for SyntheticSource {
+    fn describe(&self) -> String {
+        let (w, h) = self.size();
+        format!(
+            "synthetic {}×{} at {} fps, {} targets{}",
+            w,
+            h,
+            self.fps,
+            self.actors.len(),
+            self.looped
+                .as_ref()
+                .map(|l| format!(", {} frames looped", l.len()))
+                .unwrap_or_default()
+        )
+    }
+
+    fn format(&self) -> PixelFormat {
+        self.format
+    }
+
+    fn size(&self) -> (u32, u32) {
+        (self.camera.intrinsics.width, self.camera.intrinsics.height)
+    }
+
+    fn fps(&self) -> Option<f64> {
+        Some(self.fps)
+    }
+
+    fn realtime(&self) -> bool {
+        true
+    }
+
+    fn read(&mut self, index: u64, t_s: f64, out: &mut [u8]) -> Result<Read, SourceError> {
+        if let Some(frames) = &self.looped {
+            let (buf, truth) = &frames[(index % frames.len() as u64) as usize];
+            out.copy_from_slice(buf);
+            self.last_truth = truth.clone();
+        } else {
+            self.render(index, t_s, out)?;
+        }
+        Ok(Read::Frame { timestamp_ns: None })
+    }
+
+    fn truth(&self) -> Option<Vec<TargetTruth>> {
+        Some(self.last_truth.clone())
+    }
+}

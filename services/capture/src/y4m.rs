@@ -1,0 +1,246 @@
+//! YUV4MPEG2 files and pipes: the luma plane of each frame, read straight into the frame
+//! buffer; chroma is skipped. Headers: `YUV4MPEG2 W… H… F…:… [C…]`, then per frame
+//! `FRAME[ params]\n` and the planes. Colour spaces: 420 (all variants), 422, 444, mono
+//! (8-bit) and mono16 (16-bit little-endian luma). Any other input can be converted by
+//! `ffmpeg -i IN -f yuv4mpegpipe -pix_fmt gray PIPE`.
+
+use crate::source::{FrameSource, Read, SourceError};
+use std::fs::File;
+use std::io::{BufRead, BufReader, Read as _, Seek, SeekFrom};
+use stereoscope_proto::frame::PixelFormat;
+
+#[derive(Debug)]
+pub struct Y4mSource {
+    path: String,
+    reader: BufReader<File>,
+    width: u32,
+    height: u32,
+    fps: Option<f64>,
+    format: PixelFormat,
+    chroma_bytes: usize,
+    data_start: u64,
+    realtime: bool,
+    repeat: bool,
+    frames_read: u64,
+}
+
+fn fatal(path: &str, msg: impl std::fmt::Display) -> SourceError {
+    SourceError::Fatal(format!("{path}: {msg}"))
+}
+
+/// Header fields: (width, height, fps, format, chroma bytes per frame).
+pub fn parse_header(line: &str) -> Result<(u32, u32, Option<f64>, PixelFormat, usize), String> {
+    let mut words = line.split_ascii_whitespace();
+    if words.next() != Some("YUV4MPEG2") {
+        return Err("not a YUV4MPEG2 stream (the first word must be YUV4MPEG2)".into());
+    }
+    let (mut w, mut h, mut fps, mut colour) = (None, None, None, "420jpeg".to_string());
+    for word in words {
+        let (tag, value) = word.split_at(1);
+        match tag {
+            "W" => w = Some(value.parse::<u32>().map_err(|_| format!("width {value:?} is not a number"))?),
+            "H" => h = Some(value.parse::<u32>().map_err(|_| format!("height {value:?} is not a number"))?),
+            "F" => {
+                let (n, d) = value
+                    .split_once(':')
+                    .ok_or_else(|| format!("frame rate {value:?} is not N:D"))?;
+                let (n, d): (f64, f64) = (
+                    n.parse().map_err(|_| format!("frame rate {value:?} is not N:D"))?,
+                    d.parse().map_err(|_| format!("frame rate {value:?} is not N:D"))?,
+                );
+                if n > 0.0 && d > 0.0 {
+                    fps = Some(n / d);
+                }
+            }
+            "C" => colour = value.to_string(),
+            _ => {}
+        }
+    }
+    let (w, h) = match (w, h) {
+        (Some(w), Some(h)) if w > 0 && h > 0 && w <= 16384 && h <= 16384 => (w, h),
+        (Some(w), Some(h)) => return Err(format!("frame size {w}×{h} is outside 1–16384")),
+        _ => return Err("the header has no W or H".into()),
+    };
+    let luma = w as usize * h as usize;
+    let cw = (w as usize).div_ceil(2);
+    let ch = (h as usize).div_ceil(2);
+    let (format, chroma) = match colour.as_str() {
+        c if c.starts_with("420") => (PixelFormat::Gray8, 2 * cw * ch),
+        "422" => (PixelFormat::Gray8, 2 * cw * h as usize),
+        "444" => (PixelFormat::Gray8, 2 * luma),
+        "mono" => (PixelFormat::Gray8, 0),
+        "mono16" => (PixelFormat::Gray16, 0),
+        other => return Err(format!("colour space C{other} is not supported (420, 422, 444, mono, mono16)")),
+    };
+    Ok((w, h, fps, format, chroma))
+}
+
+impl Y4mSource {
+    pub fn open(path: &str, realtime: bool, repeat: bool) -> Result<Self, SourceError> {
+        let file = File::open(path).map_err(|e| fatal(path, e))?;
+        let mut reader = BufReader::with_capacity(1 << 20, file);
+        let mut line = String::new();
+        reader
+            .read_line(&mut line)
+            .map_err(|e| fatal(path, format!("reading the header: {e}")))?;
+        let (width, height, fps, format, chroma_bytes) =
+            parse_header(line.trim_end()).map_err(|e| fatal(path, e))?;
+        // A pipe cannot seek; repeat is then refused when the end comes.
+        let data_start = line.len() as u64;
+        Ok(Y4mSource {
+            path: path.to_string(),
+            reader,
+            width,
+            height,
+            fps,
+            format,
+            chroma_bytes,
+            data_start,
+            realtime,
+            repeat,
+            frames_read: 0,
+        })
+    }
+}
+
+impl FrameSource for Y4mSource {
+    fn describe(&self) -> String {
+        format!(
+            "y4m {} {}×{} {}",
+            self.path,
+            self.width,
+            self.height,
+            self.fps.map(|f| format!("{f:.3} fps")).unwrap_or_else(|| "no rate".into())
+        )
+    }
+
+    fn format(&self) -> PixelFormat {
+        self.format
+    }
+
+    fn size(&self) -> (u32, u32) {
+        (self.width, self.height)
+    }
+
+    fn fps(&self) -> Option<f64> {
+        self.fps
+    }
+
+    fn realtime(&self) -> bool {
+        self.realtime
+    }
+
+    fn read(&mut self, _index: u64, _t: f64, out: &mut [u8]) -> Result<Read, SourceError> {
+        let frame_no = self.frames_read;
+        let mut line = Vec::new();
+        let n = self
+            .reader
+            .read_until(b'\n', &mut line)
+            .map_err(|e| fatal(&self.path, format!("frame {frame_no}: {e}")))?;
+        if n == 0 {
+            if self.repeat && frame_no > 0 {
+                self.reader
+                    .seek(SeekFrom::Start(self.data_start))
+                    .map_err(|e| fatal(&self.path, format!("cannot start again (a pipe?): {e}")))?;
+                self.frames_read = 0;
+                return self.read(_index, _t, out);
+            }
+            return Ok(Read::End);
+        }
+        if !line.starts_with(b"FRAME") || line.last() != Some(&b'\n') {
+            return Err(fatal(
+                &self.path,
+                format!(
+                    "frame {frame_no}: expected a FRAME line, found {:?}",
+                    String::from_utf8_lossy(&line[..line.len().min(16)])
+                ),
+            ));
+        }
+        let want = out.len();
+        let mut got = 0;
+        while got < want {
+            match self.reader.read(&mut out[got..]) {
+                Ok(0) => break,
+                Ok(k) => got += k,
+                Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
+                Err(e) => return Err(fatal(&self.path, format!("frame {frame_no}: {e}"))),
+            }
+        }
+        if got < want {
+            return Err(fatal(
+                &self.path,
+                format!("truncated: frame {frame_no} has {got} of its {want} luma bytes"),
+            ));
+        }
+        let mut skip = self.chroma_bytes as u64;
+        let copied = std::io::copy(&mut (&mut self.reader).take(skip), &mut std::io::sink())
+            .map_err(|e| fatal(&self.path, format!("frame {frame_no}: {e}")))?;
+        skip -= copied;
+        if skip > 0 {
+            return Err(fatal(
+                &self.path,
+                format!("truncated: frame {frame_no} lacks {skip} chroma bytes"),
+            ));
+        }
+        self.frames_read += 1;
+        Ok(Read::Frame { timestamp_ns: None })
+    }
+}
+
+/// Encodes grey frames as a Y4M stream (`Cmono`), for tests and for recording.
+pub fn encode_mono(width: u32, height: u32, fps: u32, frames: &[&[u8]]) -> Vec<u8> {
+    let mut out = format!("YUV4MPEG2 W{width} H{height} F{fps}:1 Ip A1:1 Cmono\n").into_bytes();
+    for f in frames {
+        out.extend_from_slice(b"FRAME\n");
+        out.extend_from_slice(f);
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn headers() {
+        let (w, h, f, fmt, c) = parse_header("YUV4MPEG2 W320 H240 F30000:1001 Ip A1:1 C420jpeg").unwrap();
+        assert_eq!((w, h, fmt, c), (320, 240, PixelFormat::Gray8, 2 * 160 * 120));
+        assert!((f.unwrap() - 29.97).abs() < 0.01);
+        assert_eq!(parse_header("YUV4MPEG2 W3 H3 Cmono16").unwrap().3, PixelFormat::Gray16);
+        assert!(parse_header("YUV4MPEG2 W3 H3 C411").unwrap_err().contains("C411"));
+        assert!(parse_header("YUV4MPEG W3 H3").is_err());
+        assert!(parse_header("YUV4MPEG2 W0 H3").is_err());
+        assert!(parse_header("YUV4MPEG2 Wx H3").unwrap_err().contains("width"));
+    }
+
+    #[test]
+    fn reads_frames_and_names_truncation() {
+        let dir = std::env::temp_dir().join(format!("y4m-test-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let a = vec![10u8; 12];
+        let b = vec![20u8; 12];
+        let bytes = encode_mono(4, 3, 25, &[&a, &b]);
+        let p = dir.join("ok.y4m");
+        std::fs::write(&p, &bytes).unwrap();
+        let mut s = Y4mSource::open(p.to_str().unwrap(), false, false).unwrap();
+        let mut out = vec![0u8; 12];
+        assert_eq!(s.read(0, 0.0, &mut out).unwrap(), Read::Frame { timestamp_ns: None });
+        assert_eq!(out, a);
+        s.read(1, 0.0, &mut out).unwrap();
+        assert_eq!(out, b);
+        assert_eq!(s.read(2, 0.0, &mut out).unwrap(), Read::End);
+        let cut = dir.join("cut.y4m");
+        std::fs::write(&cut, &bytes[..bytes.len() - 5]).unwrap();
+        let mut s = Y4mSource::open(cut.to_str().unwrap(), false, false).unwrap();
+        s.read(0, 0.0, &mut out).unwrap();
+        let e = s.read(1, 0.0, &mut out).unwrap_err().to_string();
+        assert!(e.contains("cut.y4m") && e.contains("frame 1") && e.contains("7 of its 12"), "{e}");
+        // Repeat starts again.
+        let mut s = Y4mSource::open(p.to_str().unwrap(), false, true).unwrap();
+        for _ in 0..3 {
+            s.read(0, 0.0, &mut out).unwrap();
+        }
+        assert_eq!(out, a);
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+}

@@ -1,0 +1,290 @@
+//! One frame set to poses: cross-camera correspondence and triangulation (thesis Eq. 4.28–4.38
+//! generalised to N calibrated cameras, `stereoscope_geometry::correspond`), single-camera
+//! depth from area for blobs only one camera sees (Eq. 4.15–4.27,
+//! `stereoscope_geometry::depth`), world heading from the blobs' axes (Eq. 3.44 per camera,
+//! fused in `stereoscope_geometry::world_heading`) unwrapped over frames into 0–360°
+//! (§4.1.1, `stereoscope_vision::heading`), and object identities over time: a
+//! constant-velocity prediction per object and a global minimum-cost assignment of points to
+//! predictions within a gate. Ids are never reused while fusion runs.
+
+use nalgebra::{Point2, Point3, Vector3};
+use stereoscope_geometry::correspond::{CorrespondConfig, match_blobs};
+use stereoscope_geometry::depth::point_from_depth;
+use stereoscope_geometry::rig::Rig;
+use stereoscope_geometry::world_heading::{AxisView, fuse};
+use stereoscope_geometry::Camera;
+use stereoscope_proto::messages::{BlobObservation, Observation, Pose, PoseMethod, TrackState};
+use stereoscope_vision::assign::Assigner;
+use stereoscope_vision::heading::wrap_half_turn_deg;
+use stereoscope_vision::{HeadingConfig, HeadingTracker};
+
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct FuserConfig {
+    pub correspond: CorrespondConfig,
+    /// Largest distance of a point from an object's prediction to continue it, metres.
+    pub gate_m: f64,
+    /// An object unseen this long is forgotten.
+    pub drop_after_ns: u64,
+    /// Above this roundness a blob's axis is not used for heading.
+    pub max_roundness: f64,
+}
+
+impl Default for FuserConfig {
+    fn default() -> Self {
+        FuserConfig {
+            correspond: CorrespondConfig::default(),
+            gate_m: 0.1,
+            drop_after_ns: 1_000_000_000,
+            max_roundness: 0.9,
+        }
+    }
+}
+
+/// A 3D point recovered from one set, before identities.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Point {
+    pub position_m: Point3<f64>,
+    pub method: PoseMethod,
+    /// `(camera, blob)` indices into the set.
+    pub blobs: Vec<(usize, usize)>,
+    pub residual_px: f64,
+    pub out_of_range: bool,
+}
+
+#[derive(Debug, Clone)]
+struct Object {
+    id: u32,
+    position_m: Point3<f64>,
+    velocity_m_per_s: Vector3<f64>,
+    last_seen_ns: u64,
+    heading: HeadingTracker,
+    heading_deg: Option<f64>,
+    heading_directed: bool,
+}
+
+/// Keeps the objects of one rig over time.
+#[derive(Debug)]
+pub struct Fuser {
+    cfg: FuserConfig,
+    cameras: Vec<Camera>,
+    ids: Vec<String>,
+    depth: Vec<Option<stereoscope_geometry::rig::DepthFromArea>>,
+    objects: Vec<Object>,
+    next_id: u32,
+    assigner: Assigner,
+}
+
+fn usable(b: &BlobObservation) -> bool {
+    b.status != TrackState::Lost && b.x_px.is_finite() && b.y_px.is_finite() && b.area_px > 0.0
+}
+
+impl Fuser {
+    pub fn new(rig: &Rig, cfg: FuserConfig) -> Self {
+        Fuser {
+            cfg,
+            cameras: rig.cameras.iter().map(|c| c.camera).collect(),
+            ids: rig.cameras.iter().map(|c| c.id.clone()).collect(),
+            depth: rig.cameras.iter().map(|c| c.depth_from_area).collect(),
+            objects: Vec::new(),
+            next_id: 1,
+            assigner: Assigner::default(),
+        }
+    }
+
+    pub fn objects(&self) -> usize {
+        self.objects.len()
+    }
+
+    /// The 3D points of one set (`(rig camera index, observation)` pairs).
+    pub fn points(&self, set: &[(usize, Observation)]) -> Vec<Point> {
+        let cams: Vec<Camera> = set.iter().map(|(c, _)| self.cameras[*c]).collect();
+        // Only blobs seen this frame; keep their indices.
+        let kept: Vec<Vec<usize>> = set
+            .iter()
+            .map(|(_, o)| (0..o.blobs.len()).filter(|&i| usable(&o.blobs[i])).collect())
+            .collect();
+        let pixels: Vec<Vec<Point2<f64>>> = set
+            .iter()
+            .zip(&kept)
+            .map(|((_, o), k)| k.iter().map(|&i| Point2::new(o.blobs[i].x_px, o.blobs[i].y_px)).collect())
+            .collect();
+        let mut points = Vec::new();
+        let mut used: Vec<Vec<bool>> = kept.iter().map(|k| vec![false; k.len()]).collect();
+        if set.len() >= 2 {
+            for m in match_blobs(&cams, &pixels, &self.cfg.correspond) {
+                let blobs: Vec<(usize, usize)> = m
+                    .blobs
+                    .iter()
+                    .map(|&(c, j)| {
+                        used[c][j] = true;
+                        (c, kept[c][j])
+                    })
+                    .collect();
+                points.push(Point {
+                    position_m: m.point.point_world,
+                    method: PoseMethod::Triangulated,
+                    blobs,
+                    residual_px: m.point.rms_px,
+                    out_of_range: false,
+                });
+            }
+        }
+        // Blobs no other camera matched: depth from their area, where the camera has a model.
+        for (s, (c, o)) in set.iter().enumerate() {
+            let Some(model) = self.depth[*c] else {
+                continue;
+            };
+            for (j, &i) in kept[s].iter().enumerate() {
+                if used[s][j] {
+                    continue;
+                }
+                let b = &o.blobs[i];
+                let Ok(d) = model.model.depth_from_area(b.area_px, model.range_m) else {
+                    continue;
+                };
+                let Ok(p) = point_from_depth(&self.cameras[*c], Point2::new(b.x_px, b.y_px), d.depth)
+                else {
+                    continue;
+                };
+                // Two cameras' single views of one object that correspondence rejected must not
+                // become two objects: keep the first point within the gate.
+                if points
+                    .iter()
+                    .any(|q: &Point| (q.position_m - p).norm() < self.cfg.gate_m)
+                {
+                    continue;
+                }
+                points.push(Point {
+                    position_m: p,
+                    method: PoseMethod::DepthFromArea,
+                    blobs: vec![(s, i)],
+                    residual_px: 0.0,
+                    out_of_range: !d.in_range,
+                });
+            }
+        }
+        points
+    }
+
+    /// The world axis of a point from its blobs' image axes, when any camera sees one.
+    fn heading_of(&self, set: &[(usize, Observation)], p: &Point) -> Option<(f64, bool)> {
+        let views: Vec<AxisView> = p
+            .blobs
+            .iter()
+            .filter_map(|&(s, i)| {
+                let (c, o) = &set[s];
+                let b = o.blobs.get(i)?;
+                let round = !(b.roundness <= self.cfg.max_roundness);
+                Some(AxisView {
+                    camera: *c,
+                    centroid_px: Point2::new(b.x_px, b.y_px),
+                    angle_deg: if b.directed { b.heading_deg } else { b.orientation_deg },
+                    directed: b.directed,
+                    weight: if round { 0.0 } else { 1.0 - b.roundness },
+                })
+            })
+            .collect();
+        let h = fuse(&self.cameras, &views, &p.position_m)?;
+        Some((h.heading_deg, h.directed))
+    }
+
+    /// Fuses one set taken at `timestamp_ns` into poses, updating the objects.
+    pub fn fuse(&mut self, set: &[(usize, Observation)], timestamp_ns: u64) -> Vec<Pose> {
+        let points = self.points(set);
+        let headings: Vec<Option<(f64, bool)>> =
+            points.iter().map(|p| self.heading_of(set, p)).collect();
+        // Forget objects unseen for too long.
+        let drop_after = self.cfg.drop_after_ns;
+        self.objects
+            .retain(|o| timestamp_ns.saturating_sub(o.last_seen_ns) <= drop_after);
+        // Assign points to predictions.
+        let gate2 = self.cfg.gate_m * self.cfg.gate_m;
+        let mut cost = Vec::with_capacity(self.objects.len() * points.len());
+        for o in &self.objects {
+            let dt = timestamp_ns.saturating_sub(o.last_seen_ns) as f64 * 1e-9;
+            let predicted = o.position_m + o.velocity_m_per_s * dt;
+            cost.extend(points.iter().map(|p| {
+                let d2 = (p.position_m - predicted).norm_squared();
+                if d2 <= gate2 { d2 } else { f64::INFINITY }
+            }));
+        }
+        let assignment: Vec<Option<usize>> = self
+            .assigner
+            .solve(&cost, self.objects.len(), points.len())
+            .to_vec();
+        let mut owner: Vec<Option<usize>> = vec![None; points.len()];
+        for (oi, a) in assignment.iter().enumerate() {
+            if let Some(pi) = a {
+                owner[*pi] = Some(oi);
+            }
+        }
+        let mut poses = Vec::with_capacity(points.len());
+        for (pi, p) in points.iter().enumerate() {
+            let oi = match owner[pi] {
+                Some(oi) => {
+                    let o = &mut self.objects[oi];
+                    let dt = timestamp_ns.saturating_sub(o.last_seen_ns) as f64 * 1e-9;
+                    if dt > 0.0 {
+                        let v = (p.position_m - o.position_m) / dt;
+                        // Light smoothing: the prediction only has to land inside the gate.
+                        o.velocity_m_per_s = o.velocity_m_per_s * 0.3 + v * 0.7;
+                    }
+                    o.position_m = p.position_m;
+                    o.last_seen_ns = timestamp_ns;
+                    oi
+                }
+                None => {
+                    self.objects.push(Object {
+                        id: self.next_id,
+                        position_m: p.position_m,
+                        velocity_m_per_s: Vector3::zeros(),
+                        last_seen_ns: timestamp_ns,
+                        heading: HeadingTracker::new(HeadingConfig {
+                            ambiguous_step_deg: 60.0,
+                            max_roundness: 1.0,
+                            predict_angular_velocity: true,
+                        }),
+                        heading_deg: None,
+                        heading_directed: false,
+                    });
+                    self.next_id += 1;
+                    self.objects.len() - 1
+                }
+            };
+            let o = &mut self.objects[oi];
+            if let Some((h, directed)) = headings[pi] {
+                // The tracker unwraps an axis in (−90, 90] into 0–360° (or takes a direction).
+                let u = o.heading.update(
+                    wrap_half_turn_deg(h),
+                    0.0,
+                    directed.then_some(h),
+                );
+                o.heading_deg = Some(u.heading_deg);
+                o.heading_directed = o.heading_directed || directed;
+            }
+            let mut cams: Vec<String> = p
+                .blobs
+                .iter()
+                .map(|&(s, _)| self.ids[set[s].0].clone())
+                .collect();
+            cams.dedup();
+            poses.push(Pose {
+                object_id: o.id,
+                position_m: [o.position_m.x, o.position_m.y, o.position_m.z],
+                velocity_m_per_s: [
+                    o.velocity_m_per_s.x,
+                    o.velocity_m_per_s.y,
+                    o.velocity_m_per_s.z,
+                ],
+                heading_deg: o.heading_deg,
+                heading_directed: o.heading_directed,
+                method: p.method,
+                cameras: cams,
+                residual_px: p.residual_px,
+                out_of_range: p.out_of_range,
+            });
+        }
+        poses.sort_by_key(|p| p.object_id);
+        poses
+    }
+}

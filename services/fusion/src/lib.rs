@@ -1,0 +1,237 @@
+//! The fusion service: one per rig, on any PC. It gathers every camera's observations — over
+//! iceoryx2 from moment workers on its own PC, over Zenoh from the others — pairs them in time
+//! ([`pairing`]), recovers each object's position and heading with a stable id ([`fuser`]),
+//! and publishes pose frames on Zenoh (the system's network interface) and iceoryx2 (for
+//! output services on the same PC), plus each object's pose on its own key.
+//!
+//! A camera that stops sending is waited for at most `max_wait`, then left out of sets until
+//! it is heard again (`camera_timeout`): fusion carries on with the cameras it has (two or
+//! more: triangulation; one: depth from area where that camera has a model). Observations that
+//! do not decode, or come from a camera the rig does not have, are counted, named in the log
+//! and in health, and ignored.
+
+pub mod fuser;
+pub mod pairing;
+
+use fuser::{Fuser, FuserConfig};
+use pairing::{Pairer, PairingConfig};
+use std::sync::mpsc;
+use std::time::Duration;
+use stereoscope_geometry::correspond::CorrespondConfig;
+use stereoscope_geometry::rig::unit_scale;
+use stereoscope_proto::messages::{
+    Message, Observation, PoseFrame, PoseUpdate, SCHEMA_VERSION, now_ns,
+};
+use stereoscope_proto::names::{iox as iox_names, zenoh as keys};
+use stereoscope_proto::rig::RigFile;
+use stereoscope_transport::iox::{MessagePublisher, MessageSubscriber, Waker};
+use stereoscope_transport::net::{JsonPublisher, KeyedPublisher};
+use stereoscope_transport::{Context, Counters, HealthReporter, Shutdown, net};
+
+#[derive(Debug, Clone)]
+pub struct FusionConfig {
+    pub ctx: Context,
+    /// Stop after this many frame sets (tests, benchmarks).
+    pub max_sets: Option<u64>,
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum FusionError {
+    #[error("fusion: {0}")]
+    Setup(String),
+}
+
+/// Fusion's settings from the rig file's `[fusion]` table (defaults in `docs/services.md`).
+pub fn settings(file: &RigFile) -> Result<(PairingConfig, FuserConfig, bool), String> {
+    let f = file.fusion.clone().unwrap_or_default();
+    let scale = unit_scale(&file.units).map_err(|e| e.to_string())?;
+    let ms = |v: Option<f64>, d: f64| (v.unwrap_or(d) * 1e6) as u64;
+    let pairing = PairingConfig {
+        max_skew_ns: ms(f.max_skew_ms, 5.0),
+        max_wait_ns: ms(f.max_wait_ms, 20.0),
+        camera_timeout_ns: ms(f.camera_timeout_ms, 500.0),
+    };
+    let d = CorrespondConfig::default();
+    let fuser = FuserConfig {
+        correspond: CorrespondConfig {
+            max_epipolar_px: f.max_epipolar_px.unwrap_or(d.max_epipolar_px),
+            max_residual_px: f.max_residual_px.unwrap_or(d.max_residual_px),
+        },
+        gate_m: f.association_gate.map(|g| g * scale).unwrap_or(0.1),
+        drop_after_ns: (f.drop_after_s.unwrap_or(1.0) * 1e9) as u64,
+        ..FuserConfig::default()
+    };
+    let all_zenoh = f.observations.as_deref() == Some("zenoh");
+    Ok((pairing, fuser, all_zenoh))
+}
+
+enum Input {
+    Obs(usize, Observation),
+    Bad(String),
+}
+
+/// Runs until shutdown (or `max_sets`); returns the number of pose frames published.
+pub fn run(cfg: FusionConfig, shutdown: Shutdown) -> Result<u64, FusionError> {
+    let ctx = &cfg.ctx;
+    let setup = |m: String| FusionError::Setup(m);
+    let rig = ctx.rig_file.name.clone();
+    let (pair_cfg, fuser_cfg, all_zenoh) =
+        settings(&ctx.rig_file).map_err(|e| setup(format!("{}: {e}", ctx.rig_path.display())))?;
+    let n = ctx.rig.cameras.len();
+    if n == 0 {
+        return Err(setup(format!("{} has no cameras", ctx.rig_path.display())));
+    }
+    let node = stereoscope_transport::iox::node(&ctx.iox_prefix, "fusion")
+        .map_err(|e| setup(e.to_string()))?;
+    let session = net::open(&ctx.zenoh).map_err(|e| setup(e.to_string()))?;
+    let here = ctx.cameras_here();
+    let mut local: Vec<(usize, MessageSubscriber)> = Vec::new();
+    let (tx, rx) = mpsc::sync_channel::<Input>(256);
+    let mut remote_subs = Vec::new();
+    for (i, c) in ctx.rig.cameras.iter().enumerate() {
+        if !all_zenoh && here.contains(&c.id) {
+            let sub = MessageSubscriber::new(&node, &iox_names::observations(&rig, &c.id))
+                .map_err(|e| setup(e.to_string()))?;
+            local.push((i, sub));
+        } else {
+            let tx = tx.clone();
+            let key = keys::observations(&rig, &c.id);
+            let expected_rig = rig.clone();
+            let cam_id = c.id.clone();
+            let sub = net::subscribe(&session, &key, move |k, bytes| {
+                let input = match Observation::from_json(bytes) {
+                    Ok(o) if o.rig == expected_rig && o.camera == cam_id => Input::Obs(i, o),
+                    Ok(o) => Input::Bad(format!(
+                        "{k}: observation of rig {:?} camera {:?} on this camera's key",
+                        o.rig, o.camera
+                    )),
+                    Err(e) => Input::Bad(format!("{k}: {e}")),
+                };
+                let _ = tx.try_send(input);
+            })
+            .map_err(|e| setup(e.to_string()))?;
+            remote_subs.push(sub);
+        }
+    }
+    drop(tx);
+    let waker = Waker::new(&node, &iox_names::observations_ready(&rig))
+        .map_err(|e| setup(e.to_string()))?;
+    let poses_local =
+        MessagePublisher::new(&node, &iox_names::poses(&rig), &[]).map_err(|e| setup(e.to_string()))?;
+    let poses_net =
+        JsonPublisher::new(&session, &keys::poses(&rig)).map_err(|e| setup(e.to_string()))?;
+    let mut per_object = KeyedPublisher::new(&session);
+    let mut health =
+        HealthReporter::new(&session, &rig, &ctx.host, "fusion").map_err(|e| setup(e.to_string()))?;
+    tracing::info!(
+        local = local.len(),
+        remote = remote_subs.len(),
+        "fusion ready for {n} cameras"
+    );
+
+    let mut pairer = Pairer::new(n, pair_cfg);
+    let mut fuser = Fuser::new(&ctx.rig, fuser_cfg);
+    let mut counters = Counters::default();
+    let mut sequence = 0u64;
+    // With remote cameras, poll the network channel often; with local ones only, sleep on
+    // the iceoryx2 event until a worker notifies.
+    let wait = if remote_subs.is_empty() {
+        Duration::from_millis(50)
+    } else {
+        Duration::from_micros(500)
+    };
+    while !shutdown.requested() && cfg.max_sets.is_none_or(|m| sequence < m) {
+        if !local.is_empty() {
+            waker.wait(wait);
+        } else if let Ok(input) = rx.recv_timeout(Duration::from_millis(50)) {
+            handle(input, &mut pairer, &mut counters);
+        }
+        for (i, sub) in &local {
+            loop {
+                match sub.try_next::<Observation>() {
+                    Ok(Some(Ok(o))) => {
+                        let now = now_ns();
+                        pairer.push(*i, o, now);
+                    }
+                    Ok(Some(Err(e))) => {
+                        handle(Input::Bad(format!("{}: {e}", sub.name())), &mut pairer, &mut counters)
+                    }
+                    Ok(None) => break,
+                    Err(e) => {
+                        counters.last_error = Some(e.to_string());
+                        break;
+                    }
+                }
+            }
+        }
+        while let Ok(input) = rx.try_recv() {
+            handle(input, &mut pairer, &mut counters);
+        }
+        while let Some(set) = pairer.pop(now_ns()) {
+            if set.is_empty() {
+                continue;
+            }
+            let timestamp_ns = set.iter().map(|(_, o)| o.timestamp_ns).min().unwrap_or(0);
+            let frame_published_ns = set.iter().map(|(_, o)| o.frame_published_ns).max().unwrap_or(0);
+            let cameras: Vec<String> = set.iter().map(|(c, _)| ctx.rig.cameras[*c].id.clone()).collect();
+            let poses = fuser.fuse(&set, timestamp_ns);
+            let published_ns = now_ns();
+            let frame = PoseFrame {
+                schema: SCHEMA_VERSION,
+                rig: rig.clone(),
+                sequence,
+                timestamp_ns,
+                frame_published_ns,
+                published_ns,
+                cameras,
+                poses,
+            };
+            if let Err(e) = poses_net.put(&frame) {
+                counters.last_error = Some(e.to_string());
+            }
+            if let Err(e) = poses_local.publish(&frame) {
+                counters.last_error = Some(e.to_string());
+            }
+            for p in &frame.poses {
+                let u = PoseUpdate {
+                    schema: SCHEMA_VERSION,
+                    rig: rig.clone(),
+                    sequence,
+                    timestamp_ns,
+                    frame_published_ns,
+                    published_ns,
+                    pose: p.clone(),
+                };
+                if let Err(e) = per_object.put_bytes(&keys::pose(&rig, p.object_id), u.to_json()) {
+                    counters.last_error = Some(e.to_string());
+                }
+            }
+            sequence += 1;
+            counters.processed = sequence;
+            if cfg.max_sets.is_some_and(|m| sequence >= m) {
+                break;
+            }
+        }
+        let now = now_ns();
+        counters.dropped = pairer.discarded;
+        let live: Vec<&str> = (0..n)
+            .filter(|&c| pairer.live(c, now))
+            .map(|c| ctx.rig.cameras[c].id.as_str())
+            .collect();
+        counters.detail.insert("cameras_live".into(), live.join(","));
+        counters.detail.insert("objects".into(), fuser.objects().to_string());
+        health.tick(&counters);
+    }
+    Ok(sequence)
+}
+
+fn handle(input: Input, pairer: &mut Pairer, counters: &mut Counters) {
+    match input {
+        Input::Obs(c, o) => pairer.push(c, o, now_ns()),
+        Input::Bad(m) => {
+            tracing::warn!("rejected {m}");
+            counters.rejected += 1;
+            counters.last_error = Some(m);
+        }
+    }
+}

@@ -1,0 +1,219 @@
+//! Pairing observations of cameras that are not hardware-synchronised into frame sets.
+//!
+//! Each camera's observations queue in arrival order. The oldest waiting observation is the
+//! reference; every other *live* camera contributes its observation closest in time to it,
+//! if within `max_skew`. A set is released as soon as every live camera has contributed, or
+//! when waiting longer cannot help: a live camera has already sent something later than the
+//! reference window (it missed this frame), or the reference has waited `max_wait`. So a
+//! missing or late frame costs at most `max_wait` of latency, and a set then holds fewer
+//! cameras. A camera silent for `camera_timeout` is not live (not waited for) until it is
+//! heard again; its stale observations are discarded.
+
+use std::collections::VecDeque;
+use stereoscope_proto::messages::Observation;
+
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PairingConfig {
+    pub max_skew_ns: u64,
+    pub max_wait_ns: u64,
+    pub camera_timeout_ns: u64,
+}
+
+#[derive(Debug)]
+struct Queue {
+    items: VecDeque<(Observation, u64)>,
+    last_arrival_ns: Option<u64>,
+}
+
+/// Observations of `n` cameras, paired into sets.
+#[derive(Debug)]
+pub struct Pairer {
+    cfg: PairingConfig,
+    queues: Vec<Queue>,
+    /// Observations thrown away unpaired (too old, or superseded).
+    pub discarded: u64,
+}
+
+const MAX_QUEUE: usize = 16;
+
+impl Pairer {
+    pub fn new(cameras: usize, cfg: PairingConfig) -> Self {
+        Pairer {
+            cfg,
+            queues: (0..cameras)
+                .map(|_| Queue {
+                    items: VecDeque::new(),
+                    last_arrival_ns: None,
+                })
+                .collect(),
+            discarded: 0,
+        }
+    }
+
+    /// Adds camera `camera`'s observation, arrived at `now_ns`.
+    pub fn push(&mut self, camera: usize, obs: Observation, now_ns: u64) {
+        let Some(q) = self.queues.get_mut(camera) else {
+            return;
+        };
+        // Out of order (older than what is queued) is kept in order.
+        let pos = q
+            .items
+            .iter()
+            .position(|(o, _)| o.timestamp_ns > obs.timestamp_ns)
+            .unwrap_or(q.items.len());
+        q.items.insert(pos, (obs, now_ns));
+        q.last_arrival_ns = Some(now_ns);
+        while q.items.len() > MAX_QUEUE {
+            q.items.pop_front();
+            self.discarded += 1;
+        }
+    }
+
+    /// Whether camera `c` counts as live at `now_ns`.
+    pub fn live(&self, c: usize, now_ns: u64) -> bool {
+        self.queues[c]
+            .last_arrival_ns
+            .is_some_and(|t| now_ns.saturating_sub(t) <= self.cfg.camera_timeout_ns)
+    }
+
+    /// The next complete (or given-up-on) set: `(camera, observation)` pairs.
+    pub fn pop(&mut self, now_ns: u64) -> Option<Vec<(usize, Observation)>> {
+        let n = self.queues.len();
+        // Drop what dead cameras left.
+        for c in 0..n {
+            if !self.live(c, now_ns) && !self.queues[c].items.is_empty() {
+                self.discarded += self.queues[c].items.len() as u64;
+                self.queues[c].items.clear();
+            }
+        }
+        let (ref_cam, ref_ts, ref_arrival) = (0..n)
+            .filter_map(|c| {
+                self.queues[c]
+                    .items
+                    .front()
+                    .map(|(o, a)| (c, o.timestamp_ns, *a))
+            })
+            .min_by_key(|x| x.1)?;
+        let skew = self.cfg.max_skew_ns;
+        let mut chosen: Vec<Option<usize>> = vec![None; n];
+        let mut complete = true;
+        let mut hopeless = false;
+        for c in 0..n {
+            if c == ref_cam {
+                chosen[c] = Some(0);
+                continue;
+            }
+            if !self.live(c, now_ns) {
+                continue;
+            }
+            let q = &self.queues[c].items;
+            let best = q
+                .iter()
+                .enumerate()
+                .filter(|(_, (o, _))| o.timestamp_ns.abs_diff(ref_ts) <= skew)
+                .min_by_key(|(_, (o, _))| o.timestamp_ns.abs_diff(ref_ts));
+            match best {
+                Some((i, _)) => chosen[c] = Some(i),
+                None => {
+                    complete = false;
+                    if q.back().is_some_and(|(o, _)| o.timestamp_ns > ref_ts + skew) {
+                        hopeless = true;
+                    }
+                }
+            }
+        }
+        let waited = now_ns.saturating_sub(ref_arrival);
+        if !complete && !hopeless && waited < self.cfg.max_wait_ns {
+            return None;
+        }
+        let mut set = Vec::new();
+        for c in 0..n {
+            let q = &mut self.queues[c].items;
+            if let Some(i) = chosen[c] {
+                // Everything older than the chosen one is superseded.
+                self.discarded += i as u64;
+                q.drain(..i);
+                if let Some((o, _)) = q.pop_front() {
+                    set.push((c, o));
+                }
+            } else {
+                // Drop this camera's entries at or before the reference window.
+                while q.front().is_some_and(|(o, _)| o.timestamp_ns + skew < ref_ts) {
+                    q.pop_front();
+                    self.discarded += 1;
+                }
+            }
+        }
+        Some(set)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use stereoscope_proto::messages::SCHEMA_VERSION;
+
+    fn obs(cam: &str, ts_ms: u64) -> Observation {
+        Observation {
+            schema: SCHEMA_VERSION,
+            rig: "r".into(),
+            camera: cam.into(),
+            sequence: ts_ms,
+            timestamp_ns: ts_ms * 1_000_000,
+            frame_published_ns: 0,
+            published_ns: 0,
+            width_px: 1,
+            height_px: 1,
+            threshold: 1,
+            full_frame: false,
+            dropped_blobs: 0,
+            blobs: vec![],
+        }
+    }
+
+    const MS: u64 = 1_000_000;
+
+    fn cfg() -> PairingConfig {
+        PairingConfig {
+            max_skew_ns: 5 * MS,
+            max_wait_ns: 20 * MS,
+            camera_timeout_ns: 500 * MS,
+        }
+    }
+
+    #[test]
+    fn pairs_within_skew_and_waits_for_live_cameras() {
+        let mut p = Pairer::new(2, cfg());
+        p.push(0, obs("a", 100), 101 * MS);
+        p.push(1, obs("b", 90), 91 * MS);
+        // cam1's 90 ms frame is alone (cam0 has nothing near it, but cam0 is already past).
+        let s = p.pop(101 * MS).unwrap();
+        assert_eq!(s.len(), 1);
+        assert_eq!(s[0].0, 1);
+        // cam0's 100 waits for cam1 (live) until it comes.
+        assert!(p.pop(102 * MS).is_none());
+        p.push(1, obs("b", 102), 103 * MS);
+        let s = p.pop(103 * MS).unwrap();
+        assert_eq!(s.iter().map(|x| x.0).collect::<Vec<_>>(), vec![0, 1]);
+        assert!(p.pop(103 * MS).is_none());
+    }
+
+    #[test]
+    fn gives_up_after_max_wait_and_forgets_dead_cameras() {
+        let mut p = Pairer::new(2, cfg());
+        p.push(1, obs("b", 0), 0);
+        let _ = p.pop(0);
+        p.push(0, obs("a", 10), 10 * MS);
+        assert!(p.pop(15 * MS).is_none());
+        let s = p.pop(31 * MS).unwrap();
+        assert_eq!(s.len(), 1);
+        // After the timeout cam1 is not waited for at all.
+        p.push(0, obs("a", 600), 600 * MS);
+        assert_eq!(p.pop(600 * MS).unwrap().len(), 1);
+        assert!(!p.live(1, 600 * MS));
+        // It comes back.
+        p.push(1, obs("b", 633), 634 * MS);
+        p.push(0, obs("a", 633), 634 * MS);
+        assert_eq!(p.pop(634 * MS).unwrap().len(), 2);
+    }
+}

@@ -1,0 +1,398 @@
+//! The moment worker: one per camera, on the camera's PC. It borrows each frame in shared
+//! memory (no copy), runs the moment engine's self-adaptive multi-object tracker on it
+//! (thesis ch. 3 moments, Eq. 3.44 orientation, ch. 5 windows, §4.1.1 heading — all in
+//! `stereoscope_vision`), and publishes one `Observation` per frame: over iceoryx2 for a
+//! fusion on the same PC, and on Zenoh for one elsewhere.
+//!
+//! Always works on the newest frame: when it falls behind, older frames are released unread
+//! and counted as dropped, as are gaps in the capture's sequence numbers. A frame whose header
+//! disagrees with its payload is rejected, named in the log and in health, and skipped.
+//!
+//! Thresholds: the frame threshold comes from the histogram (method from the rig file, `auto`
+//! by default) every `threshold_every_frames` frames, or is fixed; tracking windows can take
+//! their own (`window_threshold`, the thesis's `region.thres`). Pixel conventions:
+//! `docs/conventions.md`.
+
+use std::time::Duration;
+use stereoscope_proto::frame::{FrameHeader, PixelFormat};
+use stereoscope_proto::messages::{
+    BlobObservation, Observation, SCHEMA_VERSION, TrackState, now_ns,
+};
+use stereoscope_proto::names::{iox as iox_names, zenoh as keys};
+use stereoscope_proto::rig::{MomentsSpec, ThresholdSpec};
+use stereoscope_transport::iox::{FrameSubscriber, MessagePublisher};
+use stereoscope_transport::net::JsonPublisher;
+use stereoscope_transport::{Context, Counters, HealthReporter, Shutdown, net};
+use stereoscope_vision::extract::{BlobFlags, Connectivity, ExtractConfig, Weighting};
+use stereoscope_vision::{
+    GrayView, HeadingStatus, Histogram, Pixel, ThresholdMethod, TrackStatus, Tracker,
+    TrackerConfig, VisionError,
+};
+
+/// Most blobs one observation carries.
+pub const MAX_REPORTED_BLOBS: usize = 64;
+
+#[derive(Debug, Clone)]
+pub struct MomentsConfig {
+    pub ctx: Context,
+    pub camera: String,
+    /// Stop after this many frames (tests, benchmarks).
+    pub max_frames: Option<u64>,
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum MomentsError {
+    #[error("moments/{camera}: {message}")]
+    Setup { camera: String, message: String },
+}
+
+/// The worker's settings, checked, from the camera's `moments` table.
+#[derive(Debug, Clone, PartialEq)]
+pub struct WorkerSettings {
+    pub threshold: ThresholdMethod,
+    pub threshold_every_frames: u32,
+    pub weighting: WeightingChoice,
+    pub full_level: Option<u32>,
+    pub tracker: TrackerConfig,
+    pub extract: ExtractConfig,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum WeightingChoice {
+    Binary,
+    Intensity,
+    Coverage,
+}
+
+/// Reads a `moments` table; errors name `camera[i].moments.KEY`.
+pub fn settings(spec: Option<&MomentsSpec>, par: f64, key: &str) -> Result<WorkerSettings, String> {
+    let d = MomentsSpec::default();
+    let s = spec.unwrap_or(&d);
+    let threshold = match &s.threshold {
+        None => ThresholdMethod::Auto,
+        Some(ThresholdSpec::Level(l)) => ThresholdMethod::Fixed(*l),
+        Some(ThresholdSpec::Method(m)) => ThresholdMethod::parse(m).ok_or_else(|| {
+            format!("{key}.threshold: {m:?} is not auto, otsu, triangle or a grey level")
+        })?,
+    };
+    let window_threshold = match &s.window_threshold {
+        None => None,
+        Some(m) => Some(ThresholdMethod::parse(m).ok_or_else(|| {
+            format!("{key}.window_threshold: {m:?} is not auto, otsu or triangle")
+        })?),
+    };
+    let weighting = match s.weighting.as_deref() {
+        None | Some("coverage") => WeightingChoice::Coverage,
+        Some("intensity") => WeightingChoice::Intensity,
+        Some("binary") => WeightingChoice::Binary,
+        Some(o) => {
+            return Err(format!(
+                "{key}.weighting: {o:?} is not binary, intensity or coverage"
+            ));
+        }
+    };
+    let connectivity = match s.connectivity {
+        None | Some(8) => Connectivity::Eight,
+        Some(4) => Connectivity::Four,
+        Some(o) => return Err(format!("{key}.connectivity: {o} is not 4 or 8")),
+    };
+    let tracker = TrackerConfig {
+        max_objects: s.max_objects.unwrap_or(8),
+        min_new_area_px: s.min_area_px.unwrap_or(4),
+        search_every_frames: s.search_every_frames.unwrap_or(10),
+        min_half_width_px: s.min_half_width_px.unwrap_or(30),
+        par,
+        window_threshold,
+        ..TrackerConfig::default()
+    };
+    tracker
+        .validate()
+        .map_err(|e| format!("{key}: {e}"))?;
+    if s.threshold_every_frames == Some(0) {
+        return Err(format!("{key}.threshold_every_frames: must be at least 1"));
+    }
+    Ok(WorkerSettings {
+        threshold,
+        threshold_every_frames: s.threshold_every_frames.unwrap_or(30),
+        weighting,
+        full_level: s.full_level,
+        tracker,
+        extract: ExtractConfig {
+            connectivity,
+            min_area_px: s.min_area_px.unwrap_or(4),
+            max_blobs: 256,
+            weighting: Weighting::Binary,
+            threads: 1,
+        },
+    })
+}
+
+/// The per-frame processing, independent of transport: thresholds, tracking, the message.
+#[derive(Debug)]
+pub struct Worker {
+    settings: WorkerSettings,
+    tracker: Tracker,
+    threshold: Option<u32>,
+    frames: u64,
+    rig: String,
+    camera: String,
+}
+
+impl Worker {
+    pub fn new(settings: WorkerSettings, rig: &str, camera: &str) -> Result<Self, VisionError> {
+        let tracker = Tracker::new(settings.tracker, settings.extract)?;
+        Ok(Worker {
+            settings,
+            tracker,
+            threshold: None,
+            frames: 0,
+            rig: rig.into(),
+            camera: camera.into(),
+        })
+    }
+
+    pub fn threshold(&self) -> Option<u32> {
+        self.threshold
+    }
+
+    pub fn tracked(&self) -> usize {
+        self.tracker
+            .tracks()
+            .iter()
+            .filter(|t| t.status != TrackStatus::Lost)
+            .count()
+    }
+
+    fn refresh_threshold<P: Pixel>(&mut self, img: &GrayView<'_, P>) -> Result<u32, VisionError> {
+        let due = self.threshold.is_none()
+            || self.frames % self.settings.threshold_every_frames as u64 == 0;
+        if let (false, Some(t)) = (due, self.threshold) {
+            return Ok(t);
+        }
+        let hist = Histogram::of(img);
+        let t = hist.threshold::<P>(self.settings.threshold)?;
+        let t = t.clamp(1, P::MAX_VALUE);
+        let background = hist.mode()?.min(t.saturating_sub(1));
+        let weighting = match self.settings.weighting {
+            WeightingChoice::Binary => Weighting::Binary,
+            WeightingChoice::Intensity => Weighting::Intensity { background },
+            WeightingChoice::Coverage => Weighting::Coverage {
+                background,
+                full: self
+                    .settings
+                    .full_level
+                    .unwrap_or(background + 2 * (t - background))
+                    .max(t + 1),
+            },
+        };
+        if self.tracker_weighting() != weighting {
+            let mut ex = self.settings.extract;
+            ex.weighting = weighting;
+            self.tracker.set_extract_config(ex);
+        }
+        self.threshold = Some(t);
+        Ok(t)
+    }
+
+    fn tracker_weighting(&self) -> Weighting {
+        self.tracker.extract_config().weighting
+    }
+
+    /// Tracks one frame and builds its observation.
+    pub fn process<P: Pixel>(
+        &mut self,
+        img: GrayView<'_, P>,
+        header: &FrameHeader,
+    ) -> Result<Observation, VisionError> {
+        let threshold = self.refresh_threshold(&img)?;
+        self.frames += 1;
+        let step = self.tracker.step(img, threshold)?;
+        let par = self.settings.tracker.par;
+        let mut blobs = Vec::new();
+        for t in self.tracker.tracks().iter().take(MAX_REPORTED_BLOBS) {
+            let w = t.window;
+            let (status, area, moments, bbox, flags) = match &t.blob {
+                Some(b) => {
+                    let st = if t.status == TrackStatus::New {
+                        TrackState::New
+                    } else {
+                        TrackState::Tracked
+                    };
+                    (st, b.area_px() as f64, Some(b.best_central()), b.bbox, b.flags)
+                }
+                None => (TrackState::Lost, t.area_px as f64, None, w, BlobFlags::default()),
+            };
+            let (mu20, mu02, mu11, orientation, roundness) = match moments {
+                Some(c) => {
+                    let shape = c.axis_shape(par);
+                    (c.mu20, c.mu02, c.mu11, shape.angle_deg, shape.roundness())
+                }
+                None => (0.0, 0.0, 0.0, 0.0, 1.0),
+            };
+            blobs.push(BlobObservation {
+                track_id: t.id,
+                status,
+                area_px: area,
+                x_px: t.x_px,
+                y_px: t.y_px,
+                mu20,
+                mu02,
+                mu11,
+                orientation_deg: orientation,
+                roundness,
+                heading_deg: t.heading.heading_deg,
+                directed: t.heading.status == HeadingStatus::Directed,
+                heading_ambiguous: matches!(
+                    t.heading.status,
+                    HeadingStatus::Ambiguous | HeadingStatus::NearCircular
+                ),
+                clipped: flags.contains(BlobFlags::CLIPPED)
+                    || flags.contains(BlobFlags::TOUCHES_BORDER),
+                window_px: [w.x0, w.y0, w.x1, w.y1],
+                bbox_px: [bbox.x0, bbox.y0, bbox.x1, bbox.y1],
+            });
+        }
+        let dropped =
+            self.tracker.tracks().len().saturating_sub(MAX_REPORTED_BLOBS) + step.extract.dropped_over_capacity;
+        Ok(Observation {
+            schema: SCHEMA_VERSION,
+            rig: self.rig.clone(),
+            camera: self.camera.clone(),
+            sequence: header.sequence,
+            timestamp_ns: header.timestamp_ns,
+            frame_published_ns: header.published_ns,
+            published_ns: 0,
+            width_px: header.width,
+            height_px: header.height,
+            threshold,
+            full_frame: step.full_frame,
+            dropped_blobs: dropped as u32,
+            blobs,
+        })
+    }
+
+    /// Checks a shared-memory frame and tracks it.
+    pub fn process_frame(
+        &mut self,
+        header: &FrameHeader,
+        payload: &[u8],
+    ) -> Result<Observation, String> {
+        let format = header.validate(payload.len()).map_err(|e| e.to_string())?;
+        let (w, h) = (header.width, header.height);
+        let result = match format {
+            PixelFormat::Gray8 => {
+                let view = GrayView::new(payload, w, h, header.stride_bytes as usize)
+                    .map_err(|e| e.to_string())?;
+                self.process(view, header)
+            }
+            PixelFormat::Gray16 => {
+                // The payload is 8-byte aligned (names::iox frame service); check anyway.
+                // SAFETY: every bit pattern is a valid u16, and align_to only returns an
+                // aligned middle part.
+                let (pre, mid, _) = unsafe { payload.align_to::<u16>() };
+                if !pre.is_empty() || header.stride_bytes % 2 != 0 {
+                    return Err("a Gray16 frame must be 2-byte aligned with an even stride".into());
+                }
+                let view = GrayView::new(mid, w, h, header.stride_bytes as usize / 2)
+                    .map_err(|e| e.to_string())?;
+                self.process(view, header)
+            }
+        };
+        result.map_err(|e| e.to_string())
+    }
+}
+
+/// Runs until shutdown (or `max_frames`).
+pub fn run(cfg: MomentsConfig, shutdown: Shutdown) -> Result<u64, MomentsError> {
+    let cam = cfg.camera.clone();
+    let setup = |message: String| MomentsError::Setup {
+        camera: cam.clone(),
+        message,
+    };
+    let ctx = &cfg.ctx;
+    let rig = ctx.rig_file.name.clone();
+    let index = ctx.rig.camera_index(&cam).ok_or_else(|| {
+        setup(format!("not a camera of {}", ctx.rig_path.display()))
+    })?;
+    let par = ctx.rig.cameras[index].camera.intrinsics.par();
+    let settings = settings(
+        ctx.rig_file.cameras[index].moments.as_ref(),
+        par,
+        &format!("camera[{index}].moments"),
+    )
+    .map_err(|e| setup(format!("{}: {e}", ctx.rig_path.display())))?;
+    let mut worker = Worker::new(settings, &rig, &cam).map_err(|e| setup(e.to_string()))?;
+    let node = stereoscope_transport::iox::node(&ctx.iox_prefix, &format!("moments-{cam}"))
+        .map_err(|e| setup(e.to_string()))?;
+    let frames = FrameSubscriber::new(&node, &iox_names::frames(&rig, &cam))
+        .map_err(|e| setup(e.to_string()))?;
+    let ready = iox_names::observations_ready(&rig);
+    let local = MessagePublisher::new(&node, &iox_names::observations(&rig, &cam), &[&ready])
+        .map_err(|e| setup(e.to_string()))?;
+    let session = net::open(&ctx.zenoh).map_err(|e| setup(e.to_string()))?;
+    let remote = JsonPublisher::new(&session, &keys::observations(&rig, &cam))
+        .map_err(|e| setup(e.to_string()))?;
+    let mut health = HealthReporter::new(&session, &rig, &ctx.host, &format!("moments/{cam}"))
+        .map_err(|e| setup(e.to_string()))?;
+    tracing::info!(camera = %cam, "moment worker ready");
+
+    let mut counters = Counters::default();
+    let mut last_sequence: Option<u64> = None;
+    let mut processed = 0u64;
+    while !shutdown.requested() && cfg.max_frames.is_none_or(|m| processed < m) {
+        let got = match frames.next_newest(Duration::from_millis(100)) {
+            Ok(g) => g,
+            Err(e) => {
+                counters.last_error = Some(e.to_string());
+                health.tick(&counters);
+                continue;
+            }
+        };
+        let Some((sample, skipped)) = got else {
+            health.tick(&counters);
+            continue;
+        };
+        counters.dropped += skipped;
+        let header = *sample.user_header();
+        if let Some(prev) = last_sequence
+            && header.sequence > prev + 1 + skipped
+        {
+            counters.dropped += header.sequence - prev - 1 - skipped;
+        }
+        if last_sequence.is_some_and(|p| header.sequence <= p) {
+            // Capture restarted: its count starts again.
+            tracing::info!(camera = %cam, "frame sequence restarted at {}", header.sequence);
+        }
+        last_sequence = Some(header.sequence);
+        let result = worker.process_frame(&header, sample.payload());
+        drop(sample);
+        match result {
+            Ok(mut obs) => {
+                obs.published_ns = now_ns();
+                if let Err(e) = local.publish(&obs) {
+                    counters.last_error = Some(e.to_string());
+                }
+                if let Err(e) = remote.put(&obs) {
+                    counters.last_error = Some(e.to_string());
+                }
+                processed += 1;
+                counters.processed = processed;
+            }
+            Err(e) => {
+                let m = format!("frame {} of {}: {e}", header.sequence, header.camera_id());
+                tracing::warn!(camera = %cam, "rejected {m}");
+                counters.rejected += 1;
+                counters.last_error = Some(m);
+            }
+        }
+        counters.detail.insert(
+            "threshold".into(),
+            worker.threshold().map(|t| t.to_string()).unwrap_or_default(),
+        );
+        counters
+            .detail
+            .insert("tracked".into(), worker.tracked().to_string());
+        health.tick(&counters);
+    }
+    Ok(processed)
+}

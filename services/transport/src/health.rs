@@ -1,0 +1,98 @@
+//! A service's health: a liveliness token while it runs, and a `Health` report on Zenoh every
+//! second (`docs/protocol.md`, "Health").
+
+use crate::TransportError;
+use crate::net::JsonPublisher;
+use std::collections::BTreeMap;
+use std::time::{Duration, Instant};
+use stereoscope_proto::messages::{Health, SCHEMA_VERSION, now_ns};
+use stereoscope_proto::names::zenoh as keys;
+use zenoh::Wait;
+
+/// What a service counts, reported by [`HealthReporter::tick`].
+#[derive(Debug, Clone, Default)]
+pub struct Counters {
+    pub processed: u64,
+    pub dropped: u64,
+    pub rejected: u64,
+    pub last_error: Option<String>,
+    pub detail: BTreeMap<String, String>,
+}
+
+pub struct HealthReporter {
+    publisher: JsonPublisher,
+    _token: zenoh::liveliness::LivelinessToken,
+    rig: String,
+    host: String,
+    service: String,
+    started_ns: u64,
+    interval: Duration,
+    last: Instant,
+    last_processed: u64,
+}
+
+impl std::fmt::Debug for HealthReporter {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "HealthReporter({}/{})", self.host, self.service)
+    }
+}
+
+impl HealthReporter {
+    /// `service` may contain one `/` (`capture/cam0`).
+    pub fn new(
+        session: &zenoh::Session,
+        rig: &str,
+        host: &str,
+        service: &str,
+    ) -> Result<Self, TransportError> {
+        let publisher = JsonPublisher::new(session, &keys::health(rig, host, service))?;
+        let token = session
+            .liveliness()
+            .declare_token(keys::alive(rig, host, service))
+            .wait()
+            .map_err(|e| TransportError::Zenoh {
+                what: format!("liveliness token for {service}"),
+                message: e.to_string(),
+            })?;
+        Ok(HealthReporter {
+            publisher,
+            _token: token,
+            rig: rig.into(),
+            host: host.into(),
+            service: service.into(),
+            started_ns: now_ns(),
+            interval: Duration::from_secs(1),
+            last: Instant::now(),
+            last_processed: 0,
+        })
+    }
+
+    /// Publishes a report when the interval has passed.
+    pub fn tick(&mut self, c: &Counters) {
+        let elapsed = self.last.elapsed();
+        if elapsed < self.interval {
+            return;
+        }
+        let rate = (c.processed.saturating_sub(self.last_processed)) as f64 / elapsed.as_secs_f64();
+        self.last = Instant::now();
+        self.last_processed = c.processed;
+        let h = Health {
+            schema: SCHEMA_VERSION,
+            rig: self.rig.clone(),
+            host: self.host.clone(),
+            service: self.service.clone(),
+            pid: std::process::id(),
+            started_ns: self.started_ns,
+            published_ns: now_ns(),
+            processed: c.processed,
+            rate_hz: rate,
+            dropped: c.dropped,
+            rejected: c.rejected,
+            last_error: c.last_error.clone(),
+            detail: c.detail.clone(),
+        };
+        if let Err(e) = self.publisher.put(&h) {
+            tracing::warn!("health report: {e}");
+        }
+    }
+}

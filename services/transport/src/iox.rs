@@ -1,0 +1,387 @@
+//! iceoryx2 on one PC: a node under the rig's prefix, frame publishers and subscribers (zero
+//! copy, `[u8]` payload with a `FrameHeader` user header), message publishers and subscribers
+//! (postcard bytes), each paired with an event service so a reader sleeps until a writer
+//! notifies, and the cleanup of dead nodes' leftovers.
+
+use crate::TransportError;
+use iceoryx2::port::listener::Listener;
+use iceoryx2::port::notifier::Notifier;
+use iceoryx2::port::publisher::Publisher;
+use iceoryx2::port::subscriber::Subscriber;
+use iceoryx2::prelude::*;
+use std::time::Duration;
+use stereoscope_proto::frame::FrameHeader;
+use stereoscope_proto::messages::Message;
+use stereoscope_proto::names::iox as names;
+
+pub type IoxService = ipc::Service;
+
+fn err(what: &'static str, name: &str, e: impl std::fmt::Debug) -> TransportError {
+    TransportError::Iox {
+        what,
+        name: name.to_string(),
+        message: format!("{e:?}"),
+    }
+}
+
+/// The iceoryx2 configuration for files under `prefix`.
+pub fn config(prefix: &str) -> Result<Config, TransportError> {
+    let mut cfg = Config::default();
+    cfg.global.prefix = FileName::new(prefix.as_bytes())
+        .map_err(|e| TransportError::Config(format!("iceoryx2 prefix {prefix:?}: {e:?}")))?;
+    Ok(cfg)
+}
+
+/// A node named `name` under `prefix`. Signals are left to the caller ([`crate::Shutdown`]).
+pub fn node(prefix: &str, name: &str) -> Result<Node<IoxService>, TransportError> {
+    let cfg = config(prefix)?;
+    let node_name = NodeName::new(name).map_err(|e| err("node name", name, e))?;
+    NodeBuilder::new()
+        .name(&node_name)
+        .config(&cfg)
+        .signal_handling_mode(SignalHandlingMode::Disabled)
+        .create::<IoxService>()
+        .map_err(|e| err("node", name, e))
+}
+
+/// Removes what dead processes left behind under `prefix`; returns how many nodes it cleaned.
+pub fn cleanup_dead_nodes(prefix: &str) -> Result<usize, TransportError> {
+    let cfg = config(prefix)?;
+    let mut cleaned = 0;
+    Node::<IoxService>::list(&cfg, |state| {
+        if let NodeState::<IoxService>::Dead(view) = state
+            && view.try_remove_stale_resources().is_ok()
+        {
+            cleaned += 1;
+        }
+        CallbackProgression::Continue
+    })
+    .map_err(|e| err("node list", prefix, e))?;
+    Ok(cleaned)
+}
+
+fn service_name(name: &str) -> Result<ServiceName, TransportError> {
+    ServiceName::new(name).map_err(|e| err("service name", name, e))
+}
+
+fn event_service(
+    node: &Node<IoxService>,
+    name: &str,
+) -> Result<iceoryx2::service::port_factory::event::PortFactory<IoxService>, TransportError> {
+    node.service_builder(&service_name(name)?)
+        .event()
+        .max_notifiers(names::MAX_NOTIFIERS)
+        .max_listeners(names::MAX_LISTENERS)
+        .max_nodes(names::MAX_NODES)
+        .open_or_create()
+        .map_err(|e| err("event service", name, e))
+}
+
+/// A listener that wakes when any notifier of `name` fires.
+pub struct Waker {
+    listener: Listener<IoxService>,
+}
+
+impl std::fmt::Debug for Waker {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("Waker")
+    }
+}
+
+impl Waker {
+    pub fn new(node: &Node<IoxService>, name: &str) -> Result<Self, TransportError> {
+        let listener = event_service(node, name)?
+            .listener_builder()
+            .create()
+            .map_err(|e| err("listener", name, e))?;
+        Ok(Waker { listener })
+    }
+
+    /// Waits up to `timeout` for a notification; drains every pending one. Returns whether
+    /// one came.
+    pub fn wait(&self, timeout: Duration) -> bool {
+        matches!(self.listener.timed_wait(|_| {}, timeout), Ok(n) if n > 0)
+    }
+}
+
+/// Publishes frames of one camera.
+pub struct FramePublisher {
+    publisher: Publisher<IoxService, [u8], FrameHeader>,
+    notifier: Notifier<IoxService>,
+    name: String,
+}
+
+impl std::fmt::Debug for FramePublisher {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "FramePublisher({})", self.name)
+    }
+}
+
+fn frame_service(
+    node: &Node<IoxService>,
+    name: &str,
+) -> Result<
+    iceoryx2::service::port_factory::publish_subscribe::PortFactory<IoxService, [u8], FrameHeader>,
+    TransportError,
+> {
+    let eight = Alignment::new(8).ok_or_else(|| err("alignment", name, 8))?;
+    node.service_builder(&service_name(name)?)
+        .publish_subscribe::<[u8]>()
+        .user_header::<FrameHeader>()
+        .payload_alignment(eight)
+        .enable_safe_overflow(true)
+        .history_size(names::FRAME_HISTORY)
+        .subscriber_max_buffer_size(names::FRAME_BUFFER)
+        .subscriber_max_borrowed_samples(names::FRAME_BORROWED)
+        .max_subscribers(names::MAX_SUBSCRIBERS)
+        .max_publishers(names::MAX_PUBLISHERS)
+        .max_nodes(names::MAX_NODES)
+        .open_or_create()
+        .map_err(|e| err("frame service", name, e))
+}
+
+impl FramePublisher {
+    /// `max_frame_bytes`: the largest frame this camera will publish.
+    pub fn new(
+        node: &Node<IoxService>,
+        name: &str,
+        max_frame_bytes: usize,
+    ) -> Result<Self, TransportError> {
+        let publisher = frame_service(node, name)?
+            .publisher_builder()
+            .initial_max_slice_len(max_frame_bytes.max(1))
+            .allocation_strategy(AllocationStrategy::PowerOfTwo)
+            .max_loaned_samples(2)
+            .create()
+            .map_err(|e| err("frame publisher", name, e))?;
+        let notifier = event_service(node, name)?
+            .notifier_builder()
+            .create()
+            .map_err(|e| err("notifier", name, e))?;
+        Ok(FramePublisher {
+            publisher,
+            notifier,
+            name: name.to_string(),
+        })
+    }
+
+    /// Loans `header.payload_len()` bytes of shared memory, lets `fill` write the pixels in
+    /// place (returning the exposure time when it knows a better one than the header's),
+    /// stamps `published_ns` and sends. Returns how many subscribers got it. `fill`
+    /// returning an error sends nothing.
+    pub fn publish<E>(
+        &self,
+        mut header: FrameHeader,
+        fill: impl FnOnce(&mut [u8]) -> Result<Option<u64>, E>,
+    ) -> Result<Result<usize, E>, TransportError> {
+        let len = header.payload_len() as usize;
+        let sample = self
+            .publisher
+            .loan_slice_uninit(len)
+            .map_err(|e| err("frame loan", &self.name, e))?;
+        // Zero-initialise once (a memset at memory speed), then let the source write.
+        let mut sample = sample.write_from_fn(|_| 0u8);
+        match fill(sample.payload_mut()) {
+            Ok(Some(ts)) => header.timestamp_ns = ts,
+            Ok(None) => {}
+            Err(e) => return Ok(Err(e)),
+        }
+        header.published_ns = stereoscope_proto::messages::now_ns();
+        *sample.user_header_mut() = header;
+        let n = sample.send().map_err(|e| err("frame send", &self.name, e))?;
+        let _ = self.notifier.notify();
+        Ok(Ok(n))
+    }
+}
+
+/// Reads frames of one camera.
+pub struct FrameSubscriber {
+    subscriber: Subscriber<IoxService, [u8], FrameHeader>,
+    waker: Waker,
+    name: String,
+}
+
+impl std::fmt::Debug for FrameSubscriber {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "FrameSubscriber({})", self.name)
+    }
+}
+
+pub type FrameSample = iceoryx2::sample::Sample<IoxService, [u8], FrameHeader>;
+
+impl FrameSubscriber {
+    pub fn new(node: &Node<IoxService>, name: &str) -> Result<Self, TransportError> {
+        let subscriber = frame_service(node, name)?
+            .subscriber_builder()
+            .create()
+            .map_err(|e| err("frame subscriber", name, e))?;
+        Ok(FrameSubscriber {
+            subscriber,
+            waker: Waker::new(node, name)?,
+            name: name.to_string(),
+        })
+    }
+
+    /// The newest frame waiting (older ones are released unread and counted in the second
+    /// value), or `None` after `timeout`.
+    pub fn next_newest(
+        &self,
+        timeout: Duration,
+    ) -> Result<Option<(FrameSample, u64)>, TransportError> {
+        let mut skipped = 0u64;
+        let mut newest = None;
+        for attempt in 0..2 {
+            loop {
+                match self.subscriber.receive() {
+                    Ok(Some(s)) => {
+                        if newest.is_some() {
+                            skipped += 1;
+                        }
+                        newest = Some(s);
+                    }
+                    Ok(None) => break,
+                    Err(e) => return Err(err("frame receive", &self.name, e)),
+                }
+            }
+            if newest.is_some() || attempt == 1 {
+                break;
+            }
+            if !self.waker.wait(timeout) {
+                // A notification may have been missed between receive and wait: look once more.
+                continue;
+            }
+        }
+        Ok(newest.map(|s| (s, skipped)))
+    }
+}
+
+/// Publishes one kind of message (postcard bytes) and notifies `notify` (its own name when
+/// `None`).
+pub struct MessagePublisher {
+    publisher: Publisher<IoxService, [u8], ()>,
+    notifiers: Vec<Notifier<IoxService>>,
+    name: String,
+}
+
+impl std::fmt::Debug for MessagePublisher {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "MessagePublisher({})", self.name)
+    }
+}
+
+fn message_service(
+    node: &Node<IoxService>,
+    name: &str,
+) -> Result<
+    iceoryx2::service::port_factory::publish_subscribe::PortFactory<IoxService, [u8], ()>,
+    TransportError,
+> {
+    node.service_builder(&service_name(name)?)
+        .publish_subscribe::<[u8]>()
+        .enable_safe_overflow(true)
+        .history_size(0)
+        .subscriber_max_buffer_size(names::MESSAGE_BUFFER)
+        .subscriber_max_borrowed_samples(2)
+        .max_subscribers(names::MAX_SUBSCRIBERS)
+        .max_publishers(names::MAX_PUBLISHERS)
+        .max_nodes(names::MAX_NODES)
+        .open_or_create()
+        .map_err(|e| err("message service", name, e))
+}
+
+impl MessagePublisher {
+    pub fn new(
+        node: &Node<IoxService>,
+        name: &str,
+        also_notify: &[&str],
+    ) -> Result<Self, TransportError> {
+        let publisher = message_service(node, name)?
+            .publisher_builder()
+            .initial_max_slice_len(names::MESSAGE_MAX_BYTES)
+            .allocation_strategy(AllocationStrategy::Static)
+            .create()
+            .map_err(|e| err("message publisher", name, e))?;
+        let mut notifiers = Vec::new();
+        for n in std::iter::once(name).chain(also_notify.iter().copied()) {
+            notifiers.push(
+                event_service(node, n)?
+                    .notifier_builder()
+                    .create()
+                    .map_err(|e| err("notifier", n, e))?,
+            );
+        }
+        Ok(MessagePublisher {
+            publisher,
+            notifiers,
+            name: name.to_string(),
+        })
+    }
+
+    pub fn publish<M: Message>(&self, msg: &M) -> Result<usize, TransportError> {
+        let bytes = msg.to_binary();
+        if bytes.len() > names::MESSAGE_MAX_BYTES {
+            return Err(TransportError::Iox {
+                what: "message",
+                name: self.name.clone(),
+                message: format!(
+                    "{} bytes is more than the {} a sample holds",
+                    bytes.len(),
+                    names::MESSAGE_MAX_BYTES
+                ),
+            });
+        }
+        let sample = self
+            .publisher
+            .loan_slice_uninit(bytes.len())
+            .map_err(|e| err("message loan", &self.name, e))?;
+        let sample = sample.write_from_slice(&bytes);
+        let n = sample
+            .send()
+            .map_err(|e| err("message send", &self.name, e))?;
+        for nt in &self.notifiers {
+            let _ = nt.notify();
+        }
+        Ok(n)
+    }
+}
+
+/// Reads one kind of message.
+pub struct MessageSubscriber {
+    subscriber: Subscriber<IoxService, [u8], ()>,
+    name: String,
+}
+
+impl std::fmt::Debug for MessageSubscriber {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "MessageSubscriber({})", self.name)
+    }
+}
+
+impl MessageSubscriber {
+    pub fn new(node: &Node<IoxService>, name: &str) -> Result<Self, TransportError> {
+        let subscriber = message_service(node, name)?
+            .subscriber_builder()
+            .create()
+            .map_err(|e| err("message subscriber", name, e))?;
+        Ok(MessageSubscriber {
+            subscriber,
+            name: name.to_string(),
+        })
+    }
+
+    pub fn name(&self) -> &str {
+        &self.name
+    }
+
+    /// The next message, if any: `Some(Err)` for a payload that does not decode (the caller
+    /// reports it and goes on).
+    pub fn try_next<M: Message>(
+        &self,
+    ) -> Result<Option<Result<M, stereoscope_proto::messages::DecodeError>>, TransportError> {
+        match self.subscriber.receive() {
+            Ok(Some(s)) => Ok(Some(M::from_binary(s.payload()))),
+            Ok(None) => Ok(None),
+            Err(e) => Err(err("message receive", &self.name, e)),
+        }
+    }
+}

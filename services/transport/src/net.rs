@@ -1,0 +1,223 @@
+//! Zenoh: sessions opened on explicit endpoints (multicast scouting always off, so a test or a
+//! lab network only sees what it was told to), and JSON publishers with the real-time QoS of
+//! the pose stream. Each PC runs one router (in its launcher); its services connect to it as
+//! clients, and routers of different PCs connect to each other (`docs/deploy.md`).
+
+use crate::TransportError;
+use stereoscope_proto::messages::Message;
+use zenoh::Wait;
+use zenoh::bytes::Encoding;
+use zenoh::qos::{CongestionControl, Priority};
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ZenohMode {
+    Client,
+    Peer,
+    Router,
+}
+
+impl ZenohMode {
+    pub fn parse(s: &str) -> Result<Self, TransportError> {
+        match s {
+            "client" => Ok(ZenohMode::Client),
+            "peer" => Ok(ZenohMode::Peer),
+            "router" => Ok(ZenohMode::Router),
+            other => Err(TransportError::Config(format!(
+                "zenoh mode {other:?} is not client, peer or router"
+            ))),
+        }
+    }
+
+    fn as_str(self) -> &'static str {
+        match self {
+            ZenohMode::Client => "client",
+            ZenohMode::Peer => "peer",
+            ZenohMode::Router => "router",
+        }
+    }
+}
+
+/// How to join the Zenoh network.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct ZenohSpec {
+    pub mode: ZenohMode,
+    /// Endpoints to connect to (`tcp/127.0.0.1:7447`).
+    pub connect: Vec<String>,
+    /// Endpoints to listen on.
+    pub listen: Vec<String>,
+}
+
+impl ZenohSpec {
+    /// A client of the router at `endpoint`.
+    pub fn client_of(endpoint: &str) -> Self {
+        ZenohSpec {
+            mode: ZenohMode::Client,
+            connect: vec![endpoint.to_string()],
+            listen: Vec::new(),
+        }
+    }
+
+    /// Command-line form: `--zenoh-mode M --zenoh-connect E ... --zenoh-listen E ...`.
+    pub fn to_args(&self) -> Vec<String> {
+        let mut a = vec!["--zenoh-mode".to_string(), self.mode.as_str().to_string()];
+        for e in &self.connect {
+            a.push("--zenoh-connect".into());
+            a.push(e.clone());
+        }
+        for e in &self.listen {
+            a.push("--zenoh-listen".into());
+            a.push(e.clone());
+        }
+        a
+    }
+}
+
+fn zerr(what: impl Into<String>, e: impl std::fmt::Display) -> TransportError {
+    TransportError::Zenoh {
+        what: what.into(),
+        message: e.to_string(),
+    }
+}
+
+fn json_list(items: &[String]) -> String {
+    serde_json::to_string(items).unwrap_or_else(|_| "[]".into())
+}
+
+/// Opens a session. A client waits up to 10 s for its router; peers and routers keep
+/// retrying their `connect` endpoints in the background.
+pub fn open(spec: &ZenohSpec) -> Result<zenoh::Session, TransportError> {
+    let mut cfg = zenoh::Config::default();
+    let set = |cfg: &mut zenoh::Config, k: &str, v: &str| {
+        cfg.insert_json5(k, v)
+            .map_err(|e| zerr(format!("config {k} = {v}"), e))
+    };
+    set(&mut cfg, "mode", &format!("\"{}\"", spec.mode.as_str()))?;
+    set(&mut cfg, "scouting/multicast/enabled", "false")?;
+    set(&mut cfg, "connect/endpoints", &json_list(&spec.connect))?;
+    set(&mut cfg, "listen/endpoints", &json_list(&spec.listen))?;
+    if spec.mode == ZenohMode::Client {
+        set(&mut cfg, "connect/timeout_ms", "10000")?;
+    }
+    if spec.mode != ZenohMode::Router {
+        // Peers would otherwise listen on every interface; a client listens on nothing.
+        set(&mut cfg, "scouting/gossip/enabled", "false")?;
+    }
+    let what = format!(
+        "open {} session (connect {:?}, listen {:?})",
+        spec.mode.as_str(),
+        spec.connect,
+        spec.listen
+    );
+    zenoh::open(cfg).wait().map_err(|e| zerr(what, e))
+}
+
+/// Publishes messages as JSON on one key, express, real-time priority, dropping rather than
+/// blocking when the network is congested (a stale pose is worth nothing).
+pub struct JsonPublisher {
+    publisher: zenoh::pubsub::Publisher<'static>,
+    key: String,
+}
+
+impl std::fmt::Debug for JsonPublisher {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "JsonPublisher({})", self.key)
+    }
+}
+
+impl JsonPublisher {
+    pub fn new(session: &zenoh::Session, key: &str) -> Result<Self, TransportError> {
+        let publisher = session
+            .declare_publisher(key.to_string())
+            .encoding(Encoding::APPLICATION_JSON)
+            .congestion_control(CongestionControl::Drop)
+            .priority(Priority::RealTime)
+            .express(true)
+            .wait()
+            .map_err(|e| zerr(format!("declare publisher {key}"), e))?;
+        Ok(JsonPublisher {
+            publisher,
+            key: key.to_string(),
+        })
+    }
+
+    pub fn put<M: Message>(&self, msg: &M) -> Result<(), TransportError> {
+        self.put_bytes(msg.to_json())
+    }
+
+    pub fn put_bytes(&self, bytes: Vec<u8>) -> Result<(), TransportError> {
+        self.publisher
+            .put(bytes)
+            .wait()
+            .map_err(|e| zerr(format!("put on {}", self.key), e))
+    }
+}
+
+/// Publishes on keys chosen per message (one key per object), declaring each once.
+pub struct KeyedPublisher {
+    session: zenoh::Session,
+    publishers: std::collections::HashMap<String, JsonPublisher>,
+}
+
+impl std::fmt::Debug for KeyedPublisher {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "KeyedPublisher({} keys)", self.publishers.len())
+    }
+}
+
+impl KeyedPublisher {
+    pub fn new(session: &zenoh::Session) -> Self {
+        KeyedPublisher {
+            session: session.clone(),
+            publishers: Default::default(),
+        }
+    }
+
+    pub fn put_bytes(&mut self, key: &str, bytes: Vec<u8>) -> Result<(), TransportError> {
+        if !self.publishers.contains_key(key) {
+            let p = JsonPublisher::new(&self.session, key)?;
+            self.publishers.insert(key.to_string(), p);
+        }
+        match self.publishers.get(key) {
+            Some(p) => p.put_bytes(bytes),
+            None => Ok(()),
+        }
+    }
+}
+
+/// Subscribes to `key` and hands every payload with its key to `f` (on Zenoh's thread).
+pub fn subscribe(
+    session: &zenoh::Session,
+    key: &str,
+    mut f: impl FnMut(&str, &[u8]) + Send + Sync + 'static,
+) -> Result<zenoh::pubsub::Subscriber<()>, TransportError> {
+    session
+        .declare_subscriber(key.to_string())
+        .callback_mut(move |sample| {
+            let bytes = sample.payload().to_bytes();
+            f(sample.key_expr().as_str(), &bytes);
+        })
+        .wait()
+        .map_err(|e| zerr(format!("declare subscriber {key}"), e))
+}
+
+/// The keys of the liveliness tokens alive under `key` now (bounded by `timeout`).
+pub fn alive(
+    session: &zenoh::Session,
+    key: &str,
+    timeout: std::time::Duration,
+) -> Result<Vec<String>, TransportError> {
+    let replies = session
+        .liveliness()
+        .get(key.to_string())
+        .timeout(timeout)
+        .wait()
+        .map_err(|e| zerr(format!("liveliness get {key}"), e))?;
+    let mut out = Vec::new();
+    while let Ok(reply) = replies.recv() {
+        if let Ok(sample) = reply.result() {
+            out.push(sample.key_expr().as_str().to_string());
+        }
+    }
+    out.sort();
+    Ok(out)
+}
