@@ -100,22 +100,30 @@ impl fmt::Display for FrameError {
                 f,
                 "frame header version {v} is not {FRAME_HEADER_VERSION}: capture and worker are different builds"
             ),
-            FrameError::PixelFormat(c) => write!(f, "pixel_format {c} is not a known format (1 = Gray8, 2 = Gray16)"),
+            FrameError::PixelFormat(c) => write!(
+                f,
+                "pixel_format {c} is not a known format (1 = Gray8, 2 = Gray16)"
+            ),
             FrameError::EmptyImage { width, height } => {
                 write!(f, "frame size {width}×{height} is empty")
             }
-            FrameError::Stride { stride_bytes, needed } => write!(
+            FrameError::Stride {
+                stride_bytes,
+                needed,
+            } => write!(
                 f,
                 "stride_bytes {stride_bytes} is less than a row's {needed} bytes"
             ),
-            FrameError::PayloadSize { header_says, payload } => write!(
+            FrameError::PayloadSize {
+                header_says,
+                payload,
+            } => write!(
                 f,
                 "header says stride × height = {header_says} bytes but the payload has {payload}"
             ),
-            FrameError::CameraId(id) => write!(
-                f,
-                "camera id {id:?} is longer than {CAMERA_ID_LEN} bytes"
-            ),
+            FrameError::CameraId(id) => {
+                write!(f, "camera id {id:?} is longer than {CAMERA_ID_LEN} bytes")
+            }
         }
     }
 }
@@ -206,20 +214,37 @@ mod tests {
         assert_eq!(h.validate(320 * 240), Ok(PixelFormat::Gray8));
         assert_eq!(h.camera_id(), "cam0");
         let err = h.validate(320 * 239).unwrap_err();
-        assert!(err.to_string().contains("76800") && err.to_string().contains("76480"), "{err}");
+        assert!(
+            err.to_string().contains("76800") && err.to_string().contains("76480"),
+            "{err}"
+        );
         let mut bad = h;
         bad.stride_bytes = 100;
-        assert!(matches!(bad.validate(24000), Err(FrameError::Stride { .. })));
+        assert!(matches!(
+            bad.validate(24000),
+            Err(FrameError::Stride { .. })
+        ));
         bad = h;
         bad.pixel_format = 9;
-        assert!(bad.validate(320 * 240).unwrap_err().to_string().contains("pixel_format 9"));
+        assert!(
+            bad.validate(320 * 240)
+                .unwrap_err()
+                .to_string()
+                .contains("pixel_format 9")
+        );
         bad = h;
         bad.version = 7;
-        assert!(matches!(bad.validate(320 * 240), Err(FrameError::Version(7))));
+        assert!(matches!(
+            bad.validate(320 * 240),
+            Err(FrameError::Version(7))
+        ));
         bad = h;
         bad.height = 0;
         bad.stride_bytes = 320;
-        assert!(matches!(bad.validate(0), Err(FrameError::EmptyImage { .. })));
+        assert!(matches!(
+            bad.validate(0),
+            Err(FrameError::EmptyImage { .. })
+        ));
         let h16 = FrameHeader::new("c", PixelFormat::Gray16, 10, 2).unwrap();
         assert_eq!(h16.stride_bytes, 20);
         assert!(FrameHeader::new(&"x".repeat(33), PixelFormat::Gray8, 1, 1).is_err());

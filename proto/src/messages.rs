@@ -163,6 +163,8 @@ pub struct TargetTruth {
     pub target: u32,
     pub position_m: [f64; 3],
     pub heading_deg: f64,
+    /// The target has a long axis (a heading can be measured): false for a sphere or a disc.
+    pub has_axis: bool,
     /// The target is symmetric end to end: its heading is only defined modulo 180°.
     pub symmetric: bool,
     pub visible: bool,
@@ -320,7 +322,9 @@ mod tests {
         other.schema = 2;
         let e = PoseFrame::from_json(&other.to_json()).unwrap_err();
         assert!(e.to_string().contains("schema 2"), "{e}");
-        let unknown = String::from_utf8(json).unwrap().replacen("\"rig\"", "\"rigg\"", 1);
+        let unknown = String::from_utf8(json)
+            .unwrap()
+            .replacen("\"rig\"", "\"rigg\"", 1);
         assert!(PoseFrame::from_json(unknown.as_bytes()).is_err());
     }
 }

@@ -97,7 +97,8 @@ impl FrameSource for ImageSource {
         }
         let path = &self.files[self.next];
         self.next += 1;
-        let img = read_gray(path).map_err(|e| SourceError::BadFrame(format!("{}: {e}", path.display())))?;
+        let img = read_gray(path)
+            .map_err(|e| SourceError::BadFrame(format!("{}: {e}", path.display())))?;
         if img.width() != self.width || img.height() != self.height {
             return Err(SourceError::BadFrame(format!(
                 "{}: {}×{} differs from the sequence's {}×{}",

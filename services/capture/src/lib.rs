@@ -116,9 +116,9 @@ pub fn open_source(ctx: &Context, camera: &str) -> Result<Box<dyn FrameSource>, 
             fps,
             realtime,
             repeat,
-        } => Box::new(
-            images::ImageSource::open(&rel(path), *fps, *realtime, *repeat).map_err(wrap)?,
-        ),
+        } => {
+            Box::new(images::ImageSource::open(&rel(path), *fps, *realtime, *repeat).map_err(wrap)?)
+        }
         #[cfg(feature = "v4l")]
         SourceSpec::V4l {
             device,
@@ -181,7 +181,10 @@ pub fn run(cfg: CaptureConfig, shutdown: Shutdown) -> Result<CaptureSummary, Cap
         None
     };
     let truth_net = if has_truth {
-        Some(JsonPublisher::new(&session, &keys::truth(rig, &cam)).map_err(|e| setup(e.to_string()))?)
+        Some(
+            JsonPublisher::new(&session, &keys::truth(rig, &cam))
+                .map_err(|e| setup(e.to_string()))?,
+        )
     } else {
         None
     };

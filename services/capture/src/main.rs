@@ -33,6 +33,10 @@ fn main() -> anyhow::Result<()> {
         },
         shutdown,
     )?;
-    tracing::info!(frames = summary.frames, bad = summary.bad_frames, "capture stopped");
+    tracing::info!(
+        frames = summary.frames,
+        bad = summary.bad_frames,
+        "capture stopped"
+    );
     Ok(())
 }

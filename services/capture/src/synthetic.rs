@@ -23,7 +23,7 @@ pub struct SyntheticSource {
     format: PixelFormat,
     looped: Option<Vec<(Vec<u8>, Vec<TargetTruth>)>>,
     last_truth: Vec<TargetTruth>,
-    symmetric: Vec<bool>,
+    has_axis: Vec<bool>,
 }
 
 impl std::fmt::Debug for SyntheticSource {
@@ -42,10 +42,11 @@ pub fn actors(spec: &SyntheticSpec, scale: f64) -> Vec<(Actor, bool)> {
         .iter()
         .map(|t| {
             let r = t.radius * scale;
-            let (shape, symmetric) = match t.shape.as_str() {
+            // (shape, has an axis); all three are symmetric end to end.
+            let (shape, has_axis) = match t.shape.as_str() {
                 "double_sphere" => (Shape::DoubleSphere { radius_m: r }, true),
-                "disc" => (Shape::Disc { radius_m: r }, true),
-                _ => (Shape::Sphere { radius_m: r }, true),
+                "disc" => (Shape::Disc { radius_m: r }, false),
+                _ => (Shape::Sphere { radius_m: r }, false),
             };
             let motion = match &t.motion {
                 MotionSpec::Static {
@@ -92,7 +93,7 @@ pub fn actors(spec: &SyntheticSpec, scale: f64) -> Vec<(Actor, bool)> {
                     contrast: t.contrast.unwrap_or(180.0),
                     motion,
                 },
-                symmetric,
+                has_axis,
             )
         })
         .collect()
@@ -112,7 +113,7 @@ impl SyntheticSource {
             .as_ref()
             .ok_or_else(|| SourceError::Fatal("the rig file has no [synthetic] scene".into()))?;
         let scale = unit_scale(&file.units).map_err(|e| SourceError::Fatal(e.to_string()))?;
-        let (actors, symmetric): (Vec<Actor>, Vec<bool>) = actors(spec, scale).into_iter().unzip();
+        let (actors, has_axis): (Vec<Actor>, Vec<bool>) = actors(spec, scale).into_iter().unzip();
         let base = Scene {
             background: Background {
                 level: spec.background.unwrap_or(20.0),
@@ -141,7 +142,7 @@ impl SyntheticSource {
             format,
             looped: None,
             last_truth: Vec::new(),
-            symmetric,
+            has_axis,
         };
         if let Some(n) = loop_frames {
             let (w, h) = s.size();
@@ -186,7 +187,8 @@ impl SyntheticSource {
                 target: i as u32,
                 position_m: [s.position.x, s.position.y, s.position.z],
                 heading_deg: s.heading_deg.rem_euclid(360.0),
-                symmetric: self.symmetric.get(i).copied().unwrap_or(true),
+                has_axis: self.has_axis.get(i).copied().unwrap_or(false),
+                symmetric: true,
                 visible: t.visible,
                 area_px: t.area_px,
                 centroid_px: [t.centroid_px.x, t.centroid_px.y],

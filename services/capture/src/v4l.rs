@@ -63,7 +63,9 @@ impl V4lSource {
     ) -> Result<Self, SourceError> {
         let fatal = |m: String| SourceError::Fatal(format!("{device}: {m}"));
         let dev = Device::with_path(device).map_err(|e| fatal(e.to_string()))?;
-        let mut fmt = dev.format().map_err(|e| fatal(format!("reading the format: {e}")))?;
+        let mut fmt = dev
+            .format()
+            .map_err(|e| fatal(format!("reading the format: {e}")))?;
         let offered: Vec<String> = dev
             .enum_formats()
             .map_err(|e| fatal(format!("listing formats: {e}")))?

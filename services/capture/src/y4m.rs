@@ -38,15 +38,29 @@ pub fn parse_header(line: &str) -> Result<(u32, u32, Option<f64>, PixelFormat, u
     for word in words {
         let (tag, value) = word.split_at(1);
         match tag {
-            "W" => w = Some(value.parse::<u32>().map_err(|_| format!("width {value:?} is not a number"))?),
-            "H" => h = Some(value.parse::<u32>().map_err(|_| format!("height {value:?} is not a number"))?),
+            "W" => {
+                w = Some(
+                    value
+                        .parse::<u32>()
+                        .map_err(|_| format!("width {value:?} is not a number"))?,
+                )
+            }
+            "H" => {
+                h = Some(
+                    value
+                        .parse::<u32>()
+                        .map_err(|_| format!("height {value:?} is not a number"))?,
+                )
+            }
             "F" => {
                 let (n, d) = value
                     .split_once(':')
                     .ok_or_else(|| format!("frame rate {value:?} is not N:D"))?;
                 let (n, d): (f64, f64) = (
-                    n.parse().map_err(|_| format!("frame rate {value:?} is not N:D"))?,
-                    d.parse().map_err(|_| format!("frame rate {value:?} is not N:D"))?,
+                    n.parse()
+                        .map_err(|_| format!("frame rate {value:?} is not N:D"))?,
+                    d.parse()
+                        .map_err(|_| format!("frame rate {value:?} is not N:D"))?,
                 );
                 if n > 0.0 && d > 0.0 {
                     fps = Some(n / d);
@@ -70,7 +84,11 @@ pub fn parse_header(line: &str) -> Result<(u32, u32, Option<f64>, PixelFormat, u
         "444" => (PixelFormat::Gray8, 2 * luma),
         "mono" => (PixelFormat::Gray8, 0),
         "mono16" => (PixelFormat::Gray16, 0),
-        other => return Err(format!("colour space C{other} is not supported (420, 422, 444, mono, mono16)")),
+        other => {
+            return Err(format!(
+                "colour space C{other} is not supported (420, 422, 444, mono, mono16)"
+            ));
+        }
     };
     Ok((w, h, fps, format, chroma))
 }
@@ -110,7 +128,9 @@ impl FrameSource for Y4mSource {
             self.path,
             self.width,
             self.height,
-            self.fps.map(|f| format!("{f:.3} fps")).unwrap_or_else(|| "no rate".into())
+            self.fps
+                .map(|f| format!("{f:.3} fps"))
+                .unwrap_or_else(|| "no rate".into())
         )
     }
 
@@ -203,14 +223,29 @@ mod tests {
 
     #[test]
     fn headers() {
-        let (w, h, f, fmt, c) = parse_header("YUV4MPEG2 W320 H240 F30000:1001 Ip A1:1 C420jpeg").unwrap();
-        assert_eq!((w, h, fmt, c), (320, 240, PixelFormat::Gray8, 2 * 160 * 120));
+        let (w, h, f, fmt, c) =
+            parse_header("YUV4MPEG2 W320 H240 F30000:1001 Ip A1:1 C420jpeg").unwrap();
+        assert_eq!(
+            (w, h, fmt, c),
+            (320, 240, PixelFormat::Gray8, 2 * 160 * 120)
+        );
         assert!((f.unwrap() - 29.97).abs() < 0.01);
-        assert_eq!(parse_header("YUV4MPEG2 W3 H3 Cmono16").unwrap().3, PixelFormat::Gray16);
-        assert!(parse_header("YUV4MPEG2 W3 H3 C411").unwrap_err().contains("C411"));
+        assert_eq!(
+            parse_header("YUV4MPEG2 W3 H3 Cmono16").unwrap().3,
+            PixelFormat::Gray16
+        );
+        assert!(
+            parse_header("YUV4MPEG2 W3 H3 C411")
+                .unwrap_err()
+                .contains("C411")
+        );
         assert!(parse_header("YUV4MPEG W3 H3").is_err());
         assert!(parse_header("YUV4MPEG2 W0 H3").is_err());
-        assert!(parse_header("YUV4MPEG2 Wx H3").unwrap_err().contains("width"));
+        assert!(
+            parse_header("YUV4MPEG2 Wx H3")
+                .unwrap_err()
+                .contains("width")
+        );
     }
 
     #[test]
@@ -224,7 +259,10 @@ mod tests {
         std::fs::write(&p, &bytes).unwrap();
         let mut s = Y4mSource::open(p.to_str().unwrap(), false, false).unwrap();
         let mut out = vec![0u8; 12];
-        assert_eq!(s.read(0, 0.0, &mut out).unwrap(), Read::Frame { timestamp_ns: None });
+        assert_eq!(
+            s.read(0, 0.0, &mut out).unwrap(),
+            Read::Frame { timestamp_ns: None }
+        );
         assert_eq!(out, a);
         s.read(1, 0.0, &mut out).unwrap();
         assert_eq!(out, b);
@@ -234,7 +272,10 @@ mod tests {
         let mut s = Y4mSource::open(cut.to_str().unwrap(), false, false).unwrap();
         s.read(0, 0.0, &mut out).unwrap();
         let e = s.read(1, 0.0, &mut out).unwrap_err().to_string();
-        assert!(e.contains("cut.y4m") && e.contains("frame 1") && e.contains("7 of its 12"), "{e}");
+        assert!(
+            e.contains("cut.y4m") && e.contains("frame 1") && e.contains("7 of its 12"),
+            "{e}"
+        );
         // Repeat starts again.
         let mut s = Y4mSource::open(p.to_str().unwrap(), false, true).unwrap();
         for _ in 0..3 {

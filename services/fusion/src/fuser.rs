@@ -8,11 +8,11 @@
 //! predictions within a gate. Ids are never reused while fusion runs.
 
 use nalgebra::{Point2, Point3, Vector3};
+use stereoscope_geometry::Camera;
 use stereoscope_geometry::correspond::{CorrespondConfig, match_blobs};
 use stereoscope_geometry::depth::point_from_depth;
 use stereoscope_geometry::rig::Rig;
 use stereoscope_geometry::world_heading::{AxisView, fuse};
-use stereoscope_geometry::Camera;
 use stereoscope_proto::messages::{BlobObservation, Observation, Pose, PoseMethod, TrackState};
 use stereoscope_vision::assign::Assigner;
 use stereoscope_vision::heading::wrap_half_turn_deg;
@@ -101,12 +101,20 @@ impl Fuser {
         // Only blobs seen this frame; keep their indices.
         let kept: Vec<Vec<usize>> = set
             .iter()
-            .map(|(_, o)| (0..o.blobs.len()).filter(|&i| usable(&o.blobs[i])).collect())
+            .map(|(_, o)| {
+                (0..o.blobs.len())
+                    .filter(|&i| usable(&o.blobs[i]))
+                    .collect()
+            })
             .collect();
         let pixels: Vec<Vec<Point2<f64>>> = set
             .iter()
             .zip(&kept)
-            .map(|((_, o), k)| k.iter().map(|&i| Point2::new(o.blobs[i].x_px, o.blobs[i].y_px)).collect())
+            .map(|((_, o), k)| {
+                k.iter()
+                    .map(|&i| Point2::new(o.blobs[i].x_px, o.blobs[i].y_px))
+                    .collect()
+            })
             .collect();
         let mut points = Vec::new();
         let mut used: Vec<Vec<bool>> = kept.iter().map(|k| vec![false; k.len()]).collect();
@@ -142,7 +150,8 @@ impl Fuser {
                 let Ok(d) = model.model.depth_from_area(b.area_px, model.range_m) else {
                     continue;
                 };
-                let Ok(p) = point_from_depth(&self.cameras[*c], Point2::new(b.x_px, b.y_px), d.depth)
+                let Ok(p) =
+                    point_from_depth(&self.cameras[*c], Point2::new(b.x_px, b.y_px), d.depth)
                 else {
                     continue;
                 };
@@ -178,7 +187,11 @@ impl Fuser {
                 Some(AxisView {
                     camera: *c,
                     centroid_px: Point2::new(b.x_px, b.y_px),
-                    angle_deg: if b.directed { b.heading_deg } else { b.orientation_deg },
+                    angle_deg: if b.directed {
+                        b.heading_deg
+                    } else {
+                        b.orientation_deg
+                    },
                     directed: b.directed,
                     weight: if round { 0.0 } else { 1.0 - b.roundness },
                 })
@@ -254,11 +267,9 @@ impl Fuser {
             let o = &mut self.objects[oi];
             if let Some((h, directed)) = headings[pi] {
                 // The tracker unwraps an axis in (−90, 90] into 0–360° (or takes a direction).
-                let u = o.heading.update(
-                    wrap_half_turn_deg(h),
-                    0.0,
-                    directed.then_some(h),
-                );
+                let u = o
+                    .heading
+                    .update(wrap_half_turn_deg(h), 0.0, directed.then_some(h));
                 o.heading_deg = Some(u.heading_deg);
                 o.heading_directed = o.heading_directed || directed;
             }

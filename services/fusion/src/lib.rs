@@ -116,13 +116,13 @@ pub fn run(cfg: FusionConfig, shutdown: Shutdown) -> Result<u64, FusionError> {
     drop(tx);
     let waker = Waker::new(&node, &iox_names::observations_ready(&rig))
         .map_err(|e| setup(e.to_string()))?;
-    let poses_local =
-        MessagePublisher::new(&node, &iox_names::poses(&rig), &[]).map_err(|e| setup(e.to_string()))?;
+    let poses_local = MessagePublisher::new(&node, &iox_names::poses(&rig), &[])
+        .map_err(|e| setup(e.to_string()))?;
     let poses_net =
         JsonPublisher::new(&session, &keys::poses(&rig)).map_err(|e| setup(e.to_string()))?;
     let mut per_object = KeyedPublisher::new(&session);
-    let mut health =
-        HealthReporter::new(&session, &rig, &ctx.host, "fusion").map_err(|e| setup(e.to_string()))?;
+    let mut health = HealthReporter::new(&session, &rig, &ctx.host, "fusion")
+        .map_err(|e| setup(e.to_string()))?;
     tracing::info!(
         local = local.len(),
         remote = remote_subs.len(),
@@ -153,9 +153,11 @@ pub fn run(cfg: FusionConfig, shutdown: Shutdown) -> Result<u64, FusionError> {
                         let now = now_ns();
                         pairer.push(*i, o, now);
                     }
-                    Ok(Some(Err(e))) => {
-                        handle(Input::Bad(format!("{}: {e}", sub.name())), &mut pairer, &mut counters)
-                    }
+                    Ok(Some(Err(e))) => handle(
+                        Input::Bad(format!("{}: {e}", sub.name())),
+                        &mut pairer,
+                        &mut counters,
+                    ),
                     Ok(None) => break,
                     Err(e) => {
                         counters.last_error = Some(e.to_string());
@@ -172,8 +174,15 @@ pub fn run(cfg: FusionConfig, shutdown: Shutdown) -> Result<u64, FusionError> {
                 continue;
             }
             let timestamp_ns = set.iter().map(|(_, o)| o.timestamp_ns).min().unwrap_or(0);
-            let frame_published_ns = set.iter().map(|(_, o)| o.frame_published_ns).max().unwrap_or(0);
-            let cameras: Vec<String> = set.iter().map(|(c, _)| ctx.rig.cameras[*c].id.clone()).collect();
+            let frame_published_ns = set
+                .iter()
+                .map(|(_, o)| o.frame_published_ns)
+                .max()
+                .unwrap_or(0);
+            let cameras: Vec<String> = set
+                .iter()
+                .map(|(c, _)| ctx.rig.cameras[*c].id.clone())
+                .collect();
             let poses = fuser.fuse(&set, timestamp_ns);
             let published_ns = now_ns();
             let frame = PoseFrame {
@@ -218,8 +227,12 @@ pub fn run(cfg: FusionConfig, shutdown: Shutdown) -> Result<u64, FusionError> {
             .filter(|&c| pairer.live(c, now))
             .map(|c| ctx.rig.cameras[c].id.as_str())
             .collect();
-        counters.detail.insert("cameras_live".into(), live.join(","));
-        counters.detail.insert("objects".into(), fuser.objects().to_string());
+        counters
+            .detail
+            .insert("cameras_live".into(), live.join(","));
+        counters
+            .detail
+            .insert("objects".into(), fuser.objects().to_string());
         health.tick(&counters);
     }
     Ok(sequence)

@@ -116,7 +116,9 @@ impl Pairer {
                 Some((i, _)) => chosen[c] = Some(i),
                 None => {
                     complete = false;
-                    if q.back().is_some_and(|(o, _)| o.timestamp_ns > ref_ts + skew) {
+                    if q.back()
+                        .is_some_and(|(o, _)| o.timestamp_ns > ref_ts + skew)
+                    {
                         hopeless = true;
                     }
                 }
@@ -138,7 +140,10 @@ impl Pairer {
                 }
             } else {
                 // Drop this camera's entries at or before the reference window.
-                while q.front().is_some_and(|(o, _)| o.timestamp_ns + skew < ref_ts) {
+                while q
+                    .front()
+                    .is_some_and(|(o, _)| o.timestamp_ns + skew < ref_ts)
+                {
                     q.pop_front();
                     self.discarded += 1;
                 }

@@ -105,9 +105,7 @@ pub fn settings(spec: Option<&MomentsSpec>, par: f64, key: &str) -> Result<Worke
         window_threshold,
         ..TrackerConfig::default()
     };
-    tracker
-        .validate()
-        .map_err(|e| format!("{key}: {e}"))?;
+    tracker.validate().map_err(|e| format!("{key}: {e}"))?;
     if s.threshold_every_frames == Some(0) {
         return Err(format!("{key}.threshold_every_frames: must be at least 1"));
     }
@@ -218,9 +216,21 @@ impl Worker {
                     } else {
                         TrackState::Tracked
                     };
-                    (st, b.area_px() as f64, Some(b.best_central()), b.bbox, b.flags)
+                    (
+                        st,
+                        b.area_px() as f64,
+                        Some(b.best_central()),
+                        b.bbox,
+                        b.flags,
+                    )
                 }
-                None => (TrackState::Lost, t.area_px as f64, None, w, BlobFlags::default()),
+                None => (
+                    TrackState::Lost,
+                    t.area_px as f64,
+                    None,
+                    w,
+                    BlobFlags::default(),
+                ),
             };
             let (mu20, mu02, mu11, orientation, roundness) = match moments {
                 Some(c) => {
@@ -252,8 +262,12 @@ impl Worker {
                 bbox_px: [bbox.x0, bbox.y0, bbox.x1, bbox.y1],
             });
         }
-        let dropped =
-            self.tracker.tracks().len().saturating_sub(MAX_REPORTED_BLOBS) + step.extract.dropped_over_capacity;
+        let dropped = self
+            .tracker
+            .tracks()
+            .len()
+            .saturating_sub(MAX_REPORTED_BLOBS)
+            + step.extract.dropped_over_capacity;
         Ok(Observation {
             schema: SCHEMA_VERSION,
             rig: self.rig.clone(),
@@ -311,9 +325,10 @@ pub fn run(cfg: MomentsConfig, shutdown: Shutdown) -> Result<u64, MomentsError> 
     };
     let ctx = &cfg.ctx;
     let rig = ctx.rig_file.name.clone();
-    let index = ctx.rig.camera_index(&cam).ok_or_else(|| {
-        setup(format!("not a camera of {}", ctx.rig_path.display()))
-    })?;
+    let index = ctx
+        .rig
+        .camera_index(&cam)
+        .ok_or_else(|| setup(format!("not a camera of {}", ctx.rig_path.display())))?;
     let par = ctx.rig.cameras[index].camera.intrinsics.par();
     let settings = settings(
         ctx.rig_file.cameras[index].moments.as_ref(),
@@ -387,7 +402,10 @@ pub fn run(cfg: MomentsConfig, shutdown: Shutdown) -> Result<u64, MomentsError> 
         }
         counters.detail.insert(
             "threshold".into(),
-            worker.threshold().map(|t| t.to_string()).unwrap_or_default(),
+            worker
+                .threshold()
+                .map(|t| t.to_string())
+                .unwrap_or_default(),
         );
         counters
             .detail

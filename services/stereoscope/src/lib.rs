@@ -6,5 +6,6 @@ pub mod calibrate;
 pub mod csvin;
 pub mod example;
 pub mod fitdepth;
+pub mod live;
 pub mod reproduce;
 pub mod triangulate;

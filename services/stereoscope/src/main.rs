@@ -8,6 +8,7 @@ use stereoscope::calibrate::{self, CalibrateOptions, Source};
 use stereoscope::fitdepth::{self, FitDepthOptions};
 use stereoscope::triangulate::{self, TriangulateOptions};
 use stereoscope_geometry::calibrate::DistortionModel;
+use stereoscope_transport::{CommonArgs, Shutdown, init_logging};
 use stereoscope_vision::{Connectivity, ThresholdMethod};
 
 #[derive(Parser, Debug)]
@@ -105,6 +106,39 @@ enum Command {
         #[arg(long)]
         rig: Option<PathBuf>,
     },
+    /// Run the whole live chain on a built-in synthetic rig: two cameras of the thesis's lab,
+    /// three moving targets; shows poses against ground truth, then a summary.
+    Demo {
+        /// How long to measure, seconds from the first pose.
+        #[arg(long, default_value_t = 10.0)]
+        seconds: f64,
+        /// Run this rig file instead of the built-in one (synthetic cameras, no [[host]]).
+        #[arg(long)]
+        rig: Option<PathBuf>,
+        /// No live table, only the summary.
+        #[arg(long)]
+        quiet: bool,
+        /// The summary as one JSON object.
+        #[arg(long)]
+        json: bool,
+    },
+    /// Start, watch and restart the services this PC runs in a rig file (docs/deploy.md).
+    Run {
+        /// The rig file.
+        rig: PathBuf,
+        /// This PC's name in the rig's [[host]] list (the only one if omitted).
+        #[arg(long)]
+        host: Option<String>,
+        /// Prefix of iceoryx2's files (default: the host's iceoryx2_prefix).
+        #[arg(long)]
+        iox_prefix: Option<String>,
+        /// Do not run a Zenoh router here (one runs already).
+        #[arg(long)]
+        no_router: bool,
+    },
+    /// Run one service in the foreground (what `run` starts; for debugging and deployment).
+    #[command(subcommand, hide = true)]
+    Service(ServiceCommand),
     /// Triangulate points seen by a rig's cameras (CSV point,camera,u,v).
     Triangulate {
         /// The rig file (docs/rig.md).
@@ -117,6 +151,89 @@ enum Command {
         #[arg(long)]
         json: bool,
     },
+}
+
+#[derive(Subcommand, Debug)]
+enum ServiceCommand {
+    Capture {
+        #[command(flatten)]
+        common: CommonArgs,
+        #[arg(long)]
+        camera: String,
+        #[arg(long)]
+        max_frames: Option<u64>,
+        #[arg(long)]
+        as_fast_as_possible: bool,
+    },
+    Moments {
+        #[command(flatten)]
+        common: CommonArgs,
+        #[arg(long)]
+        camera: String,
+        #[arg(long)]
+        max_frames: Option<u64>,
+    },
+    Fusion {
+        #[command(flatten)]
+        common: CommonArgs,
+        #[arg(long)]
+        max_sets: Option<u64>,
+    },
+}
+
+fn service(cmd: ServiceCommand) -> anyhow::Result<()> {
+    let shutdown = Shutdown::on_signals()?;
+    match cmd {
+        ServiceCommand::Capture {
+            common,
+            camera,
+            max_frames,
+            as_fast_as_possible,
+        } => {
+            init_logging("capture");
+            stereoscope_capture::run(
+                stereoscope_capture::CaptureConfig {
+                    ctx: common.resolve()?,
+                    camera,
+                    max_frames,
+                    realtime: as_fast_as_possible.then_some(false),
+                },
+                shutdown,
+            )?;
+        }
+        ServiceCommand::Moments {
+            common,
+            camera,
+            max_frames,
+        } => {
+            init_logging("moments");
+            stereoscope_moments::run(
+                stereoscope_moments::MomentsConfig {
+                    ctx: common.resolve()?,
+                    camera,
+                    max_frames,
+                },
+                shutdown,
+            )?;
+        }
+        ServiceCommand::Fusion { common, max_sets } => {
+            init_logging("fusion");
+            stereoscope_fusion::run(
+                stereoscope_fusion::FusionConfig {
+                    ctx: common.resolve()?,
+                    max_sets,
+                },
+                shutdown,
+            )?;
+        }
+    }
+    Ok(())
+}
+
+/// The command that starts a service: this very binary with `service`.
+fn service_program() -> anyhow::Result<Vec<String>> {
+    let exe = std::env::current_exe()?;
+    Ok(vec![exe.display().to_string(), "service".into()])
 }
 
 fn parse_size(s: &str) -> Result<(u32, u32), String> {
@@ -285,6 +402,37 @@ fn main() -> ExitCode {
             )
             .map(|()| 0),
         ),
+        Command::Service(cmd) => match service(cmd) {
+            Ok(()) => ExitCode::SUCCESS,
+            Err(e) => {
+                eprintln!("error: {e:#}");
+                ExitCode::from(1)
+            }
+        },
+        Command::Run {
+            rig,
+            host,
+            iox_prefix,
+            no_router,
+        } => finish(stereoscope::live::run_rig(
+            rig,
+            host,
+            iox_prefix,
+            !no_router,
+            service_program(),
+        )),
+        Command::Demo {
+            seconds,
+            rig,
+            quiet,
+            json,
+        } => finish(stereoscope::live::demo(
+            seconds,
+            rig,
+            !quiet && !json,
+            json,
+            service_program(),
+        )),
         Command::Triangulate { rig, points, json } => {
             let opts = TriangulateOptions { rig, points, json };
             finish(triangulate::run(

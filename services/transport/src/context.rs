@@ -133,7 +133,9 @@ pub fn check_deployment(file: &RigFile) -> Result<(), String> {
                     ));
                 }
                 if loop_frames == &Some(0) {
-                    return Err(format!("camera[{i}].source.loop_frames: must be at least 1"));
+                    return Err(format!(
+                        "camera[{i}].source.loop_frames: must be at least 1"
+                    ));
                 }
                 if let Some(b) = bit_depth
                     && *b != 8
@@ -170,7 +172,9 @@ pub fn check_deployment(file: &RigFile) -> Result<(), String> {
             && o != "auto"
             && o != "zenoh"
         {
-            return Err(format!("fusion.observations: {o:?} is not \"auto\" or \"zenoh\""));
+            return Err(format!(
+                "fusion.observations: {o:?} is not \"auto\" or \"zenoh\""
+            ));
         }
     }
     if let Some(s) = &file.synthetic {
@@ -308,7 +312,8 @@ mod tests {
     #[test]
     fn thesis_lab_passes_and_bad_deployments_are_named() {
         parse_rig(RIG).unwrap();
-        let with_host = format!("{RIG}\n[[host]]\nname = \"pc1\"\nzenoh_listen = [\"tcp/0.0.0.0:7447\"]\n");
+        let with_host =
+            format!("{RIG}\n[[host]]\nname = \"pc1\"\nzenoh_listen = [\"tcp/0.0.0.0:7447\"]\n");
         let (f, _) = parse_rig(&with_host).unwrap();
         assert_eq!(
             default_zenoh(f.hosts.first()).connect,

@@ -188,7 +188,9 @@ impl FramePublisher {
         }
         header.published_ns = stereoscope_proto::messages::now_ns();
         *sample.user_header_mut() = header;
-        let n = sample.send().map_err(|e| err("frame send", &self.name, e))?;
+        let n = sample
+            .send()
+            .map_err(|e| err("frame send", &self.name, e))?;
         let _ = self.notifier.notify();
         Ok(Ok(n))
     }

@@ -1,0 +1,432 @@
+//! `stereoscope demo`: the whole chain on this PC as separate processes — two synthetic
+//! cameras of the thesis's lab (`deploy/rigs/demo.toml`), their moment workers and fusion,
+//! started by the launcher — watched from outside over Zenoh like any client would: poses
+//! against the synthetic cameras' ground truth, live, then a summary (poses/s, capture→pose
+//! latency, position and heading error, identity switches).
+
+use crate::{LaunchConfig, LaunchError};
+use std::collections::{BTreeMap, VecDeque};
+use std::io::Write;
+use std::sync::mpsc;
+use std::time::{Duration, Instant};
+use stereoscope_proto::messages::{Message, PoseFrame, Truth};
+use stereoscope_proto::names::zenoh as keys;
+use stereoscope_transport::context::parse_rig;
+use stereoscope_transport::net::{self, ZenohSpec};
+use stereoscope_transport::{Context, Shutdown};
+use stereoscope_vision::assign::assign_min_cost;
+use stereoscope_vision::heading::{wrap_half_turn_deg, wrap_turn_deg};
+
+/// The built-in rig.
+pub const DEMO_RIG: &str = include_str!("../../../deploy/rigs/demo.toml");
+
+#[derive(Debug, Clone)]
+pub struct DemoConfig {
+    /// How long to measure, from the first pose.
+    pub seconds: f64,
+    /// The command that starts a service (see [`LaunchConfig::program`]).
+    pub program: Vec<String>,
+    /// Rig text to run instead of the built-in one (it must have synthetic cameras).
+    pub rig_text: Option<String>,
+    /// Print the live table.
+    pub live: bool,
+    /// Where to write the rig file the services read.
+    pub work_dir: std::path::PathBuf,
+}
+
+/// Error statistics of one target.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct TargetStats {
+    pub target: u32,
+    pub matched: u64,
+    pub missed: u64,
+    pub position_rms_m: f64,
+    pub heading_rms_deg: Option<f64>,
+    pub id_switches: u32,
+}
+
+/// What the demo measured.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct DemoSummary {
+    pub seconds: f64,
+    pub pose_frames: u64,
+    pub poses_per_s: f64,
+    /// Frame published into shared memory → poses published, milliseconds.
+    pub latency_p50_ms: f64,
+    pub latency_p99_ms: f64,
+    /// Exposure (scene instant) → poses published, milliseconds (includes rendering).
+    pub exposure_latency_p50_ms: f64,
+    pub position_rms_m: f64,
+    pub heading_rms_deg: Option<f64>,
+    /// Pose frames with every visible target matched within 5 cm.
+    pub complete_frames: u64,
+    pub targets: Vec<TargetStats>,
+    pub restarts: u32,
+}
+
+impl DemoSummary {
+    pub fn to_json(&self) -> String {
+        let targets: Vec<String> = self
+            .targets
+            .iter()
+            .map(|t| {
+                format!(
+                    "{{\"target\":{},\"matched\":{},\"missed\":{},\"position_rms_m\":{:.6},\"heading_rms_deg\":{},\"id_switches\":{}}}",
+                    t.target,
+                    t.matched,
+                    t.missed,
+                    t.position_rms_m,
+                    t.heading_rms_deg.map(|h| format!("{h:.4}")).unwrap_or("null".into()),
+                    t.id_switches
+                )
+            })
+            .collect();
+        format!(
+            "{{\"seconds\":{:.3},\"pose_frames\":{},\"poses_per_s\":{:.2},\"latency_p50_ms\":{:.4},\"latency_p99_ms\":{:.4},\"exposure_latency_p50_ms\":{:.4},\"position_rms_m\":{:.6},\"heading_rms_deg\":{},\"complete_frames\":{},\"restarts\":{},\"targets\":[{}]}}",
+            self.seconds,
+            self.pose_frames,
+            self.poses_per_s,
+            self.latency_p50_ms,
+            self.latency_p99_ms,
+            self.exposure_latency_p50_ms,
+            self.position_rms_m,
+            self.heading_rms_deg
+                .map(|h| format!("{h:.4}"))
+                .unwrap_or("null".into()),
+            self.complete_frames,
+            self.restarts,
+            targets.join(",")
+        )
+    }
+}
+
+fn free_port() -> Result<u16, LaunchError> {
+    let l = std::net::TcpListener::bind("127.0.0.1:0")
+        .map_err(|e| LaunchError::Setup(format!("finding a free port: {e}")))?;
+    l.local_addr()
+        .map(|a| a.port())
+        .map_err(|e| LaunchError::Setup(format!("finding a free port: {e}")))
+}
+
+fn percentile(sorted: &[f64], q: f64) -> f64 {
+    if sorted.is_empty() {
+        return f64::NAN;
+    }
+    let i = ((sorted.len() - 1) as f64 * q).round() as usize;
+    sorted[i.min(sorted.len() - 1)]
+}
+
+enum Event {
+    Poses(PoseFrame),
+    Truth(Truth),
+}
+
+#[derive(Default)]
+struct Acc {
+    sq: f64,
+    n: u64,
+    hsq: f64,
+    hn: u64,
+    missed: u64,
+    last_id: Option<u32>,
+    switches: u32,
+}
+
+/// Runs the demo until `seconds` of poses were measured or shutdown.
+pub fn run(cfg: DemoConfig, shutdown: Shutdown) -> Result<DemoSummary, LaunchError> {
+    let setup = |m: String| LaunchError::Setup(m);
+    let port = free_port()?;
+    let prefix = format!("stsc_demo{}_", std::process::id());
+    let base = cfg.rig_text.clone().unwrap_or_else(|| DEMO_RIG.to_string());
+    let text = format!(
+        "{base}\n[[host]]\nname = \"demo\"\nzenoh_listen = [\"tcp/127.0.0.1:{port}\"]\niceoryx2_prefix = \"{prefix}\"\n"
+    );
+    let (rig_file, rig) = parse_rig(&text).map_err(|e| setup(format!("demo rig: {e}")))?;
+    std::fs::create_dir_all(&cfg.work_dir)
+        .map_err(|e| setup(format!("{}: {e}", cfg.work_dir.display())))?;
+    let rig_path = cfg.work_dir.join("demo-rig.toml");
+    std::fs::write(&rig_path, &text).map_err(|e| setup(format!("{}: {e}", rig_path.display())))?;
+    let client = ZenohSpec::client_of(&format!("tcp/127.0.0.1:{port}"));
+    let ctx = Context {
+        rig_path: rig_path.clone(),
+        rig_file: rig_file.clone(),
+        rig,
+        host: "demo".into(),
+        iox_prefix: prefix,
+        zenoh: client.clone(),
+    };
+    let first_cam = rig_file
+        .cameras
+        .first()
+        .map(|c| c.id.clone())
+        .ok_or_else(|| setup("the demo rig has no cameras".into()))?;
+    let launch_stop = Shutdown::new();
+    let launcher = {
+        let stop = launch_stop.clone();
+        let lc = LaunchConfig {
+            ctx,
+            program: cfg.program.clone(),
+            env: Vec::new(),
+            router: true,
+        };
+        std::thread::spawn(move || crate::run(lc, stop))
+    };
+    let result = watch(&cfg, &shutdown, &client, &rig_file.name, &first_cam);
+    launch_stop.request();
+    let restarts = match launcher.join() {
+        Ok(Ok(r)) => r,
+        Ok(Err(e)) => return Err(e),
+        Err(_) => return Err(setup("the launcher thread panicked".into())),
+    };
+    let _ = std::fs::remove_file(&rig_path);
+    let mut s = result?;
+    s.restarts = restarts;
+    Ok(s)
+}
+
+fn watch(
+    cfg: &DemoConfig,
+    shutdown: &Shutdown,
+    client: &ZenohSpec,
+    rig: &str,
+    truth_cam: &str,
+) -> Result<DemoSummary, LaunchError> {
+    let setup = |m: String| LaunchError::Setup(m);
+    // The router starts in the launcher thread: give it a moment, then connect.
+    let mut session = None;
+    let deadline = Instant::now() + Duration::from_secs(10);
+    while session.is_none() {
+        match net::open(client) {
+            Ok(s) => session = Some(s),
+            Err(e) if Instant::now() > deadline => return Err(setup(e.to_string())),
+            Err(_) => std::thread::sleep(Duration::from_millis(100)),
+        }
+        if shutdown.requested() {
+            return Ok(DemoSummary::default());
+        }
+    }
+    let session = session.ok_or_else(|| setup("no zenoh session".into()))?;
+    let (tx, rx) = mpsc::sync_channel::<Event>(1024);
+    let tx2 = tx.clone();
+    let _poses = net::subscribe(&session, &keys::poses(rig), move |_, b| {
+        if let Ok(p) = PoseFrame::from_json(b) {
+            let _ = tx.try_send(Event::Poses(p));
+        }
+    })
+    .map_err(|e| setup(e.to_string()))?;
+    let _truth = net::subscribe(&session, &keys::truth(rig, truth_cam), move |_, b| {
+        if let Ok(t) = Truth::from_json(b) {
+            let _ = tx2.try_send(Event::Truth(t));
+        }
+    })
+    .map_err(|e| setup(e.to_string()))?;
+
+    let startup_deadline = Instant::now() + Duration::from_secs(30);
+    let mut first: Option<Instant> = None;
+    let mut truths: VecDeque<Truth> = VecDeque::new();
+    let mut pending: VecDeque<PoseFrame> = VecDeque::new();
+    let mut latencies = Vec::new();
+    let mut exposure = Vec::new();
+    let mut frames = 0u64;
+    let mut complete = 0u64;
+    let mut acc: BTreeMap<u32, Acc> = BTreeMap::new();
+    let mut last_print = Instant::now();
+    let mut latest: Option<(PoseFrame, Vec<(u32, Option<u32>, f64)>)> = None;
+    let out = std::io::stdout();
+    loop {
+        if shutdown.requested() {
+            break;
+        }
+        if let Some(f) = first
+            && f.elapsed().as_secs_f64() >= cfg.seconds
+        {
+            break;
+        }
+        if first.is_none() && Instant::now() > startup_deadline {
+            return Err(setup(
+                "no poses within 30 s of starting: see the services' log lines above".into(),
+            ));
+        }
+        match rx.recv_timeout(Duration::from_millis(50)) {
+            Ok(Event::Poses(p)) => {
+                if first.is_none() {
+                    first = Some(Instant::now());
+                }
+                frames += 1;
+                latencies.push(p.published_ns.saturating_sub(p.frame_published_ns) as f64 / 1e6);
+                exposure.push(p.published_ns.saturating_sub(p.timestamp_ns) as f64 / 1e6);
+                pending.push_back(p);
+            }
+            Ok(Event::Truth(t)) => {
+                truths.push_back(t);
+                if truths.len() > 600 {
+                    truths.pop_front();
+                }
+            }
+            Err(_) => {}
+        }
+        // Score pose frames whose truth has arrived (or give up on them after 100 frames).
+        while let Some(p) = pending.front() {
+            let t = truths
+                .iter()
+                .find(|t| t.timestamp_ns.abs_diff(p.timestamp_ns) < 1_000_000);
+            match t {
+                Some(t) => {
+                    let scored = score(p, t, &mut acc);
+                    if scored.iter().all(|(_, id, e)| id.is_some() && *e < 0.05) {
+                        complete += 1;
+                    }
+                    latest = Some((p.clone(), scored));
+                    pending.pop_front();
+                }
+                None if pending.len() > 100 => {
+                    pending.pop_front();
+                }
+                None => break,
+            }
+        }
+        if cfg.live && last_print.elapsed() > Duration::from_millis(500) {
+            last_print = Instant::now();
+            if let Some((p, scored)) = &latest {
+                let mut o = out.lock();
+                let _ = writeln!(
+                    o,
+                    "-- pose frame {} ({} cameras: {}) --",
+                    p.sequence,
+                    p.cameras.len(),
+                    p.cameras.join(",")
+                );
+                let _ = writeln!(
+                    o,
+                    "  obj        x m      y m      z m   heading  method         err mm"
+                );
+                for pose in &p.poses {
+                    let err = scored
+                        .iter()
+                        .find(|(_, id, _)| *id == Some(pose.object_id))
+                        .map(|(_, _, e)| format!("{:6.1}", e * 1000.0))
+                        .unwrap_or_else(|| "     -".into());
+                    let _ = writeln!(
+                        o,
+                        "  {:>3}  {:>8.4} {:>8.4} {:>8.4}  {:>8}  {:<13} {err}",
+                        pose.object_id,
+                        pose.position_m[0],
+                        pose.position_m[1],
+                        pose.position_m[2],
+                        pose.heading_deg
+                            .map(|h| format!("{h:6.1}°"))
+                            .unwrap_or("-".into()),
+                        format!("{:?}", pose.method).to_lowercase(),
+                    );
+                }
+            }
+        }
+    }
+    let secs = first.map(|f| f.elapsed().as_secs_f64()).unwrap_or(0.0);
+    latencies.sort_by(f64::total_cmp);
+    exposure.sort_by(f64::total_cmp);
+    let (mut sq, mut n, mut hsq, mut hn) = (0.0, 0u64, 0.0, 0u64);
+    let targets: Vec<TargetStats> = acc
+        .iter()
+        .map(|(k, a)| {
+            sq += a.sq;
+            n += a.n;
+            hsq += a.hsq;
+            hn += a.hn;
+            TargetStats {
+                target: *k,
+                matched: a.n,
+                missed: a.missed,
+                position_rms_m: if a.n > 0 {
+                    (a.sq / a.n as f64).sqrt()
+                } else {
+                    f64::NAN
+                },
+                heading_rms_deg: (a.hn > 0).then(|| (a.hsq / a.hn as f64).sqrt()),
+                id_switches: a.switches,
+            }
+        })
+        .collect();
+    Ok(DemoSummary {
+        seconds: secs,
+        pose_frames: frames,
+        poses_per_s: if secs > 0.0 {
+            frames as f64 / secs
+        } else {
+            0.0
+        },
+        latency_p50_ms: percentile(&latencies, 0.5),
+        latency_p99_ms: percentile(&latencies, 0.99),
+        exposure_latency_p50_ms: percentile(&exposure, 0.5),
+        position_rms_m: if n > 0 {
+            (sq / n as f64).sqrt()
+        } else {
+            f64::NAN
+        },
+        heading_rms_deg: (hn > 0).then(|| (hsq / hn as f64).sqrt()),
+        complete_frames: complete,
+        targets,
+        restarts: 0,
+    })
+}
+
+/// Matches one pose frame to its truth; returns `(target, object id, error m)` per visible
+/// target.
+fn score(p: &PoseFrame, t: &Truth, acc: &mut BTreeMap<u32, Acc>) -> Vec<(u32, Option<u32>, f64)> {
+    let visible: Vec<&stereoscope_proto::messages::TargetTruth> =
+        t.targets.iter().filter(|x| x.visible).collect();
+    let gate = 0.05;
+    let cost: Vec<Vec<f64>> = visible
+        .iter()
+        .map(|tt| {
+            p.poses
+                .iter()
+                .map(|pose| {
+                    let d = (0..3)
+                        .map(|i| (pose.position_m[i] - tt.position_m[i]).powi(2))
+                        .sum::<f64>()
+                        .sqrt();
+                    if d < gate { d } else { f64::INFINITY }
+                })
+                .collect()
+        })
+        .collect();
+    let a = if p.poses.is_empty() {
+        vec![None; visible.len()]
+    } else {
+        assign_min_cost(&cost)
+    };
+    let mut out = Vec::new();
+    for (tt, m) in visible.iter().zip(a) {
+        let e = acc.entry(tt.target).or_default();
+        match m {
+            Some(j) => {
+                let pose = &p.poses[j];
+                let d = cost[out.len()][j];
+                e.sq += d * d;
+                e.n += 1;
+                if e.last_id.is_some_and(|l| l != pose.object_id) {
+                    e.switches += 1;
+                }
+                e.last_id = Some(pose.object_id);
+                if tt.has_axis
+                    && let Some(h) = pose.heading_deg
+                {
+                    let diff = if tt.symmetric || !pose.heading_directed {
+                        wrap_half_turn_deg(h - tt.heading_deg)
+                    } else {
+                        wrap_turn_deg(h - tt.heading_deg)
+                    };
+                    e.hsq += diff * diff;
+                    e.hn += 1;
+                }
+                out.push((tt.target, Some(pose.object_id), d));
+            }
+            None => {
+                e.missed += 1;
+                out.push((tt.target, None, f64::INFINITY));
+            }
+        }
+    }
+    out
+}

@@ -1,0 +1,274 @@
+//! The launcher: one per PC. It reads the rig file, starts the services assigned to this host
+//! (a capture and a moment worker per camera here, fusion if it is here) as separate
+//! processes, prefixes their log lines with the service name, restarts one that exits with a
+//! growing delay (0.5 s doubling to 10 s; reset once it has run 30 s), removes what dead
+//! iceoryx2 nodes left behind before each start, and on Ctrl-C/SIGTERM stops every child
+//! (SIGTERM, then SIGKILL after 3 s). It also runs this PC's Zenoh router, which its services
+//! join as clients and other PCs' routers connect to (`docs/deploy.md`).
+//!
+//! Children die with the launcher (PR_SET_PDEATHSIG), so nothing is left running if it is
+//! killed outright.
+
+pub mod demo;
+
+use std::io::{BufRead, BufReader};
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+use stereoscope_transport::context::local_endpoint;
+use stereoscope_transport::net::{ZenohMode, ZenohSpec};
+use stereoscope_transport::{Context, Shutdown, iox, net};
+
+/// One service to run.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct ServiceSpec {
+    /// "capture/cam0", "moments/cam0", "fusion".
+    pub name: String,
+    /// Arguments after the program prefix.
+    pub args: Vec<String>,
+}
+
+/// What the launcher runs and how.
+#[derive(Debug, Clone)]
+pub struct LaunchConfig {
+    pub ctx: Context,
+    /// The command that starts a service, before its own arguments (e.g. the `stereoscope`
+    /// binary and `service`).
+    pub program: Vec<String>,
+    /// Extra environment for every child.
+    pub env: Vec<(String, String)>,
+    /// Run this PC's Zenoh router (default true; off when the PC has a `zenohd`).
+    pub router: bool,
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum LaunchError {
+    #[error("launcher: {0}")]
+    Setup(String),
+}
+
+/// The services of `ctx.host`, in start order (capture before its worker, fusion last).
+pub fn services_here(ctx: &Context, service_zenoh: &ZenohSpec) -> Vec<ServiceSpec> {
+    let mut common = vec![
+        "--rig".to_string(),
+        ctx.rig_path.display().to_string(),
+        "--host".into(),
+        ctx.host.clone(),
+        "--iox-prefix".into(),
+        ctx.iox_prefix.clone(),
+    ];
+    common.extend(service_zenoh.to_args());
+    let mut out = Vec::new();
+    for cam in ctx.cameras_here() {
+        for kind in ["capture", "moments"] {
+            let mut args = vec![kind.to_string()];
+            args.extend(common.clone());
+            args.extend(["--camera".to_string(), cam.clone()]);
+            out.push(ServiceSpec {
+                name: format!("{kind}/{cam}"),
+                args,
+            });
+        }
+    }
+    if ctx.fusion_here() && ctx.rig_file.fusion.is_some() {
+        let mut args = vec!["fusion".to_string()];
+        args.extend(common);
+        out.push(ServiceSpec {
+            name: "fusion".into(),
+            args,
+        });
+    }
+    out
+}
+
+struct Running {
+    spec: ServiceSpec,
+    child: Option<Child>,
+    started: Instant,
+    backoff: Duration,
+    restart_at: Option<Instant>,
+    restarts: u32,
+}
+
+fn pipe_lines(name: String, stream: impl std::io::Read + Send + 'static, to_err: bool) {
+    std::thread::spawn(move || {
+        for line in BufReader::new(stream).lines() {
+            let Ok(line) = line else { break };
+            if to_err {
+                eprintln!("[{name}] {line}");
+            } else {
+                println!("[{name}] {line}");
+            }
+        }
+    });
+}
+
+fn spawn(cfg: &LaunchConfig, spec: &ServiceSpec) -> std::io::Result<Child> {
+    let (prog, pre) = cfg
+        .program
+        .split_first()
+        .ok_or_else(|| std::io::Error::other("empty program"))?;
+    let mut cmd = Command::new(prog);
+    cmd.args(pre)
+        .args(&spec.args)
+        .stdin(Stdio::null())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped());
+    for (k, v) in &cfg.env {
+        cmd.env(k, v);
+    }
+    // SAFETY: prctl is async-signal-safe; nothing else runs between fork and exec.
+    unsafe {
+        use std::os::unix::process::CommandExt;
+        cmd.pre_exec(|| {
+            if libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGTERM) != 0 {
+                return Err(std::io::Error::last_os_error());
+            }
+            Ok(())
+        });
+    }
+    let mut child = cmd.spawn()?;
+    if let Some(out) = child.stdout.take() {
+        pipe_lines(spec.name.clone(), out, false);
+    }
+    if let Some(err) = child.stderr.take() {
+        pipe_lines(spec.name.clone(), err, true);
+    }
+    Ok(child)
+}
+
+fn terminate(children: &mut [Running]) {
+    for r in children.iter() {
+        if let Some(c) = &r.child {
+            // SAFETY: sending a signal to a child we own.
+            unsafe {
+                libc::kill(c.id() as libc::pid_t, libc::SIGTERM);
+            }
+        }
+    }
+    let deadline = Instant::now() + Duration::from_secs(3);
+    for r in children.iter_mut() {
+        if let Some(c) = &mut r.child {
+            loop {
+                match c.try_wait() {
+                    Ok(Some(_)) => break,
+                    Ok(None) if Instant::now() < deadline => {
+                        std::thread::sleep(Duration::from_millis(10))
+                    }
+                    _ => {
+                        let _ = c.kill();
+                        let _ = c.wait();
+                        break;
+                    }
+                }
+            }
+        }
+        r.child = None;
+    }
+}
+
+/// The Zenoh spec of this host's router, and that of its services (clients of it).
+pub fn router_specs(ctx: &Context) -> Option<(ZenohSpec, ZenohSpec)> {
+    let host = ctx.rig_file.hosts.iter().find(|h| h.name == ctx.host)?;
+    let first = host.zenoh_listen.first()?;
+    Some((
+        ZenohSpec {
+            mode: ZenohMode::Router,
+            connect: host.zenoh_connect.clone(),
+            listen: host.zenoh_listen.clone(),
+        },
+        ZenohSpec::client_of(&local_endpoint(first)),
+    ))
+}
+
+/// Runs this host's services until shutdown. Returns how many restarts happened.
+pub fn run(cfg: LaunchConfig, shutdown: Shutdown) -> Result<u32, LaunchError> {
+    let ctx = &cfg.ctx;
+    // The router first, so the services' clients find it.
+    let (router, service_zenoh) = match router_specs(ctx) {
+        Some((r, s)) if cfg.router => (Some(r), s),
+        Some((_, s)) => (None, s),
+        None => (None, ctx.zenoh.clone()),
+    };
+    let _router = match &router {
+        Some(r) => {
+            let s = net::open(r).map_err(|e| LaunchError::Setup(e.to_string()))?;
+            tracing::info!("zenoh router listening on {:?}", r.listen);
+            Some(s)
+        }
+        None => None,
+    };
+    let specs = services_here(ctx, &service_zenoh);
+    if specs.is_empty() {
+        return Err(LaunchError::Setup(format!(
+            "{} assigns no service to host {:?}",
+            ctx.rig_path.display(),
+            ctx.host
+        )));
+    }
+    match iox::cleanup_dead_nodes(&ctx.iox_prefix) {
+        Ok(n) if n > 0 => tracing::info!("removed the leftovers of {n} dead iceoryx2 nodes"),
+        Ok(_) => {}
+        Err(e) => tracing::warn!("cleaning dead iceoryx2 nodes: {e}"),
+    }
+    let mut running: Vec<Running> = Vec::new();
+    for spec in specs {
+        let child = spawn(&cfg, &spec)
+            .map_err(|e| LaunchError::Setup(format!("starting {}: {e}", spec.name)))?;
+        tracing::info!("started {} (pid {})", spec.name, child.id());
+        running.push(Running {
+            spec,
+            child: Some(child),
+            started: Instant::now(),
+            backoff: Duration::from_millis(500),
+            restart_at: None,
+            restarts: 0,
+        });
+    }
+    let mut restarts = 0;
+    while !shutdown.requested() {
+        for r in running.iter_mut() {
+            if let Some(c) = &mut r.child
+                && let Ok(Some(status)) = c.try_wait()
+            {
+                r.child = None;
+                if r.started.elapsed() > Duration::from_secs(30) {
+                    r.backoff = Duration::from_millis(500);
+                }
+                tracing::warn!(
+                    "{} exited ({status}); restarting in {:.1} s",
+                    r.spec.name,
+                    r.backoff.as_secs_f64()
+                );
+                r.restart_at = Some(Instant::now() + r.backoff);
+                r.backoff = (r.backoff * 2).min(Duration::from_secs(10));
+            }
+            if r.child.is_none()
+                && let Some(at) = r.restart_at
+                && Instant::now() >= at
+            {
+                if let Err(e) = iox::cleanup_dead_nodes(&ctx.iox_prefix) {
+                    tracing::warn!("cleaning dead iceoryx2 nodes: {e}");
+                }
+                match spawn(&cfg, &r.spec) {
+                    Ok(c) => {
+                        tracing::info!("restarted {} (pid {})", r.spec.name, c.id());
+                        r.child = Some(c);
+                        r.started = Instant::now();
+                        r.restart_at = None;
+                        r.restarts += 1;
+                        restarts += 1;
+                    }
+                    Err(e) => {
+                        tracing::error!("restarting {}: {e}", r.spec.name);
+                        r.restart_at = Some(Instant::now() + r.backoff);
+                    }
+                }
+            }
+        }
+        shutdown.sleep(Duration::from_millis(50));
+    }
+    tracing::info!("stopping {} services", running.len());
+    terminate(&mut running);
+    let _ = iox::cleanup_dead_nodes(&ctx.iox_prefix);
+    Ok(restarts)
+}

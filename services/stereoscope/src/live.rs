@@ -1,0 +1,129 @@
+//! `stereoscope run` and `stereoscope demo`: the live system from the command line (the
+//! launcher and the demo are `stereoscope_launcher`'s).
+
+use anyhow::Context as _;
+use std::path::PathBuf;
+use stereoscope_launcher::demo::{DemoConfig, DemoSummary};
+use stereoscope_launcher::{LaunchConfig, run};
+use stereoscope_transport::{CommonArgs, Shutdown, init_logging};
+
+/// Runs this host's services of `rig` until Ctrl-C.
+pub fn run_rig(
+    rig: PathBuf,
+    host: Option<String>,
+    iox_prefix: Option<String>,
+    router: bool,
+    program: anyhow::Result<Vec<String>>,
+) -> anyhow::Result<usize> {
+    init_logging("launcher");
+    let shutdown = Shutdown::on_signals()?;
+    let ctx = CommonArgs {
+        rig,
+        host,
+        iox_prefix,
+        zenoh_mode: None,
+        zenoh_connect: Vec::new(),
+        zenoh_listen: Vec::new(),
+    }
+    .resolve()?;
+    let restarts = run(
+        LaunchConfig {
+            ctx,
+            program: program?,
+            env: Vec::new(),
+            router,
+        },
+        shutdown,
+    )?;
+    tracing::info!(restarts, "launcher stopped");
+    Ok(0)
+}
+
+fn ms(v: f64) -> String {
+    format!("{v:.2} ms")
+}
+
+/// The summary as text.
+pub fn summary_text(s: &DemoSummary) -> String {
+    let mut out = String::new();
+    out.push_str(&format!(
+        "Demo summary: {:.1} s, {} pose frames ({:.1}/s)\n",
+        s.seconds, s.pose_frames, s.poses_per_s
+    ));
+    out.push_str(&format!(
+        "  latency, frame published → poses published: p50 {}, p99 {}\n",
+        ms(s.latency_p50_ms),
+        ms(s.latency_p99_ms)
+    ));
+    out.push_str(&format!(
+        "  latency, exposure → poses (includes rendering the synthetic frame): p50 {}\n",
+        ms(s.exposure_latency_p50_ms)
+    ));
+    out.push_str(&format!(
+        "  position error RMS {:.2} mm; heading error RMS {}\n",
+        s.position_rms_m * 1000.0,
+        s.heading_rms_deg
+            .map(|h| format!("{h:.2}°"))
+            .unwrap_or_else(|| "-".into())
+    ));
+    out.push_str(&format!(
+        "  frames with every visible target found within 5 cm: {} of {}\n",
+        s.complete_frames, s.pose_frames
+    ));
+    out.push_str("  target  matched  missed  RMS mm  heading RMS  id switches\n");
+    for t in &s.targets {
+        out.push_str(&format!(
+            "  {:>6}  {:>7}  {:>6}  {:>6.2}  {:>11}  {:>11}\n",
+            t.target,
+            t.matched,
+            t.missed,
+            t.position_rms_m * 1000.0,
+            t.heading_rms_deg
+                .map(|h| format!("{h:.2}°"))
+                .unwrap_or_else(|| "-".into()),
+            t.id_switches
+        ));
+    }
+    if s.restarts > 0 {
+        out.push_str(&format!("  services restarted: {}\n", s.restarts));
+    }
+    out
+}
+
+/// Runs the demo and prints its summary.
+pub fn demo(
+    seconds: f64,
+    rig: Option<PathBuf>,
+    live: bool,
+    json: bool,
+    program: anyhow::Result<Vec<String>>,
+) -> anyhow::Result<usize> {
+    if !(seconds.is_finite() && seconds > 0.0) {
+        anyhow::bail!("--seconds {seconds} must be a number above zero");
+    }
+    init_logging("demo");
+    let shutdown = Shutdown::on_signals()?;
+    let rig_text = match &rig {
+        Some(p) => Some(std::fs::read_to_string(p).with_context(|| p.display().to_string())?),
+        None => None,
+    };
+    let work_dir = std::env::temp_dir().join(format!("stereoscope-demo-{}", std::process::id()));
+    let summary = stereoscope_launcher::demo::run(
+        DemoConfig {
+            seconds,
+            program: program?,
+            rig_text,
+            live,
+            work_dir: work_dir.clone(),
+        },
+        shutdown,
+    );
+    let _ = std::fs::remove_dir_all(&work_dir);
+    let summary = summary?;
+    if json {
+        println!("{}", summary.to_json());
+    } else {
+        print!("{}", summary_text(&summary));
+    }
+    Ok(0)
+}
