@@ -1,1 +1,411 @@
+//! System tests of the live chain: the real `stereoscope` binary's launcher, capture, moment
+//! worker and fusion processes, each test with its own iceoryx2 prefix and loopback Zenoh
+//! ports, every wait bounded, every child reaped (SIGTERM, then SIGKILL) when the test ends.
+#![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
 
+mod common;
+
+use common::{BIN, TempDir, repo_root, run_with_limit, stderr};
+use std::io::Read;
+use std::process::{Child, Command, Stdio};
+use std::sync::mpsc;
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+use stereoscope_proto::messages::{Message, PoseFrame};
+use stereoscope_proto::names::zenoh as keys;
+use stereoscope_transport::net::{self, ZenohSpec};
+
+/// A running `stereoscope` process whose output is collected; stopped and reaped on drop.
+struct Proc {
+    child: Child,
+    out: Arc<Mutex<String>>,
+}
+
+impl Proc {
+    fn start(args: &[&str]) -> Proc {
+        let mut child = Command::new(BIN)
+            .args(args)
+            .current_dir(repo_root())
+            .stdin(Stdio::null())
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .spawn()
+            .expect("start stereoscope");
+        let out = Arc::new(Mutex::new(String::new()));
+        for pipe in [
+            Box::new(child.stdout.take().unwrap()) as Box<dyn Read + Send>,
+            Box::new(child.stderr.take().unwrap()),
+        ] {
+            let out = out.clone();
+            std::thread::spawn(move || {
+                let mut pipe = pipe;
+                let mut buf = [0u8; 4096];
+                while let Ok(n) = pipe.read(&mut buf) {
+                    if n == 0 {
+                        break;
+                    }
+                    out.lock()
+                        .unwrap()
+                        .push_str(&String::from_utf8_lossy(&buf[..n]));
+                }
+            });
+        }
+        Proc { child, out }
+    }
+
+    fn output(&self) -> String {
+        self.out.lock().unwrap().clone()
+    }
+
+    /// Waits up to `limit` for `pred` on the output so far.
+    fn wait_for(&self, limit: Duration, what: &str, pred: impl Fn(&str) -> bool) -> String {
+        let end = Instant::now() + limit;
+        loop {
+            let o = self.output();
+            if pred(&o) {
+                return o;
+            }
+            if Instant::now() > end {
+                panic!("{what} not seen within {limit:?}; output:\n{o}");
+            }
+            std::thread::sleep(Duration::from_millis(50));
+        }
+    }
+
+    fn stop(&mut self) {
+        // SAFETY: signalling our own child.
+        unsafe {
+            libc::kill(self.child.id() as libc::pid_t, libc::SIGTERM);
+        }
+        let end = Instant::now() + Duration::from_secs(8);
+        while Instant::now() < end {
+            if let Ok(Some(_)) = self.child.try_wait() {
+                return;
+            }
+            std::thread::sleep(Duration::from_millis(20));
+        }
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+impl Drop for Proc {
+    fn drop(&mut self) {
+        self.stop();
+    }
+}
+
+/// The live tests each run a dozen processes on a 2-core machine: one at a time, so none
+/// depends on how busy the others make the machine.
+static SERIAL: Mutex<()> = Mutex::new(());
+
+fn serial() -> std::sync::MutexGuard<'static, ()> {
+    SERIAL.lock().unwrap_or_else(|e| e.into_inner())
+}
+
+fn free_port() -> u16 {
+    std::net::TcpListener::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port()
+}
+
+fn demo_rig() -> String {
+    std::fs::read_to_string(repo_root().join("deploy/rigs/demo.toml")).unwrap()
+}
+
+/// Subscribes to a rig's pose frames through the router at `endpoint`.
+struct PoseWatcher {
+    rx: mpsc::Receiver<PoseFrame>,
+    _sub: zenoh::pubsub::Subscriber<()>,
+    _session: zenoh::Session,
+}
+
+impl PoseWatcher {
+    fn new(endpoint: &str, rig: &str) -> PoseWatcher {
+        let spec = ZenohSpec::client_of(endpoint);
+        let end = Instant::now() + Duration::from_secs(20);
+        let session = loop {
+            match net::open(&spec) {
+                Ok(s) => break s,
+                Err(e) if Instant::now() > end => panic!("no router at {endpoint}: {e}"),
+                Err(_) => std::thread::sleep(Duration::from_millis(100)),
+            }
+        };
+        let (tx, rx) = mpsc::sync_channel(4096);
+        let sub = net::subscribe(&session, &keys::poses(rig), move |_, b| {
+            if let Ok(p) = PoseFrame::from_json(b) {
+                let _ = tx.try_send(p);
+            }
+        })
+        .unwrap();
+        PoseWatcher {
+            rx,
+            _sub: sub,
+            _session: session,
+        }
+    }
+
+    /// The first pose frame within `limit` for which `pred` holds.
+    fn until(&self, limit: Duration, what: &str, pred: impl Fn(&PoseFrame) -> bool) -> PoseFrame {
+        let end = Instant::now() + limit;
+        loop {
+            let left = end.saturating_duration_since(Instant::now());
+            if left.is_zero() {
+                panic!("no pose frame with {what} within {limit:?}");
+            }
+            if let Ok(p) = self.rx.recv_timeout(left.min(Duration::from_millis(200)))
+                && pred(&p)
+            {
+                return p;
+            }
+        }
+    }
+}
+
+fn both_cameras(p: &PoseFrame) -> bool {
+    p.cameras.len() == 2 && p.poses.len() >= 3
+}
+
+#[test]
+fn demo_recovers_three_moving_objects_against_ground_truth() {
+    let _serial = serial();
+    let out = run_with_limit(
+        &["demo", "--seconds", "4", "--json"],
+        Duration::from_secs(90),
+    );
+    assert!(out.status.success(), "demo failed:\n{}", stderr(&out));
+    let text = String::from_utf8_lossy(&out.stdout);
+    let line = text
+        .lines()
+        .rev()
+        .find(|l| l.starts_with('{'))
+        .expect("a JSON summary");
+    let v: serde_json::Value = serde_json::from_str(line).unwrap();
+    let frames = v["pose_frames"].as_u64().unwrap();
+    assert!(frames >= 30, "only {frames} pose frames in 4 s: {line}");
+    let targets = v["targets"].as_array().unwrap();
+    assert_eq!(targets.len(), 3, "{line}");
+    for t in targets {
+        let matched = t["matched"].as_u64().unwrap();
+        let missed = t["missed"].as_u64().unwrap();
+        assert!(
+            matched * 10 >= (matched + missed) * 7,
+            "target {} found in only {matched} of {} frames: {line}",
+            t["target"],
+            matched + missed
+        );
+        let rms = t["position_rms_m"].as_f64().unwrap();
+        assert!(rms < 0.02, "target {} RMS {rms} m: {line}", t["target"]);
+    }
+    // The two double balls have a heading; the single ball has none.
+    assert!(
+        targets[0]["heading_rms_deg"].as_f64().unwrap() < 3.0,
+        "{line}"
+    );
+    assert!(
+        targets[1]["heading_rms_deg"].as_f64().unwrap() < 3.0,
+        "{line}"
+    );
+    assert!(targets[2]["heading_rms_deg"].is_null(), "{line}");
+    assert!(v["latency_p50_ms"].as_f64().unwrap().is_finite());
+}
+
+#[test]
+fn fusion_on_another_host_gets_observations_through_zenoh_only() {
+    let _serial = serial();
+    let dir = TempDir::new("remote-fusion");
+    let (pa, pb) = (free_port(), free_port());
+    // pc1 runs the cameras and their workers, pc2 fusion; different iceoryx2 prefixes, so the
+    // only way between them is Zenoh (router to router).
+    let rig = format!(
+        "{}\n[[host]]\nname = \"pc1\"\nzenoh_listen = [\"tcp/127.0.0.1:{pa}\"]\niceoryx2_prefix = \"stsc_t{}a_\"\n\n[[host]]\nname = \"pc2\"\nzenoh_listen = [\"tcp/127.0.0.1:{pb}\"]\nzenoh_connect = [\"tcp/127.0.0.1:{pa}\"]\niceoryx2_prefix = \"stsc_t{}b_\"\n",
+        demo_rig()
+            .replace("source = {", "host = \"pc1\"\nsource = {")
+            .replace("[fusion]\n", "[fusion]\nhost = \"pc2\"\n"),
+        std::process::id(),
+        std::process::id()
+    );
+    let path = dir.file("rig.toml", &rig);
+    let _pc1 = Proc::start(&["run", &path, "--host", "pc1"]);
+    let pc2 = Proc::start(&["run", &path, "--host", "pc2"]);
+    let watcher = PoseWatcher::new(&format!("tcp/127.0.0.1:{pb}"), "demo");
+    let p = watcher.until(
+        Duration::from_secs(40),
+        "both cameras and 3 objects",
+        both_cameras,
+    );
+    assert!(p.poses.iter().all(|x| x.cameras.len() == 2), "{p:?}");
+    let log = pc2.output();
+    assert!(log.contains("started fusion"), "{log}");
+    assert!(!log.contains("started capture"), "{log}");
+    assert!(log.contains("local=0") && log.contains("remote=2"), "{log}");
+}
+
+#[test]
+fn a_killed_capture_leaves_fusion_on_one_camera_and_is_restarted() {
+    let _serial = serial();
+    let dir = TempDir::new("kill-capture");
+    let port = free_port();
+    let rig = format!(
+        "{}\n[[host]]\nname = \"pc\"\nzenoh_listen = [\"tcp/127.0.0.1:{port}\"]\niceoryx2_prefix = \"stsc_t{}k_\"\n",
+        demo_rig(),
+        std::process::id()
+    );
+    let path = dir.file("rig.toml", &rig);
+    let launcher = Proc::start(&["run", &path]);
+    let watcher = PoseWatcher::new(&format!("tcp/127.0.0.1:{port}"), "demo");
+    watcher.until(Duration::from_secs(40), "both cameras", both_cameras);
+    let log = launcher.wait_for(Duration::from_secs(5), "capture/cam1's pid", |o| {
+        o.contains("started capture/cam1 (pid ")
+    });
+    let pid: i32 = log
+        .split("started capture/cam1 (pid ")
+        .nth(1)
+        .and_then(|s| s.split(')').next())
+        .and_then(|s| s.parse().ok())
+        .expect("pid");
+    // SAFETY: killing a process this test started (through the launcher).
+    assert_eq!(unsafe { libc::kill(pid, libc::SIGKILL) }, 0);
+    let one = watcher.until(Duration::from_secs(20), "cam0 alone", |p| {
+        p.cameras == ["cam0"] && !p.poses.is_empty()
+    });
+    assert!(one.poses.iter().all(|x| x.cameras == ["cam0"]), "{one:?}");
+    launcher.wait_for(Duration::from_secs(20), "the restart", |o| {
+        o.contains("restarted capture/cam1")
+    });
+    watcher.until(Duration::from_secs(30), "both cameras again", both_cameras);
+}
+
+#[test]
+fn bad_rig_files_are_named_and_nothing_starts() {
+    let _serial = serial();
+    let dir = TempDir::new("bad-live-rig");
+    let unknown = dir.file(
+        "unknown.toml",
+        &demo_rig().replace("max_skew_ms", "max_skew"),
+    );
+    let out = run_with_limit(&["run", &unknown], Duration::from_secs(30));
+    assert!(!out.status.success());
+    let e = stderr(&out);
+    assert!(e.contains("unknown.toml") && e.contains("max_skew"), "{e}");
+    let impossible = dir.file(
+        "fps.toml",
+        &demo_rig().replacen("fps = 30.0", "fps = -30.0", 1),
+    );
+    let out = run_with_limit(
+        &["demo", "--rig", &impossible, "--seconds", "1"],
+        Duration::from_secs(30),
+    );
+    assert!(!out.status.success());
+    let e = stderr(&out);
+    assert!(
+        e.contains("camera[0].source.fps") && e.contains("-30"),
+        "{e}"
+    );
+    let out = run_with_limit(
+        &[
+            "run",
+            &dir.file("nohost.toml", &demo_rig()),
+            "--host",
+            "pc7",
+        ],
+        Duration::from_secs(30),
+    );
+    assert!(!out.status.success());
+    assert!(stderr(&out).contains("pc7"), "{}", stderr(&out));
+}
+
+#[test]
+fn bad_sources_are_named() {
+    let _serial = serial();
+    let dir = TempDir::new("bad-sources");
+    let prefix = format!("stsc_t{}s_", std::process::id());
+    let camera = |source: &str| {
+        demo_rig().replacen("source = { kind = \"synthetic\", fps = 30.0 }", source, 1)
+    };
+    // A camera device that does not exist.
+    let rig = dir.file(
+        "v4l.toml",
+        &camera("source = { kind = \"v4l\", device = \"/dev/video-missing\" }"),
+    );
+    let out = run_with_limit(
+        &[
+            "service",
+            "capture",
+            "--rig",
+            &rig,
+            "--camera",
+            "cam0",
+            "--iox-prefix",
+            &prefix,
+        ],
+        Duration::from_secs(30),
+    );
+    assert!(!out.status.success());
+    let e = stderr(&out);
+    assert!(
+        e.contains("cam0") && e.contains("/dev/video-missing"),
+        "{e}"
+    );
+    if cfg!(feature = "v4l") {
+        assert!(e.contains("No such file"), "{e}");
+    } else {
+        assert!(e.contains("--features v4l"), "{e}");
+    }
+    // A truncated Y4M: the whole frames are published, then the file and frame are named.
+    let mut y4m = b"YUV4MPEG2 W320 H240 F30:1 Cmono\n".to_vec();
+    for _ in 0..2 {
+        y4m.extend_from_slice(b"FRAME\n");
+        y4m.extend(std::iter::repeat_n(20u8, 320 * 240));
+    }
+    y4m.extend_from_slice(b"FRAME\n");
+    y4m.extend(std::iter::repeat_n(20u8, 1000));
+    let clip = dir.0.join("clip.y4m");
+    std::fs::write(&clip, &y4m).unwrap();
+    let rig = dir.file(
+        "y4m.toml",
+        &camera(&format!(
+            "source = {{ kind = \"y4m\", path = \"{}\", realtime = false }}",
+            clip.display()
+        )),
+    );
+    let out = run_with_limit(
+        &[
+            "service",
+            "capture",
+            "--rig",
+            &rig,
+            "--camera",
+            "cam0",
+            "--iox-prefix",
+            &prefix,
+        ],
+        Duration::from_secs(30),
+    );
+    assert!(!out.status.success());
+    let e = stderr(&out);
+    assert!(
+        e.contains("clip.y4m") && e.contains("frame 2") && e.contains("truncated"),
+        "{e}"
+    );
+    // A Y4M whose frame size differs from the camera's.
+    std::fs::write(&clip, b"YUV4MPEG2 W64 H48 F30:1 Cmono\n").unwrap();
+    let out = run_with_limit(
+        &[
+            "service",
+            "capture",
+            "--rig",
+            &rig,
+            "--camera",
+            "cam0",
+            "--iox-prefix",
+            &prefix,
+        ],
+        Duration::from_secs(30),
+    );
+    assert!(!out.status.success());
+    let e = stderr(&out);
+    assert!(e.contains("64×48") && e.contains("image_size"), "{e}");
+}

@@ -202,7 +202,14 @@ impl CommonArgs {
     pub fn resolve(&self) -> Result<Context, TransportError> {
         let (rig_file, rig) = load_rig(&self.rig)?;
         let host = match (&self.host, rig_file.hosts.as_slice()) {
-            (Some(h), hosts) if hosts.is_empty() || hosts.iter().any(|x| &x.name == h) => h.clone(),
+            (Some(h), []) if h == "local" => h.clone(),
+            (Some(h), []) => {
+                return Err(TransportError::Config(format!(
+                    "--host {h:?}: {} has no [[host]] sections, so every service is this PC's (omit --host)",
+                    self.rig.display()
+                )));
+            }
+            (Some(h), hosts) if hosts.iter().any(|x| &x.name == h) => h.clone(),
             (Some(h), hosts) => {
                 return Err(TransportError::Config(format!(
                     "--host {h:?} is not a [[host]] of {} (hosts: {:?})",
