@@ -116,6 +116,9 @@ fn percentile(sorted: &[f64], q: f64) -> f64 {
     sorted[i.min(sorted.len() - 1)]
 }
 
+/// `(target, matched object id, error m)`.
+type Scored = (u32, Option<u32>, f64);
+
 enum Event {
     Poses(PoseFrame),
     Truth(Truth),
@@ -231,7 +234,7 @@ fn watch(
     let mut complete = 0u64;
     let mut acc: BTreeMap<u32, Acc> = BTreeMap::new();
     let mut last_print = Instant::now();
-    let mut latest: Option<(PoseFrame, Vec<(u32, Option<u32>, f64)>)> = None;
+    let mut latest: Option<(PoseFrame, Vec<Scored>)> = None;
     let out = std::io::stdout();
     loop {
         if shutdown.requested() {
@@ -372,7 +375,7 @@ fn watch(
 
 /// Matches one pose frame to its truth; returns `(target, object id, error m)` per visible
 /// target.
-fn score(p: &PoseFrame, t: &Truth, acc: &mut BTreeMap<u32, Acc>) -> Vec<(u32, Option<u32>, f64)> {
+fn score(p: &PoseFrame, t: &Truth, acc: &mut BTreeMap<u32, Acc>) -> Vec<Scored> {
     let visible: Vec<&stereoscope_proto::messages::TargetTruth> =
         t.targets.iter().filter(|x| x.visible).collect();
     let gate = 0.05;

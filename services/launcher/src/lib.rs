@@ -272,3 +272,51 @@ pub fn run(cfg: LaunchConfig, shutdown: Shutdown) -> Result<u32, LaunchError> {
     let _ = iox::cleanup_dead_nodes(&ctx.iox_prefix);
     Ok(restarts)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use stereoscope_transport::context::parse_rig;
+
+    fn ctx(text: &str, host: &str) -> Context {
+        let (rig_file, rig) = parse_rig(text).unwrap();
+        Context {
+            rig_path: "r.toml".into(),
+            rig_file,
+            rig,
+            host: host.into(),
+            iox_prefix: "p_".into(),
+            zenoh: ZenohSpec::client_of("tcp/127.0.0.1:1"),
+        }
+    }
+
+    #[test]
+    fn each_host_runs_its_own_services() {
+        let text = demo::DEMO_RIG
+            .replacen("id = \"cam0\"", "id = \"cam0\"\nhost = \"a\"", 1)
+            .replacen("id = \"cam1\"", "id = \"cam1\"\nhost = \"b\"", 1)
+            .replacen("[fusion]\n", "[fusion]\nhost = \"b\"\n", 1)
+            + "\n[[host]]\nname = \"a\"\nzenoh_listen = [\"tcp/0.0.0.0:7447\"]\n[[host]]\nname = \"b\"\nzenoh_listen = [\"tcp/127.0.0.1:7448\"]\nzenoh_connect = [\"tcp/10.0.0.1:7447\"]\n";
+        let a = ctx(&text, "a");
+        let (router, client) = router_specs(&a).unwrap();
+        assert_eq!(router.mode, ZenohMode::Router);
+        assert_eq!(client.connect, vec!["tcp/127.0.0.1:7447".to_string()]);
+        let names: Vec<String> = services_here(&a, &client)
+            .into_iter()
+            .map(|s| s.name)
+            .collect();
+        assert_eq!(names, ["capture/cam0", "moments/cam0"]);
+        let b = ctx(&text, "b");
+        let (router, client) = router_specs(&b).unwrap();
+        assert_eq!(router.connect, vec!["tcp/10.0.0.1:7447".to_string()]);
+        let specs = services_here(&b, &client);
+        let names: Vec<&str> = specs.iter().map(|s| s.name.as_str()).collect();
+        assert_eq!(names, ["capture/cam1", "moments/cam1", "fusion"]);
+        let fusion = &specs[2].args;
+        assert_eq!(fusion[0], "fusion");
+        assert!(
+            fusion.windows(2).any(|w| w == ["--host", "b"]),
+            "{fusion:?}"
+        );
+    }
+}

@@ -163,7 +163,9 @@ impl Worker {
 
     fn refresh_threshold<P: Pixel>(&mut self, img: &GrayView<'_, P>) -> Result<u32, VisionError> {
         let due = self.threshold.is_none()
-            || self.frames % self.settings.threshold_every_frames as u64 == 0;
+            || self
+                .frames
+                .is_multiple_of(self.settings.threshold_every_frames as u64);
         if let (false, Some(t)) = (due, self.threshold) {
             return Ok(t);
         }
@@ -304,7 +306,7 @@ impl Worker {
                 // SAFETY: every bit pattern is a valid u16, and align_to only returns an
                 // aligned middle part.
                 let (pre, mid, _) = unsafe { payload.align_to::<u16>() };
-                if !pre.is_empty() || header.stride_bytes % 2 != 0 {
+                if !pre.is_empty() || !header.stride_bytes.is_multiple_of(2) {
                     return Err("a Gray16 frame must be 2-byte aligned with an even stride".into());
                 }
                 let view = GrayView::new(mid, w, h, header.stride_bytes as usize / 2)
@@ -413,4 +415,84 @@ pub fn run(cfg: MomentsConfig, shutdown: Shutdown) -> Result<u64, MomentsError> 
         health.tick(&counters);
     }
     Ok(processed)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn settings_name_the_bad_key() {
+        let ok = settings(None, 0.86, "camera[0].moments").unwrap();
+        assert_eq!(ok.threshold, ThresholdMethod::Auto);
+        assert_eq!(ok.weighting, WeightingChoice::Coverage);
+        let bad = |s: MomentsSpec| settings(Some(&s), 1.0, "camera[2].moments").unwrap_err();
+        let e = bad(MomentsSpec {
+            threshold: Some(ThresholdSpec::Method("median".into())),
+            ..Default::default()
+        });
+        assert!(
+            e.contains("camera[2].moments.threshold") && e.contains("median"),
+            "{e}"
+        );
+        let e = bad(MomentsSpec {
+            connectivity: Some(6),
+            ..Default::default()
+        });
+        assert!(e.contains("connectivity") && e.contains('6'), "{e}");
+        let e = bad(MomentsSpec {
+            max_objects: Some(0),
+            ..Default::default()
+        });
+        assert!(e.contains("max_objects"), "{e}");
+        let e = bad(MomentsSpec {
+            weighting: Some("gauss".into()),
+            ..Default::default()
+        });
+        assert!(e.contains("weighting"), "{e}");
+        let e = bad(MomentsSpec {
+            threshold_every_frames: Some(0),
+            ..Default::default()
+        });
+        assert!(e.contains("threshold_every_frames"), "{e}");
+    }
+
+    #[test]
+    fn a_frame_becomes_an_observation_with_its_blob() {
+        let s = settings(None, 1.0, "m").unwrap();
+        let mut w = Worker::new(s, "r", "c").unwrap();
+        let mut img = vec![10u8; 64 * 48];
+        for y in 20..26 {
+            for x in 30..40 {
+                img[y * 64 + x] = 210;
+            }
+        }
+        let mut h = FrameHeader::new("c", PixelFormat::Gray8, 64, 48).unwrap();
+        h.sequence = 7;
+        h.timestamp_ns = 99;
+        let o = w.process_frame(&h, &img).unwrap();
+        assert_eq!((o.sequence, o.timestamp_ns, o.blobs.len()), (7, 99, 1));
+        let b = &o.blobs[0];
+        assert_eq!(b.area_px, 60.0);
+        assert!(
+            (b.x_px - 34.5).abs() < 1e-9 && (b.y_px - 22.5).abs() < 1e-9,
+            "{b:?}"
+        );
+        assert_eq!(b.bbox_px, [30, 20, 39, 25]);
+        assert!(b.orientation_deg.abs() < 1e-9);
+        // 16-bit frames are read in place too.
+        let img16: Vec<u8> = img
+            .iter()
+            .flat_map(|&v| (v as u16 * 256).to_le_bytes())
+            .collect();
+        let mut w16 = Worker::new(settings(None, 1.0, "m").unwrap(), "r", "c").unwrap();
+        let h16 = FrameHeader::new("c", PixelFormat::Gray16, 64, 48).unwrap();
+        let o = w16.process_frame(&h16, &img16).unwrap();
+        assert_eq!(o.blobs.len(), 1);
+        assert!(
+            w.process_frame(&h, &img[..100])
+                .unwrap_err()
+                .contains("payload")
+        );
+    }
 }

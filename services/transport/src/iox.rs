@@ -196,6 +196,28 @@ impl FramePublisher {
     }
 }
 
+impl FramePublisher {
+    /// Publishes `payload` with `header` as given, without checking that they agree: what a
+    /// faulty or foreign writer could put in shared memory, for testing readers.
+    pub fn publish_unchecked(
+        &self,
+        header: FrameHeader,
+        payload: &[u8],
+    ) -> Result<usize, TransportError> {
+        let mut sample = self
+            .publisher
+            .loan_slice_uninit(payload.len())
+            .map_err(|e| err("frame loan", &self.name, e))?
+            .write_from_slice(payload);
+        *sample.user_header_mut() = header;
+        let n = sample
+            .send()
+            .map_err(|e| err("frame send", &self.name, e))?;
+        let _ = self.notifier.notify();
+        Ok(n)
+    }
+}
+
 /// Reads frames of one camera.
 pub struct FrameSubscriber {
     subscriber: Subscriber<IoxService, [u8], FrameHeader>,

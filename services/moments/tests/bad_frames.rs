@@ -1,0 +1,127 @@
+//! The worker rejects a frame whose header disagrees with its payload, says which frame and
+//! why (log and health), and goes on with the next frame.
+#![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
+
+use std::sync::mpsc;
+use std::time::{Duration, Instant};
+use stereoscope_moments::{MomentsConfig, run};
+use stereoscope_proto::frame::{FrameHeader, PixelFormat};
+use stereoscope_proto::messages::{Health, Message, Observation};
+use stereoscope_proto::names::{iox as iox_names, zenoh as keys};
+use stereoscope_transport::context::parse_rig;
+use stereoscope_transport::iox::{FramePublisher, MessageSubscriber, node};
+use stereoscope_transport::net::{self, ZenohMode, ZenohSpec};
+use stereoscope_transport::{Context, Shutdown};
+
+const RIG: &str = include_str!("../../../deploy/rigs/demo.toml");
+
+fn free_port() -> u16 {
+    std::net::TcpListener::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port()
+}
+
+#[test]
+fn inconsistent_frame_is_rejected_and_the_next_one_processed() {
+    let (rig_file, rig) = parse_rig(RIG).unwrap();
+    let prefix = format!("stsc_m{}_", std::process::id());
+    let port = free_port();
+    let endpoint = format!("tcp/127.0.0.1:{port}");
+    let ctx = Context {
+        rig_path: "demo.toml".into(),
+        rig_file,
+        rig,
+        host: "local".into(),
+        iox_prefix: prefix.clone(),
+        zenoh: ZenohSpec {
+            mode: ZenohMode::Peer,
+            connect: vec![],
+            listen: vec![endpoint.clone()],
+        },
+    };
+    let n = node(&prefix, "test-writer").unwrap();
+    let frames = FramePublisher::new(&n, &iox_names::frames("demo", "cam0"), 320 * 240).unwrap();
+    let obs = MessageSubscriber::new(&n, &iox_names::observations("demo", "cam0")).unwrap();
+    let shutdown = Shutdown::new();
+    let worker = {
+        let s = shutdown.clone();
+        std::thread::spawn(move || {
+            run(
+                MomentsConfig {
+                    ctx,
+                    camera: "cam0".into(),
+                    max_frames: None,
+                },
+                s,
+            )
+        })
+    };
+    let session = {
+        let spec = ZenohSpec {
+            mode: ZenohMode::Peer,
+            connect: vec![endpoint],
+            listen: vec![],
+        };
+        net::open(&spec).unwrap()
+    };
+    let (tx, rx) = mpsc::channel();
+    let _h = net::subscribe(
+        &session,
+        &keys::health("demo", "local", "moments/cam0"),
+        move |_, b| {
+            if let Ok(h) = Health::from_json(b) {
+                let _ = tx.send(h);
+            }
+        },
+    )
+    .unwrap();
+
+    let mut img = vec![20u8; 320 * 240];
+    for y in 100..110 {
+        for x in 150..160 {
+            img[y * 320 + x] = 200;
+        }
+    }
+    let good = FrameHeader::new("cam0", PixelFormat::Gray8, 320, 240).unwrap();
+    // The header claims 320×240 but only 239 rows came.
+    let mut bad = good;
+    bad.sequence = 1;
+    let end = Instant::now() + Duration::from_secs(20);
+    let mut seen_good = false;
+    let mut seq = 2;
+    while !seen_good {
+        assert!(Instant::now() < end, "no observation of the good frame");
+        frames.publish_unchecked(bad, &img[..320 * 239]).unwrap();
+        std::thread::sleep(Duration::from_millis(20));
+        let mut g = good;
+        g.sequence = seq;
+        seq += 1;
+        frames.publish_unchecked(g, &img).unwrap();
+        std::thread::sleep(Duration::from_millis(50));
+        while let Some(o) = obs.try_next::<Observation>().unwrap() {
+            let o = o.unwrap();
+            assert_ne!(o.sequence, 1, "the inconsistent frame was processed");
+            if o.blobs.len() == 1 {
+                assert!((o.blobs[0].x_px - 154.5).abs() < 0.01, "{o:?}");
+                seen_good = true;
+            }
+        }
+    }
+    let health = loop {
+        let h = rx
+            .recv_timeout(Duration::from_secs(5))
+            .expect("a health report");
+        if h.rejected > 0 {
+            break h;
+        }
+    };
+    let e = health.last_error.unwrap();
+    assert!(
+        e.contains("frame 1 of cam0") && e.contains("payload has 76480"),
+        "{e}"
+    );
+    shutdown.request();
+    assert!(worker.join().unwrap().unwrap() >= 1);
+}
