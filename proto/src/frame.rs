@@ -209,6 +209,19 @@ mod tests {
     use super::*;
 
     #[test]
+    fn layout_is_the_documented_one() {
+        use std::mem::{offset_of, size_of};
+        assert_eq!(size_of::<FrameHeader>(), 80);
+        assert_eq!(offset_of!(FrameHeader, pixel_format), 4);
+        assert_eq!(offset_of!(FrameHeader, sequence), 8);
+        assert_eq!(offset_of!(FrameHeader, timestamp_ns), 16);
+        assert_eq!(offset_of!(FrameHeader, published_ns), 24);
+        assert_eq!(offset_of!(FrameHeader, width), 32);
+        assert_eq!(offset_of!(FrameHeader, stride_bytes), 40);
+        assert_eq!(offset_of!(FrameHeader, camera_id), 44);
+    }
+
+    #[test]
     fn header_validates_against_payload() {
         let h = FrameHeader::new("cam0", PixelFormat::Gray8, 320, 240).unwrap();
         assert_eq!(h.validate(320 * 240), Ok(PixelFormat::Gray8));

@@ -64,9 +64,11 @@ impl Shutdown {
 /// line tagged with the service name.
 pub fn init_logging(service: &str) {
     use tracing_subscriber::EnvFilter;
-    let filter = EnvFilter::try_from_default_env().unwrap_or_else(|_| {
-        EnvFilter::new("info,zenoh=warn,zenoh_transport=warn,zenoh_link_tcp=warn")
-    });
+    // Our crates at info; the libraries (Zenoh's many crates, iceoryx2) only when they fail.
+    let ours = "stereoscope=info,stereoscope_capture=info,stereoscope_moments=info,\
+                stereoscope_fusion=info,stereoscope_launcher=info,stereoscope_transport=info";
+    let filter = EnvFilter::try_from_default_env()
+        .unwrap_or_else(|_| EnvFilter::new(format!("error,{ours}")));
     let _ = tracing_subscriber::fmt()
         .with_env_filter(filter)
         .with_writer(std::io::stderr)

@@ -10,14 +10,10 @@ set -euo pipefail
 here=$(cd "$(dirname "$0")" && pwd)
 root=$(cd "$here/../../.." && pwd)
 out="$root/target/bench-opencv"
-venv="$root/target/opencv-venv"
 quick=()
 [ "${1:-}" = "--quick" ] && quick=(--quick)
 mkdir -p "$out/frames"
-if [ ! -x "$venv/bin/python" ] || ! "$venv/bin/python" -c "import cv2, numpy" 2>/dev/null; then
-  python3 -m venv "$venv"
-  "$venv/bin/pip" install --quiet opencv-python-headless numpy
-fi
+. "$here/opencv-venv.sh"
 cd "$root"
 cargo bench -p stereoscope-vision --bench moments -- "${quick[@]}" --frames-dir "$out/frames" --json "$out/rust.json"
 "$venv/bin/python" "$here/opencv_bench.py" "$out/frames" "$out/opencv.json" "${quick[@]}"

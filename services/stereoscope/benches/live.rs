@@ -1,0 +1,235 @@
+//! The live system's benchmark (a bench binary, not a timed test): frame transport latency
+//! through iceoryx2 shared memory against sending the same frames over Zenoh (TCP loopback),
+//! the frame rate one moment worker sustains, and capture→pose latency of the whole chain
+//! (two 640×480 cameras at 120 fps, 4 objects) run as processes by the launcher.
+//!
+//!   cargo bench -p stereoscope --bench live -- [--quick] [--json OUT] [--frames-dir DIR]
+//!
+//! `services/stereoscope/benches/compare-live.sh` runs it with OpenCV timed on the worker's
+//! frames in the same run; results in docs/performance.md.
+#![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
+
+use std::sync::mpsc;
+use std::time::{Duration, Instant};
+use stereoscope_capture::source::FrameSource;
+use stereoscope_capture::synthetic::SyntheticSource;
+use stereoscope_launcher::demo::{DEMO_RIG, DemoConfig};
+use stereoscope_moments::{Worker, settings};
+use stereoscope_proto::frame::{FrameHeader, PixelFormat};
+use stereoscope_proto::messages::now_ns;
+use stereoscope_transport::context::parse_rig;
+use stereoscope_transport::iox::{FramePublisher, FrameSubscriber, node};
+use stereoscope_transport::net::{self, ZenohMode, ZenohSpec};
+use stereoscope_transport::{Shutdown, init_logging};
+
+fn pct(v: &mut [f64], q: f64) -> f64 {
+    v.sort_by(f64::total_cmp);
+    v[((v.len() - 1) as f64 * q).round() as usize]
+}
+
+/// Latency (µs) of frames of `w`×`h` through iceoryx2: publisher thread → subscriber thread.
+fn iox_latency(w: u32, h: u32, frames: usize) -> (f64, f64) {
+    let prefix = format!("stsc_b{}_", std::process::id());
+    let service = format!("stereoscope/bench/frames/{w}x{h}");
+    let n = node(&prefix, "bench-sub").unwrap();
+    let sub = FrameSubscriber::new(&n, &service).unwrap();
+    let len = (w * h) as usize;
+    let (ready_tx, ready_rx) = mpsc::channel();
+    let pub_service = service.clone();
+    let publisher = std::thread::spawn(move || {
+        let n = node(&prefix, "bench-pub").unwrap();
+        let p = FramePublisher::new(&n, &pub_service, len).unwrap();
+        ready_tx.send(()).unwrap();
+        let header = FrameHeader::new("bench", PixelFormat::Gray8, w, h).unwrap();
+        for i in 0..frames as u64 + 20 {
+            let mut hd = header;
+            hd.sequence = i;
+            // The camera writes its pixels (here one byte per row) before publication.
+            p.publish::<()>(hd, |buf| {
+                for row in buf.chunks_exact_mut(w as usize) {
+                    row[0] = i as u8;
+                }
+                Ok(None)
+            })
+            .unwrap()
+            .unwrap();
+            std::thread::sleep(Duration::from_millis(4));
+        }
+    });
+    ready_rx.recv().unwrap();
+    let mut lat = Vec::new();
+    let end = Instant::now() + Duration::from_secs(60);
+    while lat.len() < frames && Instant::now() < end {
+        if let Some((s, _)) = sub.next_newest(Duration::from_millis(100)).unwrap() {
+            let t = now_ns();
+            let hd = *s.user_header();
+            assert_eq!(s.payload().len(), len);
+            if hd.sequence >= 20 {
+                lat.push(t.saturating_sub(hd.published_ns) as f64 / 1e3);
+            }
+        }
+    }
+    publisher.join().unwrap();
+    (pct(&mut lat, 0.5), pct(&mut lat, 0.99))
+}
+
+/// The same frames put on Zenoh (peer to peer over TCP loopback): latency in µs.
+fn zenoh_latency(w: u32, h: u32, frames: usize) -> (f64, f64) {
+    let port = std::net::TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap().port();
+    let ep = format!("tcp/127.0.0.1:{port}");
+    let a = net::open(&ZenohSpec { mode: ZenohMode::Peer, connect: vec![], listen: vec![ep.clone()] }).unwrap();
+    let b = net::open(&ZenohSpec { mode: ZenohMode::Peer, connect: vec![ep], listen: vec![] }).unwrap();
+    let (tx, rx) = mpsc::channel();
+    let _s = net::subscribe(&b, "bench/frames", move |_, bytes| {
+        let t = now_ns();
+        let sent = u64::from_le_bytes(bytes[..8].try_into().unwrap());
+        let _ = tx.send((t.saturating_sub(sent) as f64 / 1e3, bytes.len()));
+    })
+    .unwrap();
+    let p = net::JsonPublisher::new(&a, "bench/frames").unwrap();
+    std::thread::sleep(Duration::from_millis(500));
+    let len = (w * h) as usize;
+    let mut lat = Vec::new();
+    for i in 0..frames + 20 {
+        // A copy of the frame, as any message-passing transport makes.
+        let mut buf = vec![0u8; len];
+        buf[..8].copy_from_slice(&now_ns().to_le_bytes());
+        p.put_bytes(buf).unwrap();
+        if let Ok((l, n)) = rx.recv_timeout(Duration::from_secs(2)) {
+            assert_eq!(n, len);
+            if i >= 20 {
+                lat.push(l);
+            }
+        }
+        std::thread::sleep(Duration::from_millis(4));
+    }
+    (pct(&mut lat, 0.5), pct(&mut lat, 0.99))
+}
+
+/// The demo rig at `w`×`h` (pixel pitch scaled from 320×240), `fps`, optionally looped frames
+/// and a fourth target.
+fn rig_at(w: u32, h: u32, fps: f64, loop_frames: Option<u32>, four: bool) -> String {
+    let s = 320.0 / w as f64;
+    let mut t = DEMO_RIG
+        .replace("image_size = [320, 240]", &format!("image_size = [{w}, {h}]"))
+        .replace(
+            "pixel_pitch_um = [21.5, 25.0]",
+            &format!("pixel_pitch_um = [{}, {}]", 21.5 * s, 25.0 * s),
+        );
+    let src = match loop_frames {
+        Some(n) => format!("source = {{ kind = \"synthetic\", fps = {fps}, loop_frames = {n} }}"),
+        None => format!("source = {{ kind = \"synthetic\", fps = {fps} }}"),
+    };
+    t = t.replace("source = { kind = \"synthetic\", fps = 30.0 }", &src);
+    // Depth models scale with the pixel area.
+    t = t.replace("a = 3.6528e6", &format!("a = {:e}", 3.6528e6 / (s * s)));
+    if four {
+        t.push_str("\n[[synthetic.target]]\nshape = \"double_sphere\"\nradius = 2.0\nmotion = { kind = \"spin\", position = [-20.0, 22.0, 60.0], deg_per_s = 90.0 }\n");
+    }
+    t
+}
+
+/// Frames per second one moment worker sustains on `frames` pre-rendered frames.
+fn worker_fps(w: u32, h: u32, frames_dir: Option<&std::path::Path>, quick: bool) -> (f64, usize) {
+    let text = rig_at(w, h, 120.0, None, true);
+    let (file, rig) = parse_rig(&text).unwrap();
+    let mut src = SyntheticSource::new(&file, rig.cameras[0].camera, 0, 120.0, None, None).unwrap();
+    let n = 60;
+    let mut frames = Vec::new();
+    for k in 0..n {
+        let mut buf = vec![0u8; (w * h) as usize];
+        src.read(k, 1000.0 + k as f64 / 120.0, &mut buf).unwrap();
+        frames.push(buf);
+    }
+    if let Some(dir) = frames_dir {
+        std::fs::create_dir_all(dir).unwrap();
+        let img = stereoscope_vision::GrayImage::from_vec(frames[30].clone(), w, h).unwrap();
+        std::fs::write(
+            dir.join(format!("worker-{w}x{h}.pgm")),
+            stereoscope_imageio::encode_pgm_u8(&img),
+        )
+        .unwrap();
+    }
+    let s = settings(file.cameras[0].moments.as_ref(), rig.cameras[0].camera.intrinsics.par(), "m").unwrap();
+    let mut worker = Worker::new(s, "bench", "cam0").unwrap();
+    let header = FrameHeader::new("cam0", PixelFormat::Gray8, w, h).unwrap();
+    // Warm up: find the objects.
+    for f in &frames {
+        worker.process_frame(&header, f).unwrap();
+    }
+    let found = worker.tracked();
+    let rounds = if quick { 20 } else { 100 };
+    let t = Instant::now();
+    for _ in 0..rounds {
+        for f in &frames {
+            std::hint::black_box(worker.process_frame(&header, f).unwrap());
+        }
+    }
+    ((rounds * frames.len()) as f64 / t.elapsed().as_secs_f64(), found)
+}
+
+fn main() {
+    let args: Vec<String> = std::env::args().collect();
+    let quick = args.iter().any(|a| a == "--quick");
+    let get = |k: &str| args.iter().position(|a| a == k).and_then(|i| args.get(i + 1)).cloned();
+    let json_out = get("--json");
+    let frames_dir = get("--frames-dir").map(std::path::PathBuf::from);
+    if args.iter().any(|a| a == "--list") {
+        return;
+    }
+    init_logging("bench");
+    let mut json = Vec::new();
+    println!("## Frame transport latency (publisher thread → subscriber thread), µs");
+    println!("| frame | iceoryx2 p50 | iceoryx2 p99 | Zenoh TCP copy p50 | Zenoh p99 | Zenoh / iceoryx2 (p50) |");
+    println!("|---|---|---|---|---|---|");
+    let n = if quick { 100 } else { 500 };
+    for (w, h) in [(320, 240), (640, 480), (1280, 720), (1920, 1080), (3840, 2160)] {
+        let (i50, i99) = iox_latency(w, h, n);
+        let (z50, z99) = zenoh_latency(w, h, n);
+        println!("| {w}×{h} | {i50:.1} | {i99:.1} | {z50:.1} | {z99:.1} | {:.1}× |", z50 / i50);
+        json.push(format!(
+            "{{\"section\":\"transport\",\"frame\":\"{w}x{h}\",\"iox_p50_us\":{i50:.2},\"iox_p99_us\":{i99:.2},\"zenoh_p50_us\":{z50:.2},\"zenoh_p99_us\":{z99:.2}}}"
+        ));
+    }
+    println!("\n## One moment worker, frames per second (4 objects, windowed tracking, one thread)");
+    println!("| frame | frames/s | ms per frame | objects tracked |");
+    println!("|---|---|---|---|");
+    for (w, h) in [(640, 480), (1920, 1080)] {
+        let (fps, found) = worker_fps(w, h, frames_dir.as_deref(), quick);
+        println!("| {w}×{h} | {fps:.0} | {:.4} | {found} |", 1e3 / fps);
+        json.push(format!(
+            "{{\"section\":\"worker\",\"frame\":\"{w}x{h}\",\"fps\":{fps:.1},\"ms_per_frame\":{:.5},\"tracked\":{found}}}",
+            1e3 / fps
+        ));
+    }
+    println!("\n## Capture → pose, two 640×480 cameras at 120 fps, 4 objects, as processes");
+    let seconds = if quick { 3.0 } else { 10.0 };
+    let work_dir = std::env::temp_dir().join(format!("stereoscope-bench-{}", std::process::id()));
+    let s = stereoscope_launcher::demo::run(
+        DemoConfig {
+            seconds,
+            program: vec![env!("CARGO_BIN_EXE_stereoscope").to_string(), "service".into()],
+            rig_text: Some(rig_at(640, 480, 120.0, Some(240), true)),
+            live: false,
+            work_dir: work_dir.clone(),
+        },
+        Shutdown::new(),
+    )
+    .unwrap();
+    let _ = std::fs::remove_dir_all(&work_dir);
+    println!("| pose frames/s | latency p50 ms | latency p99 ms | position RMS mm | frames complete |");
+    println!("|---|---|---|---|---|");
+    println!(
+        "| {:.1} | {:.3} | {:.3} | {:.2} | {} of {} |",
+        s.poses_per_s,
+        s.latency_p50_ms,
+        s.latency_p99_ms,
+        s.position_rms_m * 1e3,
+        s.complete_frames,
+        s.pose_frames
+    );
+    json.push(format!("{{\"section\":\"pipeline\",\"summary\":{}}}", s.to_json()));
+    if let Some(p) = json_out {
+        std::fs::write(&p, format!("[{}]\n", json.join(",\n"))).unwrap();
+    }
+}
