@@ -104,11 +104,7 @@ fn serial() -> std::sync::MutexGuard<'static, ()> {
 }
 
 fn free_port() -> u16 {
-    std::net::TcpListener::bind("127.0.0.1:0")
-        .unwrap()
-        .local_addr()
-        .unwrap()
-        .port()
+    net::free_loopback_port().unwrap()
 }
 
 fn demo_rig() -> String {
@@ -322,6 +318,24 @@ fn bad_sources_are_named() {
     let _serial = serial();
     let dir = TempDir::new("bad-sources");
     let prefix = format!("stsc_t{}s_", std::process::id());
+    // Runs capture of cam0 alone; it must fail; returns its standard error.
+    let capture_fails = |rig: &str| {
+        let out = run_with_limit(
+            &[
+                "service",
+                "capture",
+                "--rig",
+                rig,
+                "--camera",
+                "cam0",
+                "--iox-prefix",
+                &prefix,
+            ],
+            Duration::from_secs(30),
+        );
+        assert!(!out.status.success(), "capture ran with {rig}");
+        stderr(&out)
+    };
     let camera = |source: &str| {
         demo_rig().replacen("source = { kind = \"synthetic\", fps = 30.0 }", source, 1)
     };
@@ -330,21 +344,7 @@ fn bad_sources_are_named() {
         "v4l.toml",
         &camera("source = { kind = \"v4l\", device = \"/dev/video-missing\" }"),
     );
-    let out = run_with_limit(
-        &[
-            "service",
-            "capture",
-            "--rig",
-            &rig,
-            "--camera",
-            "cam0",
-            "--iox-prefix",
-            &prefix,
-        ],
-        Duration::from_secs(30),
-    );
-    assert!(!out.status.success());
-    let e = stderr(&out);
+    let e = capture_fails(&rig);
     assert!(
         e.contains("cam0") && e.contains("/dev/video-missing"),
         "{e}"
@@ -371,41 +371,13 @@ fn bad_sources_are_named() {
             clip.display()
         )),
     );
-    let out = run_with_limit(
-        &[
-            "service",
-            "capture",
-            "--rig",
-            &rig,
-            "--camera",
-            "cam0",
-            "--iox-prefix",
-            &prefix,
-        ],
-        Duration::from_secs(30),
-    );
-    assert!(!out.status.success());
-    let e = stderr(&out);
+    let e = capture_fails(&rig);
     assert!(
         e.contains("clip.y4m") && e.contains("frame 2") && e.contains("truncated"),
         "{e}"
     );
     // A Y4M whose frame size differs from the camera's.
     std::fs::write(&clip, b"YUV4MPEG2 W64 H48 F30:1 Cmono\n").unwrap();
-    let out = run_with_limit(
-        &[
-            "service",
-            "capture",
-            "--rig",
-            &rig,
-            "--camera",
-            "cam0",
-            "--iox-prefix",
-            &prefix,
-        ],
-        Duration::from_secs(30),
-    );
-    assert!(!out.status.success());
-    let e = stderr(&out);
+    let e = capture_fails(&rig);
     assert!(e.contains("64×48") && e.contains("image_size"), "{e}");
 }

@@ -9,6 +9,7 @@
 //! fixed grid (frame k at start + k / fps; a frame that is late is published at once and the
 //! grid is kept, frames are never bunched), the others as fast as the reader takes them.
 
+pub mod cli;
 pub mod images;
 pub mod source;
 pub mod synthetic;

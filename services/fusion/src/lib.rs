@@ -10,6 +10,7 @@
 //! do not decode, or come from a camera the rig does not have, are counted, named in the log
 //! and in health, and ignored.
 
+pub mod cli;
 pub mod fuser;
 pub mod pairing;
 

@@ -16,14 +16,6 @@ use stereoscope_transport::{Context, Shutdown};
 
 const RIG: &str = include_str!("../../../deploy/rigs/demo.toml");
 
-fn free_port() -> u16 {
-    std::net::TcpListener::bind("127.0.0.1:0")
-        .unwrap()
-        .local_addr()
-        .unwrap()
-        .port()
-}
-
 fn observation(camera: &str, pixel: (f64, f64), ts: u64) -> Observation {
     Observation {
         schema: SCHEMA_VERSION,
@@ -63,7 +55,7 @@ fn observation(camera: &str, pixel: (f64, f64), ts: u64) -> Observation {
 fn undecodable_payload_is_named_and_fusion_goes_on() {
     let text = RIG.replace("[fusion]\n", "[fusion]\nobservations = \"zenoh\"\n");
     let (rig_file, rig) = parse_rig(&text).unwrap();
-    let port = free_port();
+    let port = net::free_loopback_port().unwrap();
     let endpoint = format!("tcp/127.0.0.1:{port}");
     let ctx = Context {
         rig_path: "demo.toml".into(),

@@ -100,14 +100,6 @@ impl DemoSummary {
     }
 }
 
-fn free_port() -> Result<u16, LaunchError> {
-    let l = std::net::TcpListener::bind("127.0.0.1:0")
-        .map_err(|e| LaunchError::Setup(format!("finding a free port: {e}")))?;
-    l.local_addr()
-        .map(|a| a.port())
-        .map_err(|e| LaunchError::Setup(format!("finding a free port: {e}")))
-}
-
 fn percentile(sorted: &[f64], q: f64) -> f64 {
     if sorted.is_empty() {
         return f64::NAN;
@@ -138,7 +130,8 @@ struct Acc {
 /// Runs the demo until `seconds` of poses were measured or shutdown.
 pub fn run(cfg: DemoConfig, shutdown: Shutdown) -> Result<DemoSummary, LaunchError> {
     let setup = |m: String| LaunchError::Setup(m);
-    let port = free_port()?;
+    let port = net::free_loopback_port()
+        .map_err(|e| LaunchError::Setup(format!("finding a free port: {e}")))?;
     let prefix = format!("stsc_demo{}_", std::process::id());
     let base = cfg.rig_text.clone().unwrap_or_else(|| DEMO_RIG.to_string());
     let text = format!(

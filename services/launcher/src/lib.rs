@@ -48,15 +48,7 @@ pub enum LaunchError {
 
 /// The services of `ctx.host`, in start order (capture before its worker, fusion last).
 pub fn services_here(ctx: &Context, service_zenoh: &ZenohSpec) -> Vec<ServiceSpec> {
-    let mut common = vec![
-        "--rig".to_string(),
-        ctx.rig_path.display().to_string(),
-        "--host".into(),
-        ctx.host.clone(),
-        "--iox-prefix".into(),
-        ctx.iox_prefix.clone(),
-    ];
-    common.extend(service_zenoh.to_args());
+    let common = ctx.to_args(service_zenoh);
     let mut out = Vec::new();
     for cam in ctx.cameras_here() {
         for kind in ["capture", "moments"] {

@@ -13,6 +13,8 @@
 //! their own (`window_threshold`, the thesis's `region.thres`). Pixel conventions:
 //! `docs/conventions.md`.
 
+pub mod cli;
+
 use std::time::Duration;
 use stereoscope_proto::frame::{FrameHeader, PixelFormat};
 use stereoscope_proto::messages::{

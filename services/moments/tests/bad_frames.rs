@@ -15,19 +15,11 @@ use stereoscope_transport::{Context, Shutdown};
 
 const RIG: &str = include_str!("../../../deploy/rigs/demo.toml");
 
-fn free_port() -> u16 {
-    std::net::TcpListener::bind("127.0.0.1:0")
-        .unwrap()
-        .local_addr()
-        .unwrap()
-        .port()
-}
-
 #[test]
 fn inconsistent_frame_is_rejected_and_the_next_one_processed() {
     let (rig_file, rig) = parse_rig(RIG).unwrap();
     let prefix = format!("stsc_m{}_", std::process::id());
-    let port = free_port();
+    let port = net::free_loopback_port().unwrap();
     let endpoint = format!("tcp/127.0.0.1:{port}");
     let ctx = Context {
         rig_path: "demo.toml".into(),

@@ -75,10 +75,20 @@ fn iox_latency(w: u32, h: u32, frames: usize) -> (f64, f64) {
 
 /// The same frames put on Zenoh (peer to peer over TCP loopback): latency in µs.
 fn zenoh_latency(w: u32, h: u32, frames: usize) -> (f64, f64) {
-    let port = std::net::TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap().port();
+    let port = net::free_loopback_port().unwrap();
     let ep = format!("tcp/127.0.0.1:{port}");
-    let a = net::open(&ZenohSpec { mode: ZenohMode::Peer, connect: vec![], listen: vec![ep.clone()] }).unwrap();
-    let b = net::open(&ZenohSpec { mode: ZenohMode::Peer, connect: vec![ep], listen: vec![] }).unwrap();
+    let a = net::open(&ZenohSpec {
+        mode: ZenohMode::Peer,
+        connect: vec![],
+        listen: vec![ep.clone()],
+    })
+    .unwrap();
+    let b = net::open(&ZenohSpec {
+        mode: ZenohMode::Peer,
+        connect: vec![ep],
+        listen: vec![],
+    })
+    .unwrap();
     let (tx, rx) = mpsc::channel();
     let _s = net::subscribe(&b, "bench/frames", move |_, bytes| {
         let t = now_ns();
@@ -111,7 +121,10 @@ fn zenoh_latency(w: u32, h: u32, frames: usize) -> (f64, f64) {
 fn rig_at(w: u32, h: u32, fps: f64, loop_frames: Option<u32>, four: bool) -> String {
     let s = 320.0 / w as f64;
     let mut t = DEMO_RIG
-        .replace("image_size = [320, 240]", &format!("image_size = [{w}, {h}]"))
+        .replace(
+            "image_size = [320, 240]",
+            &format!("image_size = [{w}, {h}]"),
+        )
         .replace(
             "pixel_pitch_um = [21.5, 25.0]",
             &format!("pixel_pitch_um = [{}, {}]", 21.5 * s, 25.0 * s),
@@ -150,7 +163,12 @@ fn worker_fps(w: u32, h: u32, frames_dir: Option<&std::path::Path>, quick: bool)
         )
         .unwrap();
     }
-    let s = settings(file.cameras[0].moments.as_ref(), rig.cameras[0].camera.intrinsics.par(), "m").unwrap();
+    let s = settings(
+        file.cameras[0].moments.as_ref(),
+        rig.cameras[0].camera.intrinsics.par(),
+        "m",
+    )
+    .unwrap();
     let mut worker = Worker::new(s, "bench", "cam0").unwrap();
     let header = FrameHeader::new("cam0", PixelFormat::Gray8, w, h).unwrap();
     // Warm up: find the objects.
@@ -165,13 +183,21 @@ fn worker_fps(w: u32, h: u32, frames_dir: Option<&std::path::Path>, quick: bool)
             std::hint::black_box(worker.process_frame(&header, f).unwrap());
         }
     }
-    ((rounds * frames.len()) as f64 / t.elapsed().as_secs_f64(), found)
+    (
+        (rounds * frames.len()) as f64 / t.elapsed().as_secs_f64(),
+        found,
+    )
 }
 
 fn main() {
     let args: Vec<String> = std::env::args().collect();
     let quick = args.iter().any(|a| a == "--quick");
-    let get = |k: &str| args.iter().position(|a| a == k).and_then(|i| args.get(i + 1)).cloned();
+    let get = |k: &str| {
+        args.iter()
+            .position(|a| a == k)
+            .and_then(|i| args.get(i + 1))
+            .cloned()
+    };
     let json_out = get("--json");
     let frames_dir = get("--frames-dir").map(std::path::PathBuf::from);
     if args.iter().any(|a| a == "--list") {
@@ -180,18 +206,31 @@ fn main() {
     init_logging("bench");
     let mut json = Vec::new();
     println!("## Frame transport latency (publisher thread → subscriber thread), µs");
-    println!("| frame | iceoryx2 p50 | iceoryx2 p99 | Zenoh TCP copy p50 | Zenoh p99 | Zenoh / iceoryx2 (p50) |");
+    println!(
+        "| frame | iceoryx2 p50 | iceoryx2 p99 | Zenoh TCP copy p50 | Zenoh p99 | Zenoh / iceoryx2 (p50) |"
+    );
     println!("|---|---|---|---|---|---|");
     let n = if quick { 100 } else { 500 };
-    for (w, h) in [(320, 240), (640, 480), (1280, 720), (1920, 1080), (3840, 2160)] {
+    for (w, h) in [
+        (320, 240),
+        (640, 480),
+        (1280, 720),
+        (1920, 1080),
+        (3840, 2160),
+    ] {
         let (i50, i99) = iox_latency(w, h, n);
         let (z50, z99) = zenoh_latency(w, h, n);
-        println!("| {w}×{h} | {i50:.1} | {i99:.1} | {z50:.1} | {z99:.1} | {:.1}× |", z50 / i50);
+        println!(
+            "| {w}×{h} | {i50:.1} | {i99:.1} | {z50:.1} | {z99:.1} | {:.1}× |",
+            z50 / i50
+        );
         json.push(format!(
             "{{\"section\":\"transport\",\"frame\":\"{w}x{h}\",\"iox_p50_us\":{i50:.2},\"iox_p99_us\":{i99:.2},\"zenoh_p50_us\":{z50:.2},\"zenoh_p99_us\":{z99:.2}}}"
         ));
     }
-    println!("\n## One moment worker, frames per second (4 objects, windowed tracking, one thread)");
+    println!(
+        "\n## One moment worker, frames per second (4 objects, windowed tracking, one thread)"
+    );
     println!("| frame | frames/s | ms per frame | objects tracked |");
     println!("|---|---|---|---|");
     for (w, h) in [(640, 480), (1920, 1080)] {
@@ -208,7 +247,10 @@ fn main() {
     let s = stereoscope_launcher::demo::run(
         DemoConfig {
             seconds,
-            program: vec![env!("CARGO_BIN_EXE_stereoscope").to_string(), "service".into()],
+            program: vec![
+                env!("CARGO_BIN_EXE_stereoscope").to_string(),
+                "service".into(),
+            ],
             rig_text: Some(rig_at(640, 480, 120.0, Some(240), true)),
             live: false,
             work_dir: work_dir.clone(),
@@ -217,7 +259,9 @@ fn main() {
     )
     .unwrap();
     let _ = std::fs::remove_dir_all(&work_dir);
-    println!("| pose frames/s | latency p50 ms | latency p99 ms | position RMS mm | frames complete |");
+    println!(
+        "| pose frames/s | latency p50 ms | latency p99 ms | position RMS mm | frames complete |"
+    );
     println!("|---|---|---|---|---|");
     println!(
         "| {:.1} | {:.3} | {:.3} | {:.2} | {} of {} |",
@@ -228,7 +272,10 @@ fn main() {
         s.complete_frames,
         s.pose_frames
     );
-    json.push(format!("{{\"section\":\"pipeline\",\"summary\":{}}}", s.to_json()));
+    json.push(format!(
+        "{{\"section\":\"pipeline\",\"summary\":{}}}",
+        s.to_json()
+    ));
     if let Some(p) = json_out {
         std::fs::write(&p, format!("[{}]\n", json.join(",\n"))).unwrap();
     }

@@ -8,7 +8,6 @@ use stereoscope::calibrate::{self, CalibrateOptions, Source};
 use stereoscope::fitdepth::{self, FitDepthOptions};
 use stereoscope::triangulate::{self, TriangulateOptions};
 use stereoscope_geometry::calibrate::DistortionModel;
-use stereoscope_transport::{CommonArgs, Shutdown, init_logging};
 use stereoscope_vision::{Connectivity, ThresholdMethod};
 
 #[derive(Parser, Debug)]
@@ -155,79 +154,17 @@ enum Command {
 
 #[derive(Subcommand, Debug)]
 enum ServiceCommand {
-    Capture {
-        #[command(flatten)]
-        common: CommonArgs,
-        #[arg(long)]
-        camera: String,
-        #[arg(long)]
-        max_frames: Option<u64>,
-        #[arg(long)]
-        as_fast_as_possible: bool,
-    },
-    Moments {
-        #[command(flatten)]
-        common: CommonArgs,
-        #[arg(long)]
-        camera: String,
-        #[arg(long)]
-        max_frames: Option<u64>,
-    },
-    Fusion {
-        #[command(flatten)]
-        common: CommonArgs,
-        #[arg(long)]
-        max_sets: Option<u64>,
-    },
+    Capture(stereoscope_capture::cli::Args),
+    Moments(stereoscope_moments::cli::Args),
+    Fusion(stereoscope_fusion::cli::Args),
 }
 
 fn service(cmd: ServiceCommand) -> anyhow::Result<()> {
-    let shutdown = Shutdown::on_signals()?;
     match cmd {
-        ServiceCommand::Capture {
-            common,
-            camera,
-            max_frames,
-            as_fast_as_possible,
-        } => {
-            init_logging("capture");
-            stereoscope_capture::run(
-                stereoscope_capture::CaptureConfig {
-                    ctx: common.resolve()?,
-                    camera,
-                    max_frames,
-                    realtime: as_fast_as_possible.then_some(false),
-                },
-                shutdown,
-            )?;
-        }
-        ServiceCommand::Moments {
-            common,
-            camera,
-            max_frames,
-        } => {
-            init_logging("moments");
-            stereoscope_moments::run(
-                stereoscope_moments::MomentsConfig {
-                    ctx: common.resolve()?,
-                    camera,
-                    max_frames,
-                },
-                shutdown,
-            )?;
-        }
-        ServiceCommand::Fusion { common, max_sets } => {
-            init_logging("fusion");
-            stereoscope_fusion::run(
-                stereoscope_fusion::FusionConfig {
-                    ctx: common.resolve()?,
-                    max_sets,
-                },
-                shutdown,
-            )?;
-        }
+        ServiceCommand::Capture(a) => stereoscope_capture::cli::main(a),
+        ServiceCommand::Moments(a) => stereoscope_moments::cli::main(a),
+        ServiceCommand::Fusion(a) => stereoscope_fusion::cli::main(a),
     }
-    Ok(())
 }
 
 /// The command that starts a service: this very binary with `service`.

@@ -295,8 +295,9 @@ impl Context {
             .is_none_or(|h| h == self.host)
     }
 
-    /// The common flags that reproduce this context (for a child service).
-    pub fn to_args(&self) -> Vec<String> {
+    /// The common flags that reproduce this context for a child service joining Zenoh as
+    /// `zenoh` says.
+    pub fn to_args(&self, zenoh: &ZenohSpec) -> Vec<String> {
         let mut a = vec![
             "--rig".to_string(),
             self.rig_path.display().to_string(),
@@ -305,7 +306,7 @@ impl Context {
             "--iox-prefix".into(),
             self.iox_prefix.clone(),
         ];
-        a.extend(self.zenoh.to_args());
+        a.extend(zenoh.to_args());
         a
     }
 }

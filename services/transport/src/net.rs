@@ -37,6 +37,14 @@ impl ZenohMode {
     }
 }
 
+/// A TCP port on 127.0.0.1 free right now (for a router or a test's endpoint; another
+/// process could take it before it is used, so callers that bind it must report failure).
+pub fn free_loopback_port() -> std::io::Result<u16> {
+    Ok(std::net::TcpListener::bind("127.0.0.1:0")?
+        .local_addr()?
+        .port())
+}
+
 /// How to join the Zenoh network.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct ZenohSpec {
