@@ -311,6 +311,51 @@ mod tests {
     }
 
     #[test]
+    fn binary_form_is_compact() {
+        let blob = BlobObservation {
+            track_id: 3,
+            status: TrackState::Tracked,
+            area_px: 41.0,
+            x_px: 171.4231,
+            y_px: 118.0712,
+            mu20: 190.25,
+            mu02: 71.93,
+            mu11: -30.51,
+            orientation_deg: 14.61,
+            roundness: 0.61,
+            heading_deg: 194.6,
+            directed: false,
+            heading_ambiguous: false,
+            clipped: false,
+            window_px: [141, 88, 201, 148],
+            bbox_px: [165, 114, 178, 122],
+        };
+        let o = Observation {
+            schema: SCHEMA_VERSION,
+            rig: "demo".into(),
+            camera: "cam0".into(),
+            sequence: 1812,
+            timestamp_ns: 1_764_601_234_533_333_333,
+            frame_published_ns: 1_764_601_234_536_912_000,
+            published_ns: 1_764_601_234_537_001_000,
+            width_px: 320,
+            height_px: 240,
+            threshold: 98,
+            full_frame: false,
+            dropped_blobs: 0,
+            blobs: vec![blob; 4],
+        };
+        let (bin, json) = (o.to_binary(), o.to_json());
+        println!(
+            "observation with 4 blobs: {} bytes binary, {} bytes JSON",
+            bin.len(),
+            json.len()
+        );
+        assert!(bin.len() * 2 < json.len());
+        assert_eq!(Observation::from_binary(&bin).unwrap(), o);
+    }
+
+    #[test]
     fn bad_payloads_are_errors_not_panics() {
         let p = sample();
         let json = p.to_json();

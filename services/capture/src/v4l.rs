@@ -180,69 +180,123 @@ impl FrameSource for V4lSource {
     }
 
     fn read(&mut self, _i: u64, _t: f64, out: &mut [u8]) -> Result<Read, SourceError> {
-        let (w, h) = (self.width as usize, self.height as usize);
         let (buf, meta) = self
             .stream
             .next()
             .map_err(|e| SourceError::Fatal(format!("{}: {e}", self.device)))?;
         let timestamp_ns = stereoscope_proto::messages::now_ns();
         let data = &buf[..(meta.bytesused as usize).min(buf.len())];
-        let short = |need: usize| {
-            SourceError::BadFrame(format!(
-                "{}: frame of {} bytes, {need} expected",
-                self.device,
-                data.len()
-            ))
-        };
-        match self.wire {
-            Wire::Grey | Wire::Y16 => {
-                let bpp = if self.wire == Wire::Y16 { 2 } else { 1 };
-                let stride = self.stride.max(w * bpp);
-                if data.len() < stride * (h - 1) + w * bpp {
-                    return Err(short(stride * h));
-                }
-                crate::source::copy_rows(data, stride, w * bpp, h, out);
-            }
-            Wire::Yuyv => {
-                let stride = self.stride.max(w * 2);
-                if data.len() < stride * (h - 1) + w * 2 {
-                    return Err(short(stride * h));
-                }
-                for (y, row) in out.chunks_exact_mut(w).enumerate() {
-                    let src = &data[y * stride..y * stride + 2 * w];
-                    for (d, s) in row.iter_mut().zip(src.iter().step_by(2)) {
-                        *d = *s;
-                    }
-                }
-            }
-            Wire::Mjpg => {
-                let mut dec = jpeg_decoder::Decoder::new(data);
-                let pixels = dec.decode().map_err(|e| {
-                    SourceError::BadFrame(format!("{}: MJPEG frame: {e}", self.device))
-                })?;
-                let info = dec.info().ok_or_else(|| short(w * h))?;
-                if info.width as usize != w || info.height as usize != h {
-                    return Err(SourceError::BadFrame(format!(
-                        "{}: MJPEG frame is {}×{}, the stream {w}×{h}",
-                        self.device, info.width, info.height
-                    )));
-                }
-                let channels = pixels.len() / (w * h).max(1);
-                match channels {
-                    1 => out.copy_from_slice(&pixels[..w * h]),
-                    3 => {
-                        for (d, p) in out.iter_mut().zip(pixels.chunks_exact(3)) {
-                            // BT.601 luma.
-                            *d = ((77 * p[0] as u32 + 150 * p[1] as u32 + 29 * p[2] as u32) >> 8)
-                                as u8;
-                        }
-                    }
-                    _ => return Err(short(w * h * 3)),
-                }
-            }
-        }
+        convert(
+            self.wire,
+            data,
+            self.width as usize,
+            self.height as usize,
+            self.stride,
+            out,
+        )
+        .map_err(|m| SourceError::BadFrame(format!("{}: {m}", self.device)))?;
         Ok(Read::Frame {
             timestamp_ns: Some(timestamp_ns),
         })
+    }
+}
+
+/// One camera buffer (`stride` bytes per row as the driver gives them) into tight grey rows.
+fn convert(
+    wire: Wire,
+    data: &[u8],
+    w: usize,
+    h: usize,
+    stride: usize,
+    out: &mut [u8],
+) -> Result<(), String> {
+    let short = |need: usize| format!("frame of {} bytes, {need} expected", data.len());
+    match wire {
+        Wire::Grey | Wire::Y16 => {
+            let bpp = if wire == Wire::Y16 { 2 } else { 1 };
+            let stride = stride.max(w * bpp);
+            if h == 0 || data.len() < stride * (h - 1) + w * bpp {
+                return Err(short(stride * h));
+            }
+            crate::source::copy_rows(data, stride, w * bpp, h, out);
+        }
+        Wire::Yuyv => {
+            let stride = stride.max(w * 2);
+            if h == 0 || data.len() < stride * (h - 1) + w * 2 {
+                return Err(short(stride * h));
+            }
+            for (y, row) in out.chunks_exact_mut(w).enumerate() {
+                let src = &data[y * stride..y * stride + 2 * w];
+                for (d, s) in row.iter_mut().zip(src.iter().step_by(2)) {
+                    *d = *s;
+                }
+            }
+        }
+        Wire::Mjpg => {
+            let mut dec = jpeg_decoder::Decoder::new(data);
+            let pixels = dec.decode().map_err(|e| format!("MJPEG frame: {e}"))?;
+            let info = dec.info().ok_or_else(|| short(w * h))?;
+            if info.width as usize != w || info.height as usize != h {
+                return Err(format!(
+                    "MJPEG frame is {}×{}, the stream {w}×{h}",
+                    info.width, info.height
+                ));
+            }
+            match pixels.len() / (w * h).max(1) {
+                1 => out.copy_from_slice(&pixels[..w * h]),
+                3 => {
+                    for (d, p) in out.iter_mut().zip(pixels.chunks_exact(3)) {
+                        // BT.601 luma.
+                        *d = ((77 * p[0] as u32 + 150 * p[1] as u32 + 29 * p[2] as u32) >> 8) as u8;
+                    }
+                }
+                _ => return Err(short(w * h * 3)),
+            }
+        }
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn wire_formats_become_grey_rows() {
+        // GREY with padded rows.
+        let data = [1, 2, 3, 0, 4, 5, 6, 0];
+        let mut out = [0u8; 6];
+        convert(Wire::Grey, &data, 3, 2, 4, &mut out).unwrap();
+        assert_eq!(out, [1, 2, 3, 4, 5, 6]);
+        // Y16: two bytes a pixel, little-endian, kept as bytes.
+        let data = [1, 0, 2, 0, 3, 1, 4, 1];
+        let mut out = [0u8; 8];
+        convert(Wire::Y16, &data, 2, 2, 4, &mut out).unwrap();
+        assert_eq!(out, data);
+        // YUYV: the Y bytes.
+        let data = [10, 128, 11, 129, 12, 128, 13, 129];
+        let mut out = [0u8; 4];
+        convert(Wire::Yuyv, &data, 2, 2, 4, &mut out).unwrap();
+        assert_eq!(out, [10, 11, 12, 13]);
+        // Short buffers and broken JPEG are bad frames, not panics.
+        assert!(
+            convert(Wire::Grey, &[1, 2], 3, 2, 3, &mut [0; 6])
+                .unwrap_err()
+                .contains("2 bytes")
+        );
+        assert!(convert(Wire::Yuyv, &[1; 7], 2, 2, 4, &mut [0; 4]).is_err());
+        assert!(
+            convert(Wire::Mjpg, &[0xff, 0xd8, 0, 1], 2, 2, 2, &mut [0; 4])
+                .unwrap_err()
+                .contains("MJPEG")
+        );
+        assert_eq!(wire_of("Y16 "), Some(Wire::Y16));
+        assert_eq!(wire_of("NV12"), None);
+    }
+
+    #[test]
+    fn a_missing_device_is_named() {
+        let e = V4lSource::open("/dev/video-none", None, None, None, None).unwrap_err();
+        assert!(e.to_string().contains("/dev/video-none"), "{e}");
     }
 }
