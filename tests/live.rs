@@ -272,6 +272,21 @@ fn a_killed_capture_leaves_fusion_on_one_camera_and_is_restarted() {
         o.contains("restarted capture/cam1")
     });
     watcher.until(Duration::from_secs(30), "both cameras again", both_cameras);
+    // Stopping the launcher stops and reaps every service it started.
+    let mut launcher = launcher;
+    let log = launcher.output();
+    launcher.stop();
+    let pids: Vec<i32> = log
+        .split(" (pid ")
+        .skip(1)
+        .filter_map(|s| s.split(')').next()?.parse().ok())
+        .collect();
+    assert!(pids.len() >= 6, "{log}");
+    for pid in pids {
+        // SAFETY: signal 0 only asks whether the process exists.
+        let alive = unsafe { libc::kill(pid, 0) } == 0;
+        assert!(!alive, "service pid {pid} outlived the launcher");
+    }
 }
 
 #[test]

@@ -88,6 +88,8 @@ pub fn run(cfg: FusionConfig, shutdown: Shutdown) -> Result<u64, FusionError> {
     let here = ctx.cameras_here();
     let mut local: Vec<(usize, MessageSubscriber)> = Vec::new();
     let (tx, rx) = mpsc::sync_channel::<Input>(256);
+    // Network messages the loop had no room for (it fell behind by 256).
+    let overflow = std::sync::Arc::new(std::sync::atomic::AtomicU64::new(0));
     let mut remote_subs = Vec::new();
     for (i, c) in ctx.rig.cameras.iter().enumerate() {
         if !all_zenoh && here.contains(&c.id) {
@@ -99,6 +101,7 @@ pub fn run(cfg: FusionConfig, shutdown: Shutdown) -> Result<u64, FusionError> {
             let key = keys::observations(&rig, &c.id);
             let expected_rig = rig.clone();
             let cam_id = c.id.clone();
+            let overflow = overflow.clone();
             let sub = net::subscribe(&session, &key, move |k, bytes| {
                 let input = match Observation::from_json(bytes) {
                     Ok(o) if o.rig == expected_rig && o.camera == cam_id => Input::Obs(i, o),
@@ -108,7 +111,9 @@ pub fn run(cfg: FusionConfig, shutdown: Shutdown) -> Result<u64, FusionError> {
                     )),
                     Err(e) => Input::Bad(format!("{k}: {e}")),
                 };
-                let _ = tx.try_send(input);
+                if tx.try_send(input).is_err() {
+                    overflow.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+                }
             })
             .map_err(|e| setup(e.to_string()))?;
             remote_subs.push(sub);
@@ -223,7 +228,7 @@ pub fn run(cfg: FusionConfig, shutdown: Shutdown) -> Result<u64, FusionError> {
             }
         }
         let now = now_ns();
-        counters.dropped = pairer.discarded;
+        counters.dropped = pairer.discarded + overflow.load(std::sync::atomic::Ordering::Relaxed);
         let live: Vec<&str> = (0..n)
             .filter(|&c| pairer.live(c, now))
             .map(|c| ctx.rig.cameras[c].id.as_str())
