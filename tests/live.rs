@@ -6,6 +6,8 @@
 mod common;
 
 use common::{BIN, TempDir, repo_root, run_with_limit, stderr};
+#[allow(unused_imports)]
+use serialport::SerialPort as _;
 use std::io::Read;
 use std::process::{Child, Command, Stdio};
 use std::sync::mpsc;
@@ -395,4 +397,133 @@ fn bad_sources_are_named() {
     std::fs::write(&clip, b"YUV4MPEG2 W64 H48 F30:1 Cmono\n").unwrap();
     let e = capture_fails(&rig);
     assert!(e.contains("64×48") && e.contains("image_size"), "{e}");
+}
+
+/// A pseudo-terminal pair standing in for a serial cable: the service opens `link` (a symlink
+/// to the slave side, so a "replugged" cable can come back under the same name), the test
+/// reads the master side.
+struct Cable {
+    master: serialport::TTYPort,
+    link: std::path::PathBuf,
+}
+
+impl Cable {
+    fn plug(link: &std::path::Path) -> Cable {
+        let (mut master, slave) = serialport::TTYPort::pair().expect("a pty pair");
+        let name = serialport::SerialPort::name(&slave).expect("slave name");
+        let _ = std::fs::remove_file(link);
+        std::os::unix::fs::symlink(&name, link).unwrap();
+        drop(slave);
+        serialport::SerialPort::set_timeout(&mut master, Duration::from_millis(100)).unwrap();
+        Cable {
+            master,
+            link: link.to_path_buf(),
+        }
+    }
+
+    /// Framed packets read within `limit`, until `n` came.
+    fn framed(
+        &mut self,
+        n: usize,
+        limit: Duration,
+    ) -> Vec<stereoscope_proto::serial::FramedPacket> {
+        let mut dec = stereoscope_proto::serial::FramedDecoder::default();
+        let mut out = Vec::new();
+        let end = Instant::now() + limit;
+        let mut buf = [0u8; 512];
+        while out.len() < n && Instant::now() < end {
+            if let Ok(k) = self.master.read(&mut buf) {
+                out.extend(dec.push(&buf[..k]).into_iter().filter_map(|r| r.ok()));
+            }
+        }
+        out
+    }
+
+    fn unplug(self) {
+        let _ = std::fs::remove_file(&self.link);
+        drop(self.master);
+    }
+}
+
+#[test]
+fn serial_output_sends_fresh_poses_and_survives_an_unplugged_cable() {
+    let _serial = serial();
+    let dir = TempDir::new("serial");
+    let port = free_port();
+    let rig = format!(
+        "{}\n[[host]]\nname = \"pc\"\nzenoh_listen = [\"tcp/127.0.0.1:{port}\"]\niceoryx2_prefix = \"stsc_t{}p_\"\n",
+        demo_rig(),
+        std::process::id()
+    );
+    let path = dir.file("rig.toml", &rig);
+    let link = dir.0.join("ttyStereo");
+    // The cable is plugged after every process started, so none of them inherits its fds.
+    let _launcher = Proc::start(&["run", &path]);
+    let watcher = PoseWatcher::new(&format!("tcp/127.0.0.1:{port}"), "demo");
+    let endpoint = format!("tcp/127.0.0.1:{port}");
+    let link_s = link.to_str().unwrap();
+    // 9600 baud: 3 objects × 26 bytes at 30 frames/s is more than the line takes (≈ 37
+    // packets/s), so the service must pace itself and drop superseded poses.
+    let service = Proc::start(&[
+        "service",
+        "serial",
+        "--rig",
+        &path,
+        "--zenoh-mode",
+        "client",
+        "--zenoh-connect",
+        &endpoint,
+        "--port",
+        link_s,
+        "--baud",
+        "9600",
+        "--mode",
+        "framed",
+    ]);
+    watcher.until(Duration::from_secs(40), "three objects", both_cameras);
+    let mut cable = Cable::plug(&link);
+    let start = Instant::now();
+    let packets = cable.framed(60, Duration::from_secs(20));
+    let elapsed = start.elapsed().as_secs_f64();
+    assert_eq!(packets.len(), 60, "{}", service.output());
+    // Never faster than the line: 26-byte packets at 960 bytes/s (plus the first burst).
+    let max_rate = 960.0 / 26.0;
+    assert!(
+        (packets.len() as f64 - 3.0) / elapsed <= max_rate * 1.05,
+        "{} packets in {elapsed:.2} s",
+        packets.len()
+    );
+    // Each packet is a pose fusion published: ids known, sequence counting up.
+    let mut frames = Vec::new();
+    while let Ok(p) = watcher.rx.try_recv() {
+        frames.push(p);
+    }
+    for w in packets.windows(2) {
+        assert_eq!(w[1].sequence, w[0].sequence.wrapping_add(1));
+    }
+    let ids: std::collections::HashSet<u16> = packets.iter().map(|p| p.object_id).collect();
+    assert!(ids.len() >= 3, "{ids:?}");
+    let last = packets.last().unwrap();
+    let matched = frames.iter().any(|f| {
+        f.poses.iter().any(|p| {
+            p.object_id == last.object_id as u32
+                && ((p.position_m[0] * 1000.0).round() as i32 - last.x_mm).abs() <= 1
+                && ((p.position_m[2] * 1000.0).round() as i32 - last.z_mm).abs() <= 1
+        })
+    });
+    assert!(matched, "packet {last:?} is no pose fusion published");
+    // Pull the cable: the service reports it and keeps trying; plug a new one in.
+    cable.unplug();
+    service.wait_for(Duration::from_secs(10), "the write error", |o| {
+        o.contains("reopening")
+    });
+    let mut cable = Cable::plug(&link);
+    let again = cable.framed(5, Duration::from_secs(20));
+    assert_eq!(
+        again.len(),
+        5,
+        "no packets after replugging:\n{}",
+        service.output()
+    );
+    cable.unplug();
 }

@@ -24,6 +24,29 @@ pub struct RigFile {
     /// The scene synthetic cameras render.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub synthetic: Option<SyntheticSpec>,
+    /// Serial-link outputs.
+    #[serde(rename = "serial", default, skip_serializing_if = "Vec::is_empty")]
+    pub serial: Vec<SerialSpec>,
+}
+
+/// A serial-link output (`docs/services.md`, "serial").
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SerialSpec {
+    /// The PC the port is on.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub host: Option<String>,
+    /// The device, e.g. "/dev/ttyUSB0".
+    pub port: String,
+    /// Line speed, 8N1 (default 9600, the thesis's).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub baud: Option<u32>,
+    /// "legacy" (the thesis's packet, one object) or "framed" (default).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub mode: Option<String>,
+    /// Object ids to send; every object if absent (legacy: the lowest id).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub objects: Vec<u32>,
 }
 
 /// One PC of a rig.

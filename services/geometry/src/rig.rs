@@ -463,6 +463,7 @@ mod tests {
             hosts: Vec::new(),
             fusion: None,
             synthetic: None,
+            serial: Vec::new(),
         };
         let back = Rig::from_file(&RigFile::from_toml(&file.to_toml().unwrap()).unwrap()).unwrap();
         let b = back.cameras[0].camera;

@@ -46,7 +46,7 @@ pub enum LaunchError {
     Setup(String),
 }
 
-/// The services of `ctx.host`, in start order (capture before its worker, fusion last).
+/// The services of `ctx.host`, in start order (capture before its worker, outputs, fusion last).
 pub fn services_here(ctx: &Context, service_zenoh: &ZenohSpec) -> Vec<ServiceSpec> {
     let common = ctx.to_args(service_zenoh);
     let mut out = Vec::new();
@@ -60,6 +60,27 @@ pub fn services_here(ctx: &Context, service_zenoh: &ZenohSpec) -> Vec<ServiceSpe
                 args,
             });
         }
+    }
+    for s in &ctx.rig_file.serial {
+        if s.host.as_deref().is_some_and(|h| h != ctx.host) {
+            continue;
+        }
+        let mut args = vec!["serial".to_string()];
+        args.extend(common.clone());
+        args.extend(["--port".to_string(), s.port.clone()]);
+        args.extend(["--baud".to_string(), s.baud.unwrap_or(9600).to_string()]);
+        args.extend([
+            "--mode".to_string(),
+            s.mode.clone().unwrap_or_else(|| "framed".into()),
+        ]);
+        if !s.objects.is_empty() {
+            let ids: Vec<String> = s.objects.iter().map(|i| i.to_string()).collect();
+            args.extend(["--objects".to_string(), ids.join(",")]);
+        }
+        out.push(ServiceSpec {
+            name: format!("serial/{}", s.port.rsplit('/').next().unwrap_or("port")),
+            args,
+        });
     }
     if ctx.fusion_here() && ctx.rig_file.fusion.is_some() {
         let mut args = vec!["fusion".to_string()];
@@ -288,7 +309,7 @@ mod tests {
             .replacen("id = \"cam0\"", "id = \"cam0\"\nhost = \"a\"", 1)
             .replacen("id = \"cam1\"", "id = \"cam1\"\nhost = \"b\"", 1)
             .replacen("[fusion]\n", "[fusion]\nhost = \"b\"\n", 1)
-            + "\n[[host]]\nname = \"a\"\nzenoh_listen = [\"tcp/0.0.0.0:7447\"]\n[[host]]\nname = \"b\"\nzenoh_listen = [\"tcp/127.0.0.1:7448\"]\nzenoh_connect = [\"tcp/10.0.0.1:7447\"]\n";
+            + "\n[[host]]\nname = \"a\"\nzenoh_listen = [\"tcp/0.0.0.0:7447\"]\n[[host]]\nname = \"b\"\nzenoh_listen = [\"tcp/127.0.0.1:7448\"]\nzenoh_connect = [\"tcp/10.0.0.1:7447\"]\n[[serial]]\nhost = \"b\"\nport = \"/dev/ttyUSB0\"\nmode = \"legacy\"\nobjects = [3, 1]\n";
         let a = ctx(&text, "a");
         let (router, client) = router_specs(&a).unwrap();
         assert_eq!(router.mode, ZenohMode::Router);
@@ -303,8 +324,21 @@ mod tests {
         assert_eq!(router.connect, vec!["tcp/10.0.0.1:7447".to_string()]);
         let specs = services_here(&b, &client);
         let names: Vec<&str> = specs.iter().map(|s| s.name.as_str()).collect();
-        assert_eq!(names, ["capture/cam1", "moments/cam1", "fusion"]);
-        let fusion = &specs[2].args;
+        assert_eq!(
+            names,
+            ["capture/cam1", "moments/cam1", "serial/ttyUSB0", "fusion"]
+        );
+        assert!(
+            specs[2].args.windows(2).any(|w| w == ["--mode", "legacy"]),
+            "{:?}",
+            specs[2].args
+        );
+        assert!(
+            specs[2].args.windows(2).any(|w| w == ["--objects", "3,1"]),
+            "{:?}",
+            specs[2].args
+        );
+        let fusion = &specs[3].args;
         assert_eq!(fusion[0], "fusion");
         assert!(
             fusion.windows(2).any(|w| w == ["--host", "b"]),

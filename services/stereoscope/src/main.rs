@@ -157,6 +157,7 @@ enum ServiceCommand {
     Capture(stereoscope_capture::cli::Args),
     Moments(stereoscope_moments::cli::Args),
     Fusion(stereoscope_fusion::cli::Args),
+    Serial(stereoscope_serial::cli::Args),
 }
 
 fn service(cmd: ServiceCommand) -> anyhow::Result<()> {
@@ -164,6 +165,7 @@ fn service(cmd: ServiceCommand) -> anyhow::Result<()> {
         ServiceCommand::Capture(a) => stereoscope_capture::cli::main(a),
         ServiceCommand::Moments(a) => stereoscope_moments::cli::main(a),
         ServiceCommand::Fusion(a) => stereoscope_fusion::cli::main(a),
+        ServiceCommand::Serial(a) => stereoscope_serial::cli::main(a),
     }
 }
 

@@ -103,7 +103,7 @@ pub fn check_deployment(file: &RigFile) -> Result<(), String> {
                 file.hosts.iter().map(|h| &h.name).collect::<Vec<_>>()
             )),
             None if file.hosts.len() > 1 => Err(format!(
-                "{key}: missing; with several [[host]] sections every camera and [fusion] must name its host"
+                "{key}: missing; with several [[host]] sections every camera, [fusion] and [[serial]] must name its host"
             )),
             _ => Ok(()),
         }
@@ -174,6 +174,20 @@ pub fn check_deployment(file: &RigFile) -> Result<(), String> {
         {
             return Err(format!(
                 "fusion.observations: {o:?} is not \"auto\" or \"zenoh\""
+            ));
+        }
+    }
+    for (i, s) in file.serial.iter().enumerate() {
+        known_host(format!("serial[{i}].host"), &s.host)?;
+        if s.baud == Some(0) {
+            return Err(format!("serial[{i}].baud: must be above zero"));
+        }
+        if let Some(m) = &s.mode
+            && m != "legacy"
+            && m != "framed"
+        {
+            return Err(format!(
+                "serial[{i}].mode: {m:?} is not \"legacy\" or \"framed\""
             ));
         }
     }

@@ -1,0 +1,356 @@
+//! The serial-link output service: the pose stream (Zenoh `stereoscope/<rig>/poses`) to a
+//! serial device, as the thesis's 10-byte packet (`send_serial_3Dx`, legacy mode: one object,
+//! centimetres, no id or checksum) or the framed packet (object id, sequence, millimetres,
+//! CRC-16, COBS); both codecs and their decoders are `stereoscope_proto::serial`
+//! (`docs/protocol.md`, "Serial link packets").
+//!
+//! *Rate.* The line carries `baud / 10` bytes a second (8N1). The service keeps only the newest
+//! pose frame; before each packet it takes the newest pose of the next object to send, and it
+//! paces packets to the line's rate. So a line slower than the pose stream carries fresh poses
+//! (each object at most once per pose frame), never a queue of stale ones; superseded poses are
+//! counted as dropped.
+//!
+//! *Values* that do not fit a packet are clamped and counted, never wrapped.
+//!
+//! *Faults.* A port that cannot be opened, or fails while writing (a USB adapter pulled), is
+//! reported in the log and in health and opened again every second; the service never exits for
+//! it, and nothing else is affected.
+
+pub mod cli;
+
+use std::io::Write as _;
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+use stereoscope_proto::messages::{Message, PoseFrame};
+use stereoscope_proto::names::zenoh as keys;
+use stereoscope_proto::serial::{SerialPose, encode_framed, encode_legacy};
+use stereoscope_transport::{Context, Counters, HealthReporter, Shutdown, net};
+
+/// Which packet to send.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Mode {
+    Legacy,
+    Framed,
+}
+
+impl Mode {
+    pub fn parse(s: &str) -> Result<Self, String> {
+        match s {
+            "legacy" => Ok(Mode::Legacy),
+            "framed" => Ok(Mode::Framed),
+            o => Err(format!("mode {o:?} is not legacy or framed")),
+        }
+    }
+}
+
+#[derive(Debug, Clone)]
+pub struct SerialConfig {
+    pub ctx: Context,
+    /// The device (`/dev/ttyUSB0`).
+    pub port: String,
+    pub baud: u32,
+    pub mode: Mode,
+    /// Object ids to send, in this order; every object when empty (legacy mode: the first
+    /// given, or the lowest id seen).
+    pub objects: Vec<u32>,
+    /// Stop after this many packets (tests).
+    pub max_packets: Option<u64>,
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum SerialServiceError {
+    #[error("serial {port}: {message}")]
+    Setup { port: String, message: String },
+}
+
+/// Seconds the line needs for `bytes` at `baud` with 8N1 framing (10 bits a byte).
+pub fn line_time(bytes: usize, baud: u32) -> Duration {
+    Duration::from_secs_f64(bytes as f64 * 10.0 / baud.max(1) as f64)
+}
+
+/// The poses of a frame to send, in order: the selected objects present in it.
+pub fn selected<'a>(
+    frame: &'a PoseFrame,
+    objects: &[u32],
+    mode: Mode,
+) -> Vec<&'a stereoscope_proto::messages::Pose> {
+    let mut poses: Vec<_> = if objects.is_empty() {
+        frame.poses.iter().collect()
+    } else {
+        objects
+            .iter()
+            .filter_map(|id| frame.poses.iter().find(|p| p.object_id == *id))
+            .collect()
+    };
+    if objects.is_empty() {
+        poses.sort_by_key(|p| p.object_id);
+    }
+    if mode == Mode::Legacy {
+        poses.truncate(1);
+    }
+    poses
+}
+
+/// The objects of a frame in sending order, starting after `last_sent`: when the line cannot
+/// carry every object of every frame, each still gets its turn.
+pub fn round_robin(order: &[u32], last_sent: Option<u32>) -> Vec<u32> {
+    let start = last_sent
+        .and_then(|l| order.iter().position(|&id| id == l))
+        .map(|i| i + 1)
+        .unwrap_or(0);
+    order[start.min(order.len())..]
+        .iter()
+        .chain(&order[..start.min(order.len())])
+        .copied()
+        .collect()
+}
+
+/// One packet's bytes and how many fields were clamped.
+pub fn packet(
+    pose: &stereoscope_proto::messages::Pose,
+    mode: Mode,
+    sequence: u16,
+) -> (Vec<u8>, u32) {
+    let sp = SerialPose {
+        object_id: pose.object_id.min(u16::MAX as u32) as u16,
+        position_m: pose.position_m,
+        heading_deg: pose.heading_deg.unwrap_or(0.0),
+    };
+    match mode {
+        Mode::Legacy => {
+            let (b, c) = encode_legacy(&sp);
+            (b.to_vec(), c.count())
+        }
+        Mode::Framed => {
+            let (b, c) = encode_framed(&sp, sequence);
+            (b, c.count())
+        }
+    }
+}
+
+#[derive(Default)]
+struct Latest {
+    frame: Option<PoseFrame>,
+    generation: u64,
+    bad: Option<String>,
+}
+
+/// Runs until shutdown (or `max_packets`); returns the packets written.
+pub fn run(cfg: SerialConfig, shutdown: Shutdown) -> Result<u64, SerialServiceError> {
+    let ctx = &cfg.ctx;
+    let setup = |m: String| SerialServiceError::Setup {
+        port: cfg.port.clone(),
+        message: m,
+    };
+    if cfg.baud == 0 {
+        return Err(setup("baud rate 0".into()));
+    }
+    let rig = ctx.rig_file.name.clone();
+    let session = net::open(&ctx.zenoh).map_err(|e| setup(e.to_string()))?;
+    let latest = Arc::new(Mutex::new(Latest::default()));
+    let sink = latest.clone();
+    let expected_rig = rig.clone();
+    let _sub = net::subscribe(&session, &keys::poses(&rig), move |k, b| {
+        let mut l = sink.lock().unwrap_or_else(|e| e.into_inner());
+        match PoseFrame::from_json(b) {
+            Ok(f) if f.rig == expected_rig => {
+                l.frame = Some(f);
+                l.generation += 1;
+            }
+            Ok(f) => l.bad = Some(format!("{k}: pose frame of rig {:?}", f.rig)),
+            Err(e) => l.bad = Some(format!("{k}: {e}")),
+        }
+    })
+    .map_err(|e| setup(e.to_string()))?;
+    let short = std::path::Path::new(&cfg.port)
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_else(|| "port".into());
+    let service = format!(
+        "serial/{}",
+        short.replace(|c: char| !c.is_ascii_alphanumeric() && c != '-', "_")
+    );
+    let mut health = HealthReporter::new(&session, &rig, &ctx.host, &service)
+        .map_err(|e| setup(e.to_string()))?;
+    tracing::info!(port = %cfg.port, baud = cfg.baud, mode = ?cfg.mode, "serial output ready");
+
+    let mut counters = Counters::default();
+    let mut port: Option<Box<dyn serialport::SerialPort>> = None;
+    let mut next_open = Instant::now();
+    let mut line_free = Instant::now();
+    let mut sent_gen = 0u64;
+    let mut pending: Vec<u32> = Vec::new();
+    let mut sequence: u16 = 0;
+    let mut last_sent: Option<u32> = None;
+    let mut clamped = 0u64;
+    let mut packets = 0u64;
+    while !shutdown.requested() && cfg.max_packets.is_none_or(|m| packets < m) {
+        health.tick(&counters);
+        if port.is_none() {
+            if Instant::now() < next_open {
+                shutdown.sleep(Duration::from_millis(20));
+                continue;
+            }
+            match serialport::new(&cfg.port, cfg.baud)
+                .timeout(Duration::from_millis(200))
+                .open()
+            {
+                Ok(p) => {
+                    tracing::info!(port = %cfg.port, "port open");
+                    counters.detail.insert("port".into(), "open".into());
+                    port = Some(p);
+                }
+                Err(e) => {
+                    let m = format!("{}: {e}; trying again in 1 s", cfg.port);
+                    if counters.last_error.as_deref() != Some(&m) {
+                        tracing::warn!("{m}");
+                    }
+                    counters.last_error = Some(m);
+                    counters.detail.insert("port".into(), "closed".into());
+                    next_open = Instant::now() + Duration::from_secs(1);
+                    continue;
+                }
+            }
+        }
+        // The newest frame; objects still pending from an older one are superseded.
+        let (frame, generation) = {
+            let mut l = latest.lock().unwrap_or_else(|e| e.into_inner());
+            if let Some(b) = l.bad.take() {
+                counters.rejected += 1;
+                counters.last_error = Some(b);
+            }
+            (l.frame.clone(), l.generation)
+        };
+        let Some(frame) = frame else {
+            shutdown.sleep(Duration::from_millis(2));
+            continue;
+        };
+        if generation != sent_gen {
+            counters.dropped += pending.len() as u64;
+            let order: Vec<u32> = selected(&frame, &cfg.objects, cfg.mode)
+                .iter()
+                .map(|p| p.object_id)
+                .collect();
+            pending = round_robin(&order, last_sent);
+            pending.reverse();
+            sent_gen = generation;
+        }
+        let Some(id) = pending.pop() else {
+            shutdown.sleep(Duration::from_millis(1));
+            continue;
+        };
+        let Some(pose) = frame.poses.iter().find(|p| p.object_id == id) else {
+            continue;
+        };
+        let (bytes, c) = packet(pose, cfg.mode, sequence);
+        last_sent = Some(id);
+        // Wait for the line, then write.
+        let now = Instant::now();
+        if line_free > now && shutdown.sleep(line_free - now) {
+            break;
+        }
+        // No flush: tcdrain has no timeout, and a stalled receiver must not stall the service
+        // (the write itself times out after 200 ms and the port is reopened).
+        let result = port.as_mut().map(|p| p.write_all(&bytes));
+        match result {
+            Some(Ok(())) => {
+                line_free = Instant::now().max(line_free) + line_time(bytes.len(), cfg.baud);
+                sequence = sequence.wrapping_add(1);
+                packets += 1;
+                counters.processed = packets;
+                if c > 0 {
+                    clamped += 1;
+                    counters
+                        .detail
+                        .insert("clamped".into(), clamped.to_string());
+                }
+            }
+            Some(Err(e)) => {
+                let m = format!("{}: writing: {e}; reopening", cfg.port);
+                tracing::warn!("{m}");
+                counters.last_error = Some(m);
+                counters.detail.insert("port".into(), "closed".into());
+                port = None;
+                next_open = Instant::now() + Duration::from_secs(1);
+            }
+            None => {}
+        }
+    }
+    Ok(packets)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use stereoscope_proto::messages::{Pose, PoseMethod, SCHEMA_VERSION};
+    use stereoscope_proto::serial::{FramedDecoder, LegacyDecoder};
+
+    fn pose(id: u32, x: f64) -> Pose {
+        Pose {
+            object_id: id,
+            position_m: [x, 0.25, 1.5],
+            velocity_m_per_s: [0.0; 3],
+            heading_deg: Some(123.45),
+            heading_directed: false,
+            method: PoseMethod::Triangulated,
+            cameras: vec![],
+            residual_px: 0.0,
+            out_of_range: false,
+        }
+    }
+
+    fn frame(poses: Vec<Pose>) -> PoseFrame {
+        PoseFrame {
+            schema: SCHEMA_VERSION,
+            rig: "r".into(),
+            sequence: 0,
+            timestamp_ns: 0,
+            frame_published_ns: 0,
+            published_ns: 0,
+            cameras: vec![],
+            poses,
+        }
+    }
+
+    #[test]
+    fn selection_and_packets() {
+        let f = frame(vec![pose(5, 0.1), pose(2, 0.2), pose(9, 400.0)]);
+        let ids = |v: Vec<&Pose>| v.iter().map(|p| p.object_id).collect::<Vec<_>>();
+        assert_eq!(ids(selected(&f, &[], Mode::Framed)), [2, 5, 9]);
+        assert_eq!(ids(selected(&f, &[9, 5, 7], Mode::Framed)), [9, 5]);
+        assert_eq!(ids(selected(&f, &[], Mode::Legacy)), [2]);
+        assert_eq!(ids(selected(&f, &[5], Mode::Legacy)), [5]);
+        let (b, c) = packet(&f.poses[1], Mode::Legacy, 0);
+        assert_eq!((b.len(), c), (10, 0));
+        let p = LegacyDecoder::default().push(&b);
+        assert_eq!(
+            (p[0].x_cm, p[0].y_cm, p[0].z_cm, p[0].heading_centideg),
+            (20, 25, 150, 12345)
+        );
+        // 400 m does not fit int16 centimetres: clamped and counted.
+        assert_eq!(packet(&f.poses[2], Mode::Legacy, 0).1, 1);
+        let (b, c) = packet(&f.poses[0], Mode::Framed, 77);
+        assert_eq!(c, 0);
+        let p = FramedDecoder::default().push(&b);
+        let p = p[0].as_ref().unwrap();
+        assert_eq!(
+            (p.object_id, p.sequence, p.x_mm, p.z_mm),
+            (5, 77, 100, 1500)
+        );
+    }
+
+    #[test]
+    fn every_object_gets_its_turn() {
+        assert_eq!(round_robin(&[2, 5, 9], None), [2, 5, 9]);
+        assert_eq!(round_robin(&[2, 5, 9], Some(5)), [9, 2, 5]);
+        assert_eq!(round_robin(&[2, 5, 9], Some(9)), [2, 5, 9]);
+        assert_eq!(round_robin(&[2, 5, 9], Some(7)), [2, 5, 9]);
+        assert!(round_robin(&[], Some(1)).is_empty());
+    }
+
+    #[test]
+    fn line_time_is_ten_bits_a_byte() {
+        assert_eq!(line_time(10, 9600), Duration::from_secs_f64(100.0 / 9600.0));
+        assert!(line_time(960, 9600) >= Duration::from_millis(999));
+    }
+}
