@@ -10,6 +10,7 @@
 //! killed outright.
 
 pub mod demo;
+pub mod status;
 
 use std::io::{BufRead, BufReader};
 use std::process::{Child, Command, Stdio};

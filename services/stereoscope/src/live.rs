@@ -127,3 +127,60 @@ pub fn demo(
     }
     Ok(0)
 }
+
+/// `stereoscope status`.
+pub fn status(
+    rig: Option<PathBuf>,
+    connect: Option<String>,
+    rig_name: Option<String>,
+    watch: bool,
+    json: bool,
+    stall_ms: u64,
+) -> anyhow::Result<usize> {
+    use stereoscope_launcher::status::{Monitor, StatusConfig, to_json, to_text};
+    use stereoscope_transport::context::{load_rig, local_endpoint};
+    use stereoscope_transport::net::ZenohSpec;
+    let (name, endpoint) = match &rig {
+        Some(p) => {
+            let (file, _) = load_rig(p)?;
+            let ep = file
+                .hosts
+                .first()
+                .and_then(|h| h.zenoh_listen.first())
+                .map(|e| local_endpoint(e));
+            (file.name, ep)
+        }
+        None => (
+            rig_name.ok_or_else(|| anyhow::anyhow!("give a rig file or --rig-name"))?,
+            None,
+        ),
+    };
+    let endpoint = connect
+        .or(endpoint)
+        .unwrap_or_else(|| "tcp/127.0.0.1:7447".to_string());
+    let shutdown = Shutdown::on_signals()?;
+    let monitor = Monitor::connect(StatusConfig {
+        rig: name,
+        zenoh: ZenohSpec::client_of(&endpoint),
+        listen: std::time::Duration::from_millis(1500),
+        stall: std::time::Duration::from_millis(stall_ms),
+    })
+    .with_context(|| format!("asking the router at {endpoint}"))?;
+    loop {
+        if shutdown.sleep(monitor.listen()) {
+            return Ok(0);
+        }
+        let s = monitor.snapshot()?;
+        if json {
+            println!("{}", to_json(&s));
+        } else {
+            if watch {
+                print!("\x1b[2J\x1b[H");
+            }
+            print!("{}", to_text(&s));
+        }
+        if !watch {
+            return Ok(0);
+        }
+    }
+}

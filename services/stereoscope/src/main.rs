@@ -135,6 +135,26 @@ enum Command {
         #[arg(long)]
         no_router: bool,
     },
+    /// Show every service of a rig on every PC: liveliness, rates, drops, errors, objects.
+    Status {
+        /// The rig file (its first host's router is asked; else give --connect and --rig-name).
+        rig: Option<PathBuf>,
+        /// A Zenoh router endpoint to ask (default: the rig's, else tcp/127.0.0.1:7447).
+        #[arg(long)]
+        connect: Option<String>,
+        /// The rig's name, without a rig file.
+        #[arg(long)]
+        rig_name: Option<String>,
+        /// Refresh every second until Ctrl-C.
+        #[arg(long)]
+        watch: bool,
+        /// One JSON object.
+        #[arg(long)]
+        json: bool,
+        /// Flag a camera with no processed frame for this long, milliseconds.
+        #[arg(long, default_value_t = 2000)]
+        stall_ms: u64,
+    },
     /// Run one service in the foreground (what `run` starts; for debugging and deployment).
     #[command(subcommand, hide = true)]
     Service(ServiceCommand),
@@ -359,6 +379,16 @@ fn main() -> ExitCode {
             iox_prefix,
             !no_router,
             service_program(),
+        )),
+        Command::Status {
+            rig,
+            connect,
+            rig_name,
+            watch,
+            json,
+            stall_ms,
+        } => finish(stereoscope::live::status(
+            rig, connect, rig_name, watch, json, stall_ms,
         )),
         Command::Demo {
             seconds,
