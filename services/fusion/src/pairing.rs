@@ -7,7 +7,9 @@
 //! reference window (it missed this frame), or the reference has waited `max_wait`. So a
 //! missing or late frame costs at most `max_wait` of latency, and a set then holds fewer
 //! cameras. A camera silent for `camera_timeout` is not live (not waited for) until it is
-//! heard again; its stale observations are discarded.
+//! heard again; its stale observations are discarded. Right after start, a camera not heard
+//! yet counts as live for `camera_timeout` (from the first observation of any camera), so
+//! the first sets wait for cameras that start a little later instead of going out alone.
 
 use std::collections::VecDeque;
 use stereoscope_proto::messages::Observation;
@@ -32,6 +34,8 @@ pub struct Pairer {
     queues: Vec<Queue>,
     /// Observations thrown away unpaired (too old, or superseded).
     pub discarded: u64,
+    /// When the first observation of any camera arrived.
+    first_arrival_ns: Option<u64>,
 }
 
 const MAX_QUEUE: usize = 16;
@@ -47,6 +51,7 @@ impl Pairer {
                 })
                 .collect(),
             discarded: 0,
+            first_arrival_ns: None,
         }
     }
 
@@ -62,6 +67,7 @@ impl Pairer {
             .position(|(o, _)| o.timestamp_ns > obs.timestamp_ns)
             .unwrap_or(q.items.len());
         q.items.insert(pos, (obs, now_ns));
+        self.first_arrival_ns.get_or_insert(now_ns);
         q.last_arrival_ns = Some(now_ns);
         while q.items.len() > MAX_QUEUE {
             q.items.pop_front();
@@ -71,9 +77,8 @@ impl Pairer {
 
     /// Whether camera `c` counts as live at `now_ns`.
     pub fn live(&self, c: usize, now_ns: u64) -> bool {
-        self.queues[c]
-            .last_arrival_ns
-            .is_some_and(|t| now_ns.saturating_sub(t) <= self.cfg.camera_timeout_ns)
+        let since = self.queues[c].last_arrival_ns.or(self.first_arrival_ns);
+        since.is_some_and(|t| now_ns.saturating_sub(t) <= self.cfg.camera_timeout_ns)
     }
 
     /// The next complete (or given-up-on) set: `(camera, observation)` pairs.
@@ -207,7 +212,9 @@ mod tests {
     fn gives_up_after_max_wait_and_forgets_dead_cameras() {
         let mut p = Pairer::new(2, cfg());
         p.push(1, obs("b", 0), 0);
-        let _ = p.pop(0);
+        // Just started: cam0, not heard yet, is waited for (up to max_wait).
+        assert!(p.pop(0).is_none());
+        assert_eq!(p.pop(21 * MS).unwrap().len(), 1);
         p.push(0, obs("a", 10), 10 * MS);
         assert!(p.pop(15 * MS).is_none());
         let s = p.pop(31 * MS).unwrap();

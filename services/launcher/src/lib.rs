@@ -180,17 +180,25 @@ fn terminate(children: &mut [Running]) {
     }
 }
 
-/// The Zenoh spec of this host's router, and that of its services (clients of it).
+/// Where a PC's router listens when the rig file names no `[[host]]`: loopback only.
+pub const DEFAULT_ROUTER: &str = "tcp/127.0.0.1:7447";
+
+/// The Zenoh spec of this host's router, and that of its services (clients of it). A rig with
+/// no `[[host]]` runs on one PC with its router on [`DEFAULT_ROUTER`].
 pub fn router_specs(ctx: &Context) -> Option<(ZenohSpec, ZenohSpec)> {
-    let host = ctx.rig_file.hosts.iter().find(|h| h.name == ctx.host)?;
-    let first = host.zenoh_listen.first()?;
+    let (listen, connect) = match ctx.rig_file.hosts.iter().find(|h| h.name == ctx.host) {
+        Some(h) => (h.zenoh_listen.clone(), h.zenoh_connect.clone()),
+        None if ctx.rig_file.hosts.is_empty() => (vec![DEFAULT_ROUTER.to_string()], Vec::new()),
+        None => return None,
+    };
+    let first = listen.first()?.clone();
     Some((
         ZenohSpec {
             mode: ZenohMode::Router,
-            connect: host.zenoh_connect.clone(),
-            listen: host.zenoh_listen.clone(),
+            connect,
+            listen,
         },
-        ZenohSpec::client_of(&local_endpoint(first)),
+        ZenohSpec::client_of(&local_endpoint(&first)),
     ))
 }
 
