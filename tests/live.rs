@@ -672,3 +672,130 @@ fn status_lists_every_service_and_flags_a_stalled_camera() {
         "{text}"
     );
 }
+
+#[test]
+fn a_recording_replays_to_the_same_poses_and_survives_sigkill() {
+    let _serial = serial();
+    let dir = TempDir::new("record");
+    let (pa, pb) = (free_port(), free_port());
+    // Cameras on "pc"; fusion belongs to "pc2", started by hand once the recorder listens,
+    // so the recording holds everything fusion ever saw.
+    let rig = format!(
+        "{}\n[[host]]\nname = \"pc\"\nzenoh_listen = [\"tcp/127.0.0.1:{pa}\"]\niceoryx2_prefix = \"stsc_t{}r_\"\n\n[[host]]\nname = \"pc2\"\nzenoh_listen = [\"tcp/127.0.0.1:{pb}\"]\n",
+        demo_rig()
+            .replace("source = {", "host = \"pc\"\nsource = {")
+            .replace("[fusion]\n", "[fusion]\nhost = \"pc2\"\n"),
+        std::process::id()
+    );
+    let path = dir.file("rig.toml", &rig);
+    let endpoint = format!("tcp/127.0.0.1:{pa}");
+    let _launcher = Proc::start(&["run", &path, "--host", "pc"]);
+    let session = dir.0.join("session");
+    let session_s = session.to_str().unwrap().to_string();
+    let mut recorder = Proc::start(&[
+        "record",
+        "--rig",
+        &path,
+        "--host",
+        "pc",
+        "--out",
+        &session_s,
+        "--flush-ms",
+        "100",
+    ]);
+    let end = Instant::now() + Duration::from_secs(30);
+    while std::fs::metadata(session.join("observations.jsonl"))
+        .map(|m| m.len())
+        .unwrap_or(0)
+        == 0
+    {
+        assert!(
+            Instant::now() < end,
+            "nothing recorded:\n{}",
+            recorder.output()
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    let _fusion = Proc::start(&[
+        "service",
+        "fusion",
+        "--rig",
+        &path,
+        "--host",
+        "pc2",
+        "--iox-prefix",
+        &format!("stsc_t{}r2_", std::process::id()),
+        "--zenoh-mode",
+        "client",
+        "--zenoh-connect",
+        &endpoint,
+    ]);
+    let watcher = PoseWatcher::new(&endpoint, "demo");
+    watcher.until(Duration::from_secs(30), "three objects", both_cameras);
+    std::thread::sleep(Duration::from_secs(3));
+    // A power cut, as far as the recorder can tell.
+    // SAFETY: killing our own child.
+    unsafe { libc::kill(recorder.child.id() as libc::pid_t, libc::SIGKILL) };
+    let _ = recorder.child.wait();
+    let poses = std::fs::read_to_string(session.join("poses.jsonl")).unwrap();
+    assert!(poses.ends_with('\n'), "the last record is cut");
+    let n = poses.lines().count();
+    assert!(n >= 60, "{n} pose frames recorded");
+    for l in poses.lines() {
+        let f = PoseFrame::from_json(l.as_bytes()).unwrap();
+        assert_eq!(f.rig, "demo");
+    }
+    // Replay re-fuses the recorded observations into exactly the recorded poses.
+    let out = run_with_limit(&["replay", &session_s, "--json"], Duration::from_secs(60));
+    assert!(
+        out.status.success(),
+        "{}\n{}",
+        String::from_utf8_lossy(&out.stdout),
+        stderr(&out)
+    );
+    let v: serde_json::Value =
+        serde_json::from_str(String::from_utf8_lossy(&out.stdout).trim()).unwrap();
+    let frames = v["frames"].as_u64().unwrap();
+    assert!(frames as usize >= n - 2, "{v}");
+    assert_eq!(v["identical"], v["frames"], "{v}");
+    // CSV export: a header and a row per object per pose frame.
+    let out = run_with_limit(
+        &["export", &session_s, "--format", "csv"],
+        Duration::from_secs(30),
+    );
+    assert!(out.status.success(), "{}", stderr(&out));
+    let csv = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        csv.starts_with("timestamp_ns,sequence,object_id,x_m"),
+        "{csv}"
+    );
+    assert!(
+        csv.lines().count() > n,
+        "{} rows for {n} frames",
+        csv.lines().count()
+    );
+    // A broken line is named by file and line; an incomplete last one is skipped with a warning.
+    let obs = std::fs::read_to_string(session.join("observations.jsonl")).unwrap();
+    let mut lines: Vec<&str> = obs.lines().collect();
+    lines[2] = "{\"schema\":1,\"rig\":";
+    std::fs::write(session.join("observations.jsonl"), lines.join("\n") + "\n").unwrap();
+    let out = run_with_limit(&["replay", &session_s], Duration::from_secs(60));
+    assert!(!out.status.success());
+    assert!(
+        stderr(&out).contains("observations.jsonl:3"),
+        "{}",
+        stderr(&out)
+    );
+    std::fs::write(
+        session.join("observations.jsonl"),
+        obs.clone() + "{\"schema\":1,\"ri",
+    )
+    .unwrap();
+    let out = run_with_limit(&["replay", &session_s], Duration::from_secs(60));
+    let e = stderr(&out);
+    assert!(
+        e.contains("incomplete last line") && e.contains("observations.jsonl:"),
+        "{e}"
+    );
+    assert!(out.status.success(), "{e}");
+}

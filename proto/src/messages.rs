@@ -289,7 +289,8 @@ mod tests {
             cameras: vec!["cam0".into(), "cam1".into()],
             poses: vec![Pose {
                 object_id: 1,
-                position_m: [0.1, -0.2, 0.5],
+                // Values whose shortest decimal form needs all 17 digits round-trip exactly.
+                position_m: [0.1, -0.2, 0.0009008192496449652],
                 velocity_m_per_s: [0.0; 3],
                 heading_deg: Some(45.0),
                 heading_directed: false,

@@ -184,3 +184,91 @@ pub fn status(
         }
     }
 }
+
+/// `stereoscope replay`.
+pub fn replay(
+    session: PathBuf,
+    publish: Option<String>,
+    max_speed: bool,
+    json: bool,
+) -> anyhow::Result<usize> {
+    use std::io::Write as _;
+    use stereoscope_recorder::replay::{refuse, schedule};
+    use stereoscope_recorder::session::Session;
+    let s = Session::read(&session)?;
+    for w in &s.warnings {
+        eprintln!("warning: {w}");
+    }
+    if let Some(endpoint) = publish {
+        use stereoscope_proto::messages::Message;
+        use stereoscope_transport::net::{self, JsonPublisher, ZenohSpec};
+        let zs = net::open(&ZenohSpec::client_of(&endpoint))?;
+        let mut pubs = std::collections::HashMap::new();
+        let start = std::time::Instant::now();
+        let plan = schedule(&s);
+        let total = plan.len();
+        for (i, (delay_ns, o)) in plan.into_iter().enumerate() {
+            if !max_speed {
+                let due = std::time::Duration::from_nanos(delay_ns);
+                if let Some(wait) = due.checked_sub(start.elapsed()) {
+                    std::thread::sleep(wait);
+                }
+            }
+            if !pubs.contains_key(&o.camera) {
+                let key = stereoscope_proto::names::zenoh::observations(&o.rig, &o.camera);
+                pubs.insert(o.camera.clone(), JsonPublisher::new(&zs, &key)?);
+            }
+            if let Some(p) = pubs.get(&o.camera) {
+                p.put_bytes(o.to_json())?;
+            }
+            if i % 50 == 0 || i + 1 == total {
+                eprint!("\rpublishing observations {}/{total}", i + 1);
+                let _ = std::io::stderr().flush();
+            }
+        }
+        eprintln!();
+    }
+    let r = refuse(&s, |done, total| {
+        if done % 100 == 0 || done == total {
+            eprint!("\rre-fusing pose frames {done}/{total}");
+            let _ = std::io::stderr().flush();
+        }
+    })
+    .map_err(anyhow::Error::msg)?;
+    eprintln!();
+    if json {
+        println!(
+            "{{\"frames\":{},\"identical\":{},\"incomplete\":{},\"first_difference\":{}}}",
+            r.frames,
+            r.identical,
+            r.incomplete,
+            r.first_difference
+                .as_ref()
+                .map(|d| format!("{d:?}"))
+                .unwrap_or_else(|| "null".into())
+        );
+    } else {
+        println!(
+            "{} of {} pose frames reproduced exactly ({} lacked recorded observations)",
+            r.identical, r.frames, r.incomplete
+        );
+        if let Some(d) = &r.first_difference {
+            println!("first difference: {d}");
+        }
+    }
+    Ok(if r.identical == r.frames { 0 } else { 1 })
+}
+
+/// `stereoscope export --format csv`.
+pub fn export_csv(session: PathBuf, out: Option<PathBuf>) -> anyhow::Result<usize> {
+    let s = stereoscope_recorder::session::Session::read(&session)?;
+    for w in &s.warnings {
+        eprintln!("warning: {w}");
+    }
+    let csv = stereoscope_recorder::replay::export_csv(&s);
+    match out {
+        Some(p) => std::fs::write(&p, csv).with_context(|| p.display().to_string())?,
+        None => print!("{csv}"),
+    }
+    Ok(0)
+}

@@ -155,6 +155,37 @@ enum Command {
         #[arg(long, default_value_t = 2000)]
         stall_ms: u64,
     },
+    /// Record a running rig's poses and observations into a session folder (docs/recording.md).
+    Record {
+        #[command(flatten)]
+        args: stereoscope_recorder::cli::Args,
+    },
+    /// Re-run fusion on a recorded session and compare with its recorded poses; optionally
+    /// publish its observations again on Zenoh.
+    Replay {
+        /// The session folder.
+        session: PathBuf,
+        /// Publish the recorded observations on Zenoh through this router endpoint.
+        #[arg(long)]
+        publish: Option<String>,
+        /// With --publish: as fast as possible instead of at the recorded pace.
+        #[arg(long)]
+        max_speed: bool,
+        /// The comparison as one JSON object.
+        #[arg(long)]
+        json: bool,
+    },
+    /// Write a recorded session's poses in another format.
+    Export {
+        /// The session folder.
+        session: PathBuf,
+        /// csv (one row per object per pose frame).
+        #[arg(long, value_parser = ["csv"])]
+        format: String,
+        /// Output file (standard output if absent).
+        #[arg(long)]
+        out: Option<PathBuf>,
+    },
     /// Run one service in the foreground (what `run` starts; for debugging and deployment).
     #[command(subcommand, hide = true)]
     Service(ServiceCommand),
@@ -178,6 +209,7 @@ enum ServiceCommand {
     Moments(stereoscope_moments::cli::Args),
     Fusion(stereoscope_fusion::cli::Args),
     Serial(stereoscope_serial::cli::Args),
+    Recorder(stereoscope_recorder::cli::Args),
 }
 
 fn service(cmd: ServiceCommand) -> anyhow::Result<()> {
@@ -186,6 +218,7 @@ fn service(cmd: ServiceCommand) -> anyhow::Result<()> {
         ServiceCommand::Moments(a) => stereoscope_moments::cli::main(a),
         ServiceCommand::Fusion(a) => stereoscope_fusion::cli::main(a),
         ServiceCommand::Serial(a) => stereoscope_serial::cli::main(a),
+        ServiceCommand::Recorder(a) => stereoscope_recorder::cli::main(a),
     }
 }
 
@@ -390,6 +423,24 @@ fn main() -> ExitCode {
         } => finish(stereoscope::live::status(
             rig, connect, rig_name, watch, json, stall_ms,
         )),
+        Command::Record { args } => match stereoscope_recorder::cli::main(args) {
+            Ok(()) => ExitCode::SUCCESS,
+            Err(e) => {
+                eprintln!("error: {e:#}");
+                ExitCode::from(1)
+            }
+        },
+        Command::Replay {
+            session,
+            publish,
+            max_speed,
+            json,
+        } => finish(stereoscope::live::replay(session, publish, max_speed, json)),
+        Command::Export {
+            session,
+            format: _,
+            out,
+        } => finish(stereoscope::live::export_csv(session, out)),
         Command::Demo {
             seconds,
             rig,

@@ -1,0 +1,250 @@
+//! The recorder service and what reads its sessions: `stereoscope replay` and `stereoscope
+//! export` (`docs/recording.md`).
+//!
+//! The recorder subscribes to the rig's pose frames and every camera's observations on Zenoh
+//! (and, for cameras named with `--frames`, to their raw frames in shared memory on this PC),
+//! and appends them to a session folder ([`session`]). Lines are gathered in memory and
+//! written whole every `flush_interval` (default 200 ms), then synced to disk: a crash or a
+//! power cut loses at most the last interval, and a file never ends inside a record except
+//! when the process dies in the middle of that one write, which readers detect and skip.
+
+pub mod cli;
+pub mod replay;
+pub mod session;
+
+use session::{POSES_CSV_HEADER, SESSION_SCHEMA, SessionInfo, csv_rows};
+use std::fs::File;
+use std::io::Write;
+use std::path::PathBuf;
+use std::sync::mpsc;
+use std::time::{Duration, Instant};
+use stereoscope_proto::frame::PixelFormat;
+use stereoscope_proto::messages::{Message, Observation, PoseFrame, now_ns};
+use stereoscope_proto::names::{iox as iox_names, zenoh as keys};
+use stereoscope_transport::iox::FrameSubscriber;
+use stereoscope_transport::{Context, Counters, HealthReporter, Shutdown, net};
+
+#[derive(Debug, Clone)]
+pub struct RecorderConfig {
+    pub ctx: Context,
+    /// The session folder (created; must not exist or be empty).
+    pub out: PathBuf,
+    pub flush_interval: Duration,
+    /// Cameras (on this PC) whose raw frames to record as Y4M.
+    pub frames: Vec<String>,
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum RecorderError {
+    #[error("recorder: {0}")]
+    Setup(String),
+    #[error("recorder: writing {file}: {source}")]
+    Write {
+        file: String,
+        #[source]
+        source: std::io::Error,
+    },
+}
+
+enum Item {
+    Poses(Vec<u8>, PoseFrame),
+    Observation(Vec<u8>),
+    Bad(String),
+}
+
+struct Out {
+    name: String,
+    file: File,
+    buf: Vec<u8>,
+}
+
+impl Out {
+    fn create(dir: &std::path::Path, name: &str) -> Result<Out, RecorderError> {
+        let path = dir.join(name);
+        let file = File::create(&path).map_err(|e| RecorderError::Write {
+            file: path.display().to_string(),
+            source: e,
+        })?;
+        Ok(Out {
+            name: path.display().to_string(),
+            file,
+            buf: Vec::new(),
+        })
+    }
+
+    fn flush(&mut self) -> Result<(), RecorderError> {
+        if self.buf.is_empty() {
+            return Ok(());
+        }
+        let w = |e| RecorderError::Write {
+            file: self.name.clone(),
+            source: e,
+        };
+        self.file.write_all(&self.buf).map_err(w)?;
+        self.file.sync_data().map_err(|e| RecorderError::Write {
+            file: self.name.clone(),
+            source: e,
+        })?;
+        self.buf.clear();
+        Ok(())
+    }
+}
+
+/// Records until shutdown; returns `(pose frames, observations)` written.
+pub fn run(cfg: RecorderConfig, shutdown: Shutdown) -> Result<(u64, u64), RecorderError> {
+    let ctx = &cfg.ctx;
+    let setup = |m: String| RecorderError::Setup(m);
+    let rig = ctx.rig_file.name.clone();
+    if cfg.out.exists()
+        && std::fs::read_dir(&cfg.out)
+            .map(|mut d| d.next().is_some())
+            .unwrap_or(true)
+    {
+        return Err(setup(format!(
+            "{} exists and is not empty: give a new session folder",
+            cfg.out.display()
+        )));
+    }
+    std::fs::create_dir_all(&cfg.out).map_err(|e| setup(format!("{}: {e}", cfg.out.display())))?;
+    let rig_text = std::fs::read_to_string(&ctx.rig_path)
+        .map_err(|e| setup(format!("{}: {e}", ctx.rig_path.display())))?;
+    let info = SessionInfo {
+        schema: SESSION_SCHEMA,
+        rig: rig.clone(),
+        started_ns: now_ns(),
+        rig_file: rig_text,
+    };
+    // session.json whole, through a temporary name.
+    let tmp = cfg.out.join("session.json.tmp");
+    let text = serde_json::to_vec_pretty(&info).map_err(|e| setup(e.to_string()))?;
+    std::fs::write(&tmp, text)
+        .and_then(|_| std::fs::rename(&tmp, cfg.out.join("session.json")))
+        .map_err(|e| setup(format!("{}: {e}", cfg.out.display())))?;
+    let mut poses_out = Out::create(&cfg.out, "poses.jsonl")?;
+    let mut obs_out = Out::create(&cfg.out, "observations.jsonl")?;
+    let mut csv_out = Out::create(&cfg.out, "poses.csv")?;
+    csv_out.buf.extend_from_slice(POSES_CSV_HEADER.as_bytes());
+
+    let session = net::open(&ctx.zenoh).map_err(|e| setup(e.to_string()))?;
+    let (tx, rx) = mpsc::sync_channel::<Item>(4096);
+    let tx2 = tx.clone();
+    let _p = net::subscribe(&session, &keys::poses(&rig), move |k, b| {
+        let item = match PoseFrame::from_json(b) {
+            Ok(f) => Item::Poses(b.to_vec(), f),
+            Err(e) => Item::Bad(format!("{k}: {e}")),
+        };
+        let _ = tx.send(item);
+    })
+    .map_err(|e| setup(e.to_string()))?;
+    let _o = net::subscribe(&session, &keys::all_observations(&rig), move |k, b| {
+        let item = match Observation::from_json(b) {
+            Ok(_) => Item::Observation(b.to_vec()),
+            Err(e) => Item::Bad(format!("{k}: {e}")),
+        };
+        let _ = tx2.send(item);
+    })
+    .map_err(|e| setup(e.to_string()))?;
+    // Raw frames, through shared memory.
+    let node = if cfg.frames.is_empty() {
+        None
+    } else {
+        Some(
+            stereoscope_transport::iox::node(&ctx.iox_prefix, "recorder")
+                .map_err(|e| setup(e.to_string()))?,
+        )
+    };
+    let mut frame_subs = Vec::new();
+    if let Some(node) = &node {
+        for cam in &cfg.frames {
+            let sub = FrameSubscriber::new(node, &iox_names::frames(&rig, cam))
+                .map_err(|e| setup(e.to_string()))?;
+            let out = Out::create(&cfg.out, &format!("frames-{cam}.y4m"))?;
+            frame_subs.push((cam.clone(), sub, out, false));
+        }
+    }
+    let mut health = HealthReporter::new(&session, &rig, &ctx.host, "recorder")
+        .map_err(|e| setup(e.to_string()))?;
+    tracing::info!(out = %cfg.out.display(), "recording");
+    let mut counters = Counters::default();
+    let (mut n_poses, mut n_obs) = (0u64, 0u64);
+    let mut last_flush = Instant::now();
+    loop {
+        let stopping = shutdown.requested();
+        let wait = if frame_subs.is_empty() { 20 } else { 1 };
+        while let Ok(item) = rx.recv_timeout(Duration::from_millis(wait)) {
+            match item {
+                Item::Poses(bytes, f) => {
+                    poses_out.buf.extend_from_slice(&bytes);
+                    poses_out.buf.push(b'\n');
+                    csv_out.buf.extend_from_slice(csv_rows(&f).as_bytes());
+                    n_poses += 1;
+                }
+                Item::Observation(bytes) => {
+                    obs_out.buf.extend_from_slice(&bytes);
+                    obs_out.buf.push(b'\n');
+                    n_obs += 1;
+                }
+                Item::Bad(m) => {
+                    counters.rejected += 1;
+                    counters.last_error = Some(m);
+                }
+            }
+            if last_flush.elapsed() >= cfg.flush_interval {
+                break;
+            }
+        }
+        for (cam, sub, out, header_done) in frame_subs.iter_mut() {
+            if let Ok(Some((s, skipped))) = sub.next_newest(Duration::ZERO) {
+                counters.dropped += skipped;
+                let h = *s.user_header();
+                match h.validate(s.payload().len()) {
+                    Ok(format) => {
+                        if !*header_done {
+                            let c = if format == PixelFormat::Gray16 {
+                                "mono16"
+                            } else {
+                                "mono"
+                            };
+                            out.buf.extend_from_slice(
+                                format!(
+                                    "YUV4MPEG2 W{} H{} F30:1 Ip A1:1 C{c}\n",
+                                    h.width, h.height
+                                )
+                                .as_bytes(),
+                            );
+                            *header_done = true;
+                        }
+                        out.buf.extend_from_slice(b"FRAME\n");
+                        let row = h.width as usize * format.bytes_per_pixel();
+                        for y in 0..h.height as usize {
+                            let start = y * h.stride_bytes as usize;
+                            out.buf.extend_from_slice(&s.payload()[start..start + row]);
+                        }
+                    }
+                    Err(e) => {
+                        counters.rejected += 1;
+                        counters.last_error = Some(format!("frame {} of {cam}: {e}", h.sequence));
+                    }
+                }
+            }
+        }
+        if last_flush.elapsed() >= cfg.flush_interval || stopping {
+            poses_out.flush()?;
+            obs_out.flush()?;
+            csv_out.flush()?;
+            for (_, _, out, _) in frame_subs.iter_mut() {
+                out.flush()?;
+            }
+            last_flush = Instant::now();
+        }
+        counters.processed = n_poses;
+        counters
+            .detail
+            .insert("observations".into(), n_obs.to_string());
+        health.tick(&counters);
+        if stopping {
+            break;
+        }
+    }
+    Ok((n_poses, n_obs))
+}

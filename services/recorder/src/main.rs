@@ -1,0 +1,14 @@
+//! `stereoscope-recorder`: the recorder's thin binary (see the library).
+
+use clap::Parser;
+
+#[derive(Parser, Debug)]
+#[command(about = "Record poses, observations and frames into a session folder")]
+struct Cli {
+    #[command(flatten)]
+    args: stereoscope_recorder::cli::Args,
+}
+
+fn main() -> anyhow::Result<()> {
+    stereoscope_recorder::cli::main(Cli::parse().args)
+}

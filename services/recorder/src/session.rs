@@ -1,0 +1,217 @@
+//! A recorded session folder (`docs/recording.md`):
+//!
+//! - `session.json` — `{"schema": 1, "rig": NAME, "started_ns": …, "rig_file": TEXT}`, written
+//!   whole before anything else;
+//! - `poses.jsonl`, `observations.jsonl` — one message per line, exactly as on Zenoh
+//!   (`docs/protocol.md`);
+//! - `poses.csv` — one row per object per pose frame, for spreadsheets;
+//! - `frames-<camera>.y4m` — raw frames of the cameras asked for.
+//!
+//! Reading checks every line and names file and line; an incomplete last line (a recorder that
+//! was killed mid-write) is reported and skipped, everything before it is kept.
+
+use serde::{Deserialize, Serialize};
+use std::path::{Path, PathBuf};
+use stereoscope_proto::messages::{Message, Observation, PoseFrame};
+
+pub const SESSION_SCHEMA: u32 = 1;
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SessionInfo {
+    pub schema: u32,
+    pub rig: String,
+    pub started_ns: u64,
+    /// The rig file's text, so a session can be replayed without it.
+    pub rig_file: String,
+}
+
+pub const POSES_CSV_HEADER: &str = "timestamp_ns,sequence,object_id,x_m,y_m,z_m,heading_deg,heading_directed,method,cameras,residual_px\n";
+
+/// CSV rows of one pose frame.
+pub fn csv_rows(f: &PoseFrame) -> String {
+    let mut out = String::new();
+    for p in &f.poses {
+        out.push_str(&format!(
+            "{},{},{},{:.6},{:.6},{:.6},{},{},{},{},{:.4}\n",
+            f.timestamp_ns,
+            f.sequence,
+            p.object_id,
+            p.position_m[0],
+            p.position_m[1],
+            p.position_m[2],
+            p.heading_deg.map(|h| format!("{h:.3}")).unwrap_or_default(),
+            p.heading_directed,
+            match p.method {
+                stereoscope_proto::messages::PoseMethod::Triangulated => "triangulated",
+                stereoscope_proto::messages::PoseMethod::DepthFromArea => "depth_from_area",
+            },
+            p.cameras.join(" "),
+            p.residual_px
+        ));
+    }
+    out
+}
+
+/// A problem in a session folder, naming the file and line.
+#[derive(Debug, thiserror::Error)]
+#[error("{}{}: {message}", file.display(), line.map(|l| format!(":{l}")).unwrap_or_default())]
+pub struct SessionError {
+    pub file: PathBuf,
+    pub line: Option<usize>,
+    pub message: String,
+}
+
+/// A session read back.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Session {
+    pub info: SessionInfo,
+    pub poses: Vec<PoseFrame>,
+    pub observations: Vec<Observation>,
+    /// Warnings (an incomplete last line), with file and line.
+    pub warnings: Vec<String>,
+}
+
+fn read_lines<M: Message>(path: &Path, warnings: &mut Vec<String>) -> Result<Vec<M>, SessionError> {
+    let text = std::fs::read(path).map_err(|e| SessionError {
+        file: path.to_path_buf(),
+        line: None,
+        message: e.to_string(),
+    })?;
+    let complete = text.last().is_none_or(|&b| b == b'\n');
+    let lines: Vec<&[u8]> = text
+        .split(|&b| b == b'\n')
+        .filter(|l| !l.is_empty())
+        .collect();
+    let mut out = Vec::with_capacity(lines.len());
+    for (i, line) in lines.iter().enumerate() {
+        let last = i + 1 == lines.len();
+        match M::from_json(line) {
+            Ok(m) => out.push(m),
+            Err(_) if last && !complete => warnings.push(format!(
+                "{}:{}: incomplete last line (the recorder stopped mid-write); skipped",
+                path.display(),
+                i + 1
+            )),
+            Err(e) => {
+                return Err(SessionError {
+                    file: path.to_path_buf(),
+                    line: Some(i + 1),
+                    message: e.to_string(),
+                });
+            }
+        }
+    }
+    Ok(out)
+}
+
+impl Session {
+    pub fn read(dir: &Path) -> Result<Session, SessionError> {
+        let info_path = dir.join("session.json");
+        let info_text = std::fs::read(&info_path).map_err(|e| SessionError {
+            file: info_path.clone(),
+            line: None,
+            message: e.to_string(),
+        })?;
+        let info: SessionInfo = serde_json::from_slice(&info_text).map_err(|e| SessionError {
+            file: info_path.clone(),
+            line: Some(e.line()),
+            message: e.to_string(),
+        })?;
+        if info.schema != SESSION_SCHEMA {
+            return Err(SessionError {
+                file: info_path,
+                line: None,
+                message: format!("session schema {} is not {SESSION_SCHEMA}", info.schema),
+            });
+        }
+        let mut warnings = Vec::new();
+        let poses = read_lines(&dir.join("poses.jsonl"), &mut warnings)?;
+        let observations = read_lines(&dir.join("observations.jsonl"), &mut warnings)?;
+        Ok(Session {
+            info,
+            poses,
+            observations,
+            warnings,
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use stereoscope_proto::messages::{Pose, PoseMethod, SCHEMA_VERSION};
+
+    fn frame(seq: u64) -> PoseFrame {
+        PoseFrame {
+            schema: SCHEMA_VERSION,
+            rig: "r".into(),
+            sequence: seq,
+            timestamp_ns: 1000 + seq,
+            frame_published_ns: 0,
+            published_ns: 0,
+            cameras: vec!["a".into(), "b".into()],
+            poses: vec![Pose {
+                object_id: 7,
+                position_m: [0.5, -0.25, 1.0],
+                velocity_m_per_s: [0.0; 3],
+                heading_deg: None,
+                heading_directed: false,
+                method: PoseMethod::DepthFromArea,
+                cameras: vec!["a".into()],
+                residual_px: 0.0,
+                out_of_range: true,
+            }],
+        }
+    }
+
+    #[test]
+    fn csv_rows_follow_the_header() {
+        let r = csv_rows(&frame(3));
+        assert_eq!(
+            r,
+            "1003,3,7,0.500000,-0.250000,1.000000,,false,depth_from_area,a,0.0000\n"
+        );
+        assert_eq!(POSES_CSV_HEADER.split(',').count(), r.split(',').count());
+    }
+
+    #[test]
+    fn reading_names_file_and_line() {
+        let dir = std::env::temp_dir().join(format!("session-test-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).unwrap();
+        let info = SessionInfo {
+            schema: SESSION_SCHEMA,
+            rig: "r".into(),
+            started_ns: 1,
+            rig_file: String::new(),
+        };
+        std::fs::write(dir.join("session.json"), serde_json::to_vec(&info).unwrap()).unwrap();
+        let lines: Vec<String> = (0..3)
+            .map(|i| String::from_utf8(frame(i).to_json()).unwrap())
+            .collect();
+        std::fs::write(dir.join("poses.jsonl"), lines.join("\n") + "\n").unwrap();
+        std::fs::write(dir.join("observations.jsonl"), "").unwrap();
+        let s = Session::read(&dir).unwrap();
+        assert_eq!(s.poses.len(), 3);
+        assert_eq!(s.poses[2], frame(2));
+        // An incomplete last line: kept what came before, warned.
+        std::fs::write(
+            dir.join("poses.jsonl"),
+            lines.join("\n") + "\n{\"schema\":1,",
+        )
+        .unwrap();
+        let s = Session::read(&dir).unwrap();
+        assert_eq!(s.poses.len(), 3);
+        assert!(s.warnings[0].contains("poses.jsonl:4"), "{:?}", s.warnings);
+        // A bad line in the middle is an error with file and line.
+        let bad = format!("{}\nnot json\n{}\n", lines[0], lines[1]);
+        std::fs::write(dir.join("poses.jsonl"), bad).unwrap();
+        let e = Session::read(&dir).unwrap_err().to_string();
+        assert!(e.contains("poses.jsonl:2"), "{e}");
+        std::fs::remove_file(dir.join("session.json")).unwrap();
+        let e = Session::read(&dir).unwrap_err().to_string();
+        assert!(e.contains("session.json"), "{e}");
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+}
