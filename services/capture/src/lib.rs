@@ -6,8 +6,9 @@
 //!
 //! Never blocks on a slow reader: subscribers keep the newest frames only (safe overflow), and
 //! the worker counts what it missed from sequence gaps. Real-time sources are paced on a
-//! fixed grid (frame k at start + k / fps; a frame that is late is published at once and the
-//! grid is kept, frames are never bunched), the others as fast as the reader takes them.
+//! fixed grid (slot n at n / fps since the Unix epoch; a frame that is late is published at
+//! once, and a source more than a period behind skips to the current slot, counting the
+//! skipped ones as dropped), the others as fast as the reader takes them.
 
 pub mod cli;
 pub mod images;
@@ -206,10 +207,20 @@ pub fn run(cfg: CaptureConfig, shutdown: Shutdown) -> Result<CaptureSummary, Cap
     counters.detail.insert("source".into(), source.describe());
     let mut summary = CaptureSummary::default();
     let mut index: u64 = 0;
+    let mut next_slot = first_slot;
     while !shutdown.requested() && cfg.max_frames.is_none_or(|m| index < m) {
         let (slot, scene_time_s, nominal_ns) = match (realtime, period_ns) {
             (true, Some(p)) => {
-                let slot = first_slot + index;
+                // More than a period behind (a source slower than its rate): skip to the
+                // current slot rather than publish ever older frames; the gap shows in the
+                // sequence numbers and is counted as dropped.
+                let now_slot = (start_ns + start.elapsed().as_nanos() as u64) / p;
+                if now_slot > next_slot + 1 {
+                    counters.dropped += now_slot - next_slot;
+                    next_slot = now_slot;
+                }
+                let slot = next_slot;
+                next_slot += 1;
                 let due_ns = slot * p;
                 let wait_ns = due_ns.saturating_sub(start_ns);
                 let due = Duration::from_nanos(wait_ns);
@@ -226,7 +237,12 @@ pub fn run(cfg: CaptureConfig, shutdown: Shutdown) -> Result<CaptureSummary, Cap
             ),
         };
         let mut header = header0;
-        header.sequence = index;
+        // Real-time frames are numbered by their slot, so skipped slots leave a gap.
+        header.sequence = if realtime && period_ns.is_some() {
+            slot - first_slot
+        } else {
+            index
+        };
         header.timestamp_ns = nominal_ns;
         let result = frames.publish(header, |buf| match source.read(slot, scene_time_s, buf) {
             Ok(Read::Frame { timestamp_ns }) => Ok(timestamp_ns),
@@ -259,7 +275,7 @@ pub fn run(cfg: CaptureConfig, shutdown: Shutdown) -> Result<CaptureSummary, Cap
             let t = Truth {
                 schema: SCHEMA_VERSION,
                 camera: cam.clone(),
-                sequence: index,
+                sequence: header.sequence,
                 timestamp_ns: nominal_ns,
                 targets: truth,
             };
