@@ -1,7 +1,7 @@
 //! `stereoscope demo`: the whole chain on this PC as separate processes — two synthetic
 //! cameras of the thesis's lab (`deploy/rigs/demo.toml`), their moment workers and fusion,
 //! started by the launcher — watched from outside over Zenoh like any client would: poses
-//! against the synthetic cameras' ground truth, live, then a summary (poses/s, capture→pose
+//! against the synthetic cameras' ground truth (read from shared memory on this PC), live, then a summary (poses/s, capture→pose
 //! latency, position and heading error, identity switches).
 
 use crate::{LaunchConfig, LaunchError};
@@ -113,7 +113,6 @@ type Scored = (u32, Option<u32>, f64);
 
 enum Event {
     Poses(PoseFrame),
-    Truth(Truth),
 }
 
 #[derive(Default)]
@@ -148,7 +147,7 @@ pub fn run(cfg: DemoConfig, shutdown: Shutdown) -> Result<DemoSummary, LaunchErr
         rig_file: rig_file.clone(),
         rig,
         host: "demo".into(),
-        iox_prefix: prefix,
+        iox_prefix: prefix.clone(),
         zenoh: client.clone(),
     };
     let first_cam = rig_file
@@ -167,7 +166,14 @@ pub fn run(cfg: DemoConfig, shutdown: Shutdown) -> Result<DemoSummary, LaunchErr
         };
         std::thread::spawn(move || crate::run(lc, stop))
     };
-    let result = watch(&cfg, &shutdown, &client, &rig_file.name, &first_cam);
+    let result = watch(
+        &cfg,
+        &shutdown,
+        &client,
+        &rig_file.name,
+        &first_cam,
+        &prefix,
+    );
     launch_stop.request();
     let restarts = match launcher.join() {
         Ok(Ok(r)) => r,
@@ -186,6 +192,7 @@ fn watch(
     client: &ZenohSpec,
     rig: &str,
     truth_cam: &str,
+    iox_prefix: &str,
 ) -> Result<DemoSummary, LaunchError> {
     let setup = |m: String| LaunchError::Setup(m);
     // The router starts in the launcher thread: give it a moment, then connect.
@@ -203,18 +210,19 @@ fn watch(
     }
     let session = session.ok_or_else(|| setup("no zenoh session".into()))?;
     let (tx, rx) = mpsc::sync_channel::<Event>(1024);
-    let tx2 = tx.clone();
     let _poses = net::subscribe(&session, &keys::poses(rig), move |_, b| {
         if let Ok(p) = PoseFrame::from_json(b) {
             let _ = tx.try_send(Event::Poses(p));
         }
     })
     .map_err(|e| setup(e.to_string()))?;
-    let _truth = net::subscribe(&session, &keys::truth(rig, truth_cam), move |_, b| {
-        if let Ok(t) = Truth::from_json(b) {
-            let _ = tx2.try_send(Event::Truth(t));
-        }
-    })
+    // Ground truth comes from the synthetic camera on this PC, through shared memory.
+    let node = stereoscope_transport::iox::node(iox_prefix, "demo-watcher")
+        .map_err(|e| setup(e.to_string()))?;
+    let truth_sub = stereoscope_transport::iox::MessageSubscriber::new(
+        &node,
+        &stereoscope_proto::names::iox::truth(rig, truth_cam),
+    )
     .map_err(|e| setup(e.to_string()))?;
 
     let startup_deadline = Instant::now() + Duration::from_secs(30);
@@ -253,13 +261,15 @@ fn watch(
                 exposure.push(p.published_ns.saturating_sub(p.timestamp_ns) as f64 / 1e6);
                 pending.push_back(p);
             }
-            Ok(Event::Truth(t)) => {
-                truths.push_back(t);
-                if truths.len() > 600 {
-                    truths.pop_front();
-                }
-            }
             Err(_) => {}
+        }
+        while let Ok(Some(t)) = truth_sub.try_next::<Truth>() {
+            if let Ok(t) = t {
+                truths.push_back(t);
+            }
+        }
+        while truths.len() > 600 {
+            truths.pop_front();
         }
         // Score pose frames whose truth has arrived (or give up on them after 100 frames).
         while let Some(p) = pending.front() {

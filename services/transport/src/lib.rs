@@ -75,6 +75,8 @@ pub fn init_logging(service: &str) {
         .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
         .with_target(false)
         .try_init();
+    // iceoryx2 prints its own warnings (e.g. "no config file was loaded") to stdout.
+    iceoryx2::prelude::set_log_level(iceoryx2::prelude::LogLevel::Error);
     tracing::debug!(service, "logging started");
 }
 
