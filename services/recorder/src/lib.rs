@@ -229,8 +229,10 @@ pub fn run(cfg: RecorderConfig, shutdown: Shutdown) -> Result<(u64, u64), Record
             }
         }
         if last_flush.elapsed() >= cfg.flush_interval || stopping {
-            poses_out.flush()?;
+            // Observations before the poses made from them: a crash between the two writes
+            // leaves observations without poses, never poses without their observations.
             obs_out.flush()?;
+            poses_out.flush()?;
             csv_out.flush()?;
             for (_, _, out, _) in frame_subs.iter_mut() {
                 out.flush()?;
