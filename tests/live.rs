@@ -109,6 +109,18 @@ fn free_port() -> u16 {
     net::free_loopback_port().unwrap()
 }
 
+/// The demo rig on one PC named "pc" with its router on a free loopback port and an
+/// iceoryx2 prefix of this test's own (`tag` tells the tests apart): the file and the port.
+fn one_pc_rig(dir: &TempDir, tag: char) -> (String, u16) {
+    let port = free_port();
+    let rig = format!(
+        "{}\n[[host]]\nname = \"pc\"\nzenoh_listen = [\"tcp/127.0.0.1:{port}\"]\niceoryx2_prefix = \"stsc_t{}{tag}_\"\n",
+        demo_rig(),
+        std::process::id()
+    );
+    (dir.file("rig.toml", &rig), port)
+}
+
 fn demo_rig() -> String {
     std::fs::read_to_string(repo_root().join("deploy/rigs/demo.toml")).unwrap()
 }
@@ -245,25 +257,14 @@ fn fusion_on_another_host_gets_observations_through_zenoh_only() {
 fn a_killed_capture_leaves_fusion_on_one_camera_and_is_restarted() {
     let _serial = serial();
     let dir = TempDir::new("kill-capture");
-    let port = free_port();
-    let rig = format!(
-        "{}\n[[host]]\nname = \"pc\"\nzenoh_listen = [\"tcp/127.0.0.1:{port}\"]\niceoryx2_prefix = \"stsc_t{}k_\"\n",
-        demo_rig(),
-        std::process::id()
-    );
-    let path = dir.file("rig.toml", &rig);
+    let (path, port) = one_pc_rig(&dir, 'k');
     let launcher = Proc::start(&["run", &path]);
     let watcher = PoseWatcher::new(&format!("tcp/127.0.0.1:{port}"), "demo");
     watcher.until(Duration::from_secs(40), "both cameras", both_cameras);
     let log = launcher.wait_for(Duration::from_secs(5), "capture/cam1's pid", |o| {
         o.contains("started capture/cam1 (pid ")
     });
-    let pid: i32 = log
-        .split("started capture/cam1 (pid ")
-        .nth(1)
-        .and_then(|s| s.split(')').next())
-        .and_then(|s| s.parse().ok())
-        .expect("pid");
+    let pid = pid_of(&log, "capture/cam1");
     // SAFETY: killing a process this test started (through the launcher).
     assert_eq!(unsafe { libc::kill(pid, libc::SIGKILL) }, 0);
     let one = watcher.until(Duration::from_secs(20), "cam0 alone", |p| {
@@ -467,13 +468,7 @@ impl Cable {
 fn serial_output_sends_fresh_poses_and_survives_an_unplugged_cable() {
     let _serial = serial();
     let dir = TempDir::new("serial");
-    let port = free_port();
-    let rig = format!(
-        "{}\n[[host]]\nname = \"pc\"\nzenoh_listen = [\"tcp/127.0.0.1:{port}\"]\niceoryx2_prefix = \"stsc_t{}p_\"\n",
-        demo_rig(),
-        std::process::id()
-    );
-    let path = dir.file("rig.toml", &rig);
+    let (path, port) = one_pc_rig(&dir, 'p');
     let link = dir.0.join("ttyStereo");
     // The cable is plugged after every process started, so none of them inherits its fds.
     let _launcher = Proc::start(&["run", &path]);
@@ -591,13 +586,7 @@ fn pid_of(log: &str, service: &str) -> i32 {
 fn status_lists_every_service_and_flags_a_stalled_camera() {
     let _serial = serial();
     let dir = TempDir::new("status");
-    let port = free_port();
-    let rig = format!(
-        "{}\n[[host]]\nname = \"pc\"\nzenoh_listen = [\"tcp/127.0.0.1:{port}\"]\niceoryx2_prefix = \"stsc_t{}q_\"\n",
-        demo_rig(),
-        std::process::id()
-    );
-    let path = dir.file("rig.toml", &rig);
+    let (path, port) = one_pc_rig(&dir, 'q');
     let launcher = Proc::start(&["run", &path]);
     let watcher = PoseWatcher::new(&format!("tcp/127.0.0.1:{port}"), "demo");
     watcher.until(Duration::from_secs(40), "three objects", both_cameras);

@@ -279,15 +279,11 @@ pub fn run(cfg: CaptureConfig, shutdown: Shutdown) -> Result<CaptureSummary, Cap
                 timestamp_ns: nominal_ns,
                 targets: truth,
             };
-            if let Some(p) = &truth_iox
-                && let Err(e) = p.publish(&t)
-            {
-                counters.last_error = Some(e.to_string());
+            if let Some(p) = &truth_iox {
+                counters.note(p.publish(&t));
             }
-            if let Some(p) = &truth_net
-                && let Err(e) = p.put(&t)
-            {
-                counters.last_error = Some(e.to_string());
+            if let Some(p) = &truth_net {
+                counters.note(p.put(&t));
             }
         }
         index += 1;

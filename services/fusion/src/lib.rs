@@ -201,12 +201,8 @@ pub fn run(cfg: FusionConfig, shutdown: Shutdown) -> Result<u64, FusionError> {
                 cameras,
                 poses,
             };
-            if let Err(e) = poses_net.put(&frame) {
-                counters.last_error = Some(e.to_string());
-            }
-            if let Err(e) = poses_local.publish(&frame) {
-                counters.last_error = Some(e.to_string());
-            }
+            counters.note(poses_net.put(&frame));
+            counters.note(poses_local.publish(&frame));
             for p in &frame.poses {
                 let u = PoseUpdate {
                     schema: SCHEMA_VERSION,
@@ -217,9 +213,7 @@ pub fn run(cfg: FusionConfig, shutdown: Shutdown) -> Result<u64, FusionError> {
                     published_ns,
                     pose: p.clone(),
                 };
-                if let Err(e) = per_object.put_bytes(&keys::pose(&rig, p.object_id), u.to_json()) {
-                    counters.last_error = Some(e.to_string());
-                }
+                counters.note(per_object.put_bytes(&keys::pose(&rig, p.object_id), u.to_json()));
             }
             sequence += 1;
             counters.processed = sequence;
@@ -227,18 +221,21 @@ pub fn run(cfg: FusionConfig, shutdown: Shutdown) -> Result<u64, FusionError> {
                 break;
             }
         }
-        let now = now_ns();
-        counters.dropped = pairer.discarded + overflow.load(std::sync::atomic::Ordering::Relaxed);
-        let live: Vec<&str> = (0..n)
-            .filter(|&c| pairer.live(c, now))
-            .map(|c| ctx.rig.cameras[c].id.as_str())
-            .collect();
-        counters
-            .detail
-            .insert("cameras_live".into(), live.join(","));
-        counters
-            .detail
-            .insert("objects".into(), fuser.objects().to_string());
+        if health.due() {
+            let now = now_ns();
+            counters.dropped =
+                pairer.discarded + overflow.load(std::sync::atomic::Ordering::Relaxed);
+            let live: Vec<&str> = (0..n)
+                .filter(|&c| pairer.live(c, now))
+                .map(|c| ctx.rig.cameras[c].id.as_str())
+                .collect();
+            counters
+                .detail
+                .insert("cameras_live".into(), live.join(","));
+            counters
+                .detail
+                .insert("objects".into(), fuser.objects().to_string());
+        }
         health.tick(&counters);
     }
     Ok(sequence)

@@ -388,12 +388,8 @@ pub fn run(cfg: MomentsConfig, shutdown: Shutdown) -> Result<u64, MomentsError> 
         match result {
             Ok(mut obs) => {
                 obs.published_ns = now_ns();
-                if let Err(e) = local.publish(&obs) {
-                    counters.last_error = Some(e.to_string());
-                }
-                if let Err(e) = remote.put(&obs) {
-                    counters.last_error = Some(e.to_string());
-                }
+                counters.note(local.publish(&obs));
+                counters.note(remote.put(&obs));
                 processed += 1;
                 counters.processed = processed;
             }
@@ -404,16 +400,18 @@ pub fn run(cfg: MomentsConfig, shutdown: Shutdown) -> Result<u64, MomentsError> 
                 counters.last_error = Some(m);
             }
         }
-        counters.detail.insert(
-            "threshold".into(),
-            worker
-                .threshold()
-                .map(|t| t.to_string())
-                .unwrap_or_default(),
-        );
-        counters
-            .detail
-            .insert("tracked".into(), worker.tracked().to_string());
+        if health.due() {
+            counters.detail.insert(
+                "threshold".into(),
+                worker
+                    .threshold()
+                    .map(|t| t.to_string())
+                    .unwrap_or_default(),
+            );
+            counters
+                .detail
+                .insert("tracked".into(), worker.tracked().to_string());
+        }
         health.tick(&counters);
     }
     Ok(processed)

@@ -19,6 +19,16 @@ pub struct Counters {
     pub detail: BTreeMap<String, String>,
 }
 
+impl Counters {
+    /// Keeps the error of a failed publication (or any side effect the service carries on
+    /// after) as the last error; the service goes on either way.
+    pub fn note<T, E: std::fmt::Display>(&mut self, result: Result<T, E>) {
+        if let Err(e) = result {
+            self.last_error = Some(e.to_string());
+        }
+    }
+}
+
 pub struct HealthReporter {
     publisher: JsonPublisher,
     _token: zenoh::liveliness::LivelinessToken,
@@ -65,6 +75,12 @@ impl HealthReporter {
             last: Instant::now(),
             last_processed: 0,
         })
+    }
+
+    /// Whether the next [`HealthReporter::tick`] publishes: fill `Counters::detail` only
+    /// then, so the per-frame loop does not format strings it throws away.
+    pub fn due(&self) -> bool {
+        self.last.elapsed() >= self.interval
     }
 
     /// Publishes a report when the interval has passed.
