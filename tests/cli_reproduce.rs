@@ -38,11 +38,11 @@ fn reduced_reproduce_writes_every_table_and_meets_the_goals() {
         );
         let rms =
             (rows.iter().map(|r| r.error_cm * r.error_cm).sum::<f64>() / rows.len() as f64).sqrt();
-        // Far better than the thesis's lab (the goal of a fifth is not met everywhere yet:
-        // docs/reproduce.md).
+        // The goal: at most a fifth of the thesis's RMS (deterministic: the default
+        // seed renders the same frames on every machine).
         assert!(
-            rms < thesis_rms / 2.0,
-            "{key}: RMS {rms} cm vs the thesis's {thesis_rms} cm"
+            rms <= thesis_rms / 5.0,
+            "{key}: RMS {rms} cm vs a fifth of the thesis's {thesis_rms} cm"
         );
         assert!(out.join(format!("{key}.md")).exists() && out.join(format!("{key}.png")).exists());
     }
@@ -56,7 +56,36 @@ fn reduced_reproduce_writes_every_table_and_meets_the_goals() {
     assert_eq!(errs.len(), 108);
     let rms = (errs.iter().map(|e| e * e).sum::<f64>() / errs.len() as f64).sqrt();
     assert!(rms <= 1.0, "heading RMS {rms}°");
-    assert!(out.join("heat_map.png").exists() && out.join("heat_map.csv").exists());
+    assert!(out.join("heat_map.png").exists());
+    // The heat map covers the whole 2.17 × 1.83 m board in 15 cm cells, each measured the way
+    // the live fusion would: both cameras in the shared view (millimetres), one camera beside it.
+    let heat = std::fs::read_to_string(out.join("heat_map.csv")).unwrap();
+    let cells: Vec<(String, f64)> = heat
+        .lines()
+        .skip(1)
+        .map(|l| {
+            let f: Vec<&str> = l.split(',').collect();
+            (f[2].to_string(), f[3].parse().unwrap())
+        })
+        .collect();
+    assert_eq!(cells.len(), 15 * 13);
+    let both: Vec<f64> = cells
+        .iter()
+        .filter(|c| c.0 == "both")
+        .map(|c| c.1)
+        .collect();
+    let one: Vec<f64> = cells
+        .iter()
+        .filter(|c| c.0.starts_with("cam"))
+        .map(|c| c.1)
+        .collect();
+    assert!(both.len() >= 40 && one.len() >= 30, "{heat}");
+    assert!(both.iter().all(|e| e.abs() < 0.5), "{both:?}");
+    assert!(one.iter().all(|e| e.abs() < 4.0), "{one:?}");
+    assert!(
+        cells.iter().filter(|c| c.0 == "none").all(|c| c.1.is_nan()),
+        "{heat}"
+    );
     let summary = std::fs::read_to_string(out.join("summary.md")).unwrap();
     assert!(
         !summary.contains("| noise σ (grey levels) |"),

@@ -10,7 +10,7 @@
 use nalgebra::{Point2, Point3, Vector3};
 use stereoscope_geometry::Camera;
 use stereoscope_geometry::correspond::{CorrespondConfig, match_blobs};
-use stereoscope_geometry::depth::point_from_depth;
+use stereoscope_geometry::depth::{on_axis_area, point_from_depth};
 use stereoscope_geometry::rig::Rig;
 use stereoscope_geometry::world_heading::{AxisView, fuse};
 use stereoscope_proto::messages::{BlobObservation, Observation, Pose, PoseMethod, TrackState};
@@ -147,12 +147,15 @@ impl Fuser {
                     continue;
                 }
                 let b = &o.blobs[i];
-                let Ok(d) = model.model.depth_from_area(b.area_px, model.range_m) else {
+                let pixel = Point2::new(b.x_px, b.y_px);
+                // The models are fitted on the axis: bring an off-axis area back first.
+                let Ok(area_px) = on_axis_area(&self.cameras[*c], pixel, b.area_px) else {
                     continue;
                 };
-                let Ok(p) =
-                    point_from_depth(&self.cameras[*c], Point2::new(b.x_px, b.y_px), d.depth)
-                else {
+                let Ok(d) = model.model.depth_from_area(area_px, model.range_m) else {
+                    continue;
+                };
+                let Ok(p) = point_from_depth(&self.cameras[*c], pixel, d.depth) else {
                     continue;
                 };
                 // Two cameras' single views of one object that correspondence rejected must not

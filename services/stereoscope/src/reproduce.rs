@@ -26,7 +26,7 @@ use std::path::{Path, PathBuf};
 use stereoscope_geometry::Camera;
 use stereoscope_geometry::calibrate::{DistortionModel, RigView, calibrate_rig};
 use stereoscope_geometry::depth::{
-    DepthFit, fit_three_parameter, fit_two_parameter, point_from_depth,
+    DepthFit, fit_three_parameter, fit_two_parameter, on_axis_area, point_from_depth,
 };
 use stereoscope_geometry::dotgrid::{DotGrid, detect, render as render_grid};
 use stereoscope_geometry::rig::Rig;
@@ -47,7 +47,12 @@ const BACKGROUND: f64 = 20.0;
 /// user reads off any frame of the target.
 const FULL_ABOVE_BACKGROUND: u32 = 110;
 /// Calibration views with the board held tilted.
-const TILTED_VIEWS: usize = 24;
+const TILTED_VIEWS: usize = 48;
+/// How high the tilted board's centre is held, metres above the floor: low enough for the
+/// 80 × 60 cm board to stay whole in a 320 × 240 view.
+const TILTED_HEIGHT_M: (f64, f64) = (0.2, 0.9);
+/// The calibration board: the thesis's 10 cm grid, as 9 × 7 dots 10 cm apart (2 cm radius).
+const BOARD: (usize, usize, f64) = (9, 7, 0.10);
 /// A font every machine of this kind has (Debian's fonts-dejavu-core), for the plots' text.
 pub const FONT: &str = "/usr/share/fonts/truetype/dejavu/DejaVuSans.ttf";
 
@@ -127,15 +132,50 @@ pub struct Report {
     /// The double ball's heading from both cameras: `(height cm, true °, measured °, error °)`
     /// per reading; an axis, so compared modulo 180°.
     pub heading: Vec<(f64, f64, f64, f64)>,
-    /// Two-camera height error over the shared view at `HEAT_HEIGHT_M`: `(x cm, y cm, mean
-    /// error cm)`, NaN where a camera did not see the target.
-    pub heat: Vec<(f64, f64, f64)>,
+    /// Height error over the whole board at `HEAT_HEIGHT_M`, one cell each 15 cm.
+    pub heat: Vec<HeatCell>,
     /// `(noise σ, RMS of the four experiments in order)` at other noise levels.
     pub noise: Vec<(f64, [f64; 4])>,
 }
 
-/// Height of the heat-map sweep.
-pub const HEAT_HEIGHT_M: f64 = 0.52;
+/// Height of the heat-map sweep (the target's underside; the second height of every table).
+pub const HEAT_HEIGHT_M: f64 = 0.12;
+/// The thesis's board, metres (`../shared/DESIGN.md` §3), centred on the world origin.
+pub const BOARD_SIZE_M: (f64, f64) = (2.17, 1.83);
+/// Heat-map cell size, metres.
+const HEAT_CELL_M: f64 = 0.15;
+
+/// How a heat-map cell was measured: as the live fusion would, by both cameras where both see
+/// the whole target, else by depth from area in the one camera that does.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum HeatMethod {
+    BothCameras,
+    OneCamera(usize),
+    Unseen,
+}
+
+impl HeatMethod {
+    pub fn label(&self) -> String {
+        match self {
+            HeatMethod::BothCameras => "both".into(),
+            HeatMethod::OneCamera(c) => format!("cam{c}"),
+            HeatMethod::Unseen => "none".into(),
+        }
+    }
+}
+
+/// One heat-map cell: the mean height error (actual − measured) of a few readings there.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct HeatCell {
+    pub x_cm: f64,
+    pub y_cm: f64,
+    pub method: HeatMethod,
+    /// NaN where no camera saw the whole target.
+    pub error_cm: f64,
+    /// One camera only: the error without the off-axis area correction
+    /// (`depth::on_axis_area`), to show what it is worth; NaN otherwise.
+    pub uncorrected_error_cm: f64,
+}
 
 impl Report {
     /// RMS and largest heading error, degrees.
@@ -214,7 +254,15 @@ fn target_blob(img: &GrayImage<u8>, weighting: Weighting) -> Option<stereoscope_
         ..Default::default()
     });
     let blobs = ex.extract(img.view(), threshold(img, bg)?, &[]).ok()?;
-    blobs.iter().max_by_key(|b| b.area_px()).copied()
+    // A blob cut by the frame's edge is no measurement of the target (the live system flags it).
+    blobs
+        .iter()
+        .max_by_key(|b| b.area_px())
+        .copied()
+        .filter(|b| {
+            !b.flags
+                .contains(stereoscope_vision::BlobFlags::TOUCHES_BORDER)
+        })
 }
 
 /// The target's coverage centroid, major-axis angle (degrees CCW on screen, PAR-corrected) and
@@ -293,7 +341,7 @@ fn board_poses(grid: &DotGrid, rng: &mut SplitMix64) -> Vec<Isometry3<f64>> {
         let centre = Vector3::new(
             rng.range(-0.12, 0.12),
             rng.range(-0.1, 0.1),
-            rng.range(0.4, 1.3),
+            rng.range(TILTED_HEIGHT_M.0, TILTED_HEIGHT_M.1),
         );
         let axis_angle = rng.range(0.0, std::f64::consts::TAU);
         let axis =
@@ -358,15 +406,13 @@ fn world_from_floor(placements: &[Isometry3<f64>]) -> Option<Isometry3<f64>> {
     ))
 }
 
-/// The calibration board: 9 × 7 dots, 8 cm apart. (The thesis's board had lines 10 cm apart;
-/// dots 10 cm apart — 8 × 6, 9 × 7 or 10 × 8 of them — gave 0.167–0.181 cm at the centre instead
-/// of 0.120, or too few tilted views in camera 1: fewer points in view, a less certain floor.)
+/// Calibrates both cameras from rendered views of the board ([`BOARD`]), as a user would.
 fn calibrate_lab(
     truth: &[Camera],
     opts: &ReproduceOptions,
     rng: &mut SplitMix64,
 ) -> anyhow::Result<(Vec<Camera>, f64, usize)> {
-    let grid = DotGrid::new(9, 7, 0.08)?;
+    let grid = DotGrid::new(BOARD.0, BOARD.1, BOARD.2)?;
     let poses = board_poses(&grid, rng);
     let target: Vec<Point3<f64>> = (0..grid.len()).map(|i| grid.point(i)).collect();
     let mut views = Vec::new();
@@ -527,10 +573,9 @@ pub fn run(opts: &ReproduceOptions) -> anyhow::Result<Report> {
         let mut area = 0.0;
         for _ in 0..opts.readings {
             let img = lab.frame(0, under0.x, under0.y, h)?;
-            area += measure(&img, opts.contrast)
-                .ok_or_else(|| anyhow!("no target found at {:.0} cm while fitting", h * 100.0))?
-                .0
-                / opts.readings as f64;
+            let (a, c) = measure(&img, opts.contrast)
+                .ok_or_else(|| anyhow!("no target found at {:.0} cm while fitting", h * 100.0))?;
+            area += on_axis_area(&lab.calibrated[0], c, a)? / opts.readings as f64;
         }
         samples.push((area, cam0_height - (h + BALL_RADIUS_M)));
         area_samples.push((h * 100.0, area));
@@ -558,6 +603,7 @@ pub fn run(opts: &ReproduceOptions) -> anyhow::Result<Report> {
             let img = lab.frame(0, under0.x, under0.y, h)?;
             let (area, c) = measure(&img, opts.contrast)
                 .ok_or_else(|| anyhow!("no target found at {:.0} cm", h * 100.0))?;
+            let area = on_axis_area(&lab.calibrated[0], c, area)?;
             let d = fit.model.depth_from_area(area, fit.range)?;
             Ok(point_from_depth(&lab.calibrated[0], c, d.depth)?.z - BALL_RADIUS_M)
         })?;
@@ -629,39 +675,8 @@ pub fn run(opts: &ReproduceOptions) -> anyhow::Result<Report> {
             heading.push((h * 100.0, truth_deg, fused.heading_deg, err));
         }
     }
-    // The height error over the shared view.
-    let mut heat = Vec::new();
-    for iy in 0..7 {
-        for ix in 0..7 {
-            let (x, y) = (-0.45 + 0.15 * ix as f64, -0.45 + 0.15 * iy as f64);
-            let mut sum = 0.0;
-            let n = opts.readings.clamp(1, 5);
-            let mut seen = true;
-            for _ in 0..n {
-                let mut obs = Vec::new();
-                for c in 0..2 {
-                    let img = lab.frame(c, x, y, HEAT_HEIGHT_M)?;
-                    match measure(&img, opts.contrast) {
-                        Some((_, px)) => obs.push(Observation {
-                            camera: c,
-                            pixel: px,
-                        }),
-                        None => seen = false,
-                    }
-                }
-                if !seen {
-                    break;
-                }
-                sum += triangulate(&lab.calibrated, &obs)?.point_world.z - BALL_RADIUS_M;
-            }
-            let err = if seen {
-                (HEAT_HEIGHT_M - sum / n as f64) * 100.0
-            } else {
-                f64::NAN
-            };
-            heat.push((x * 100.0, y * 100.0, err));
-        }
-    }
+    // The height error over the whole board, measured as the live fusion would.
+    let heat = heat_map(&mut lab, &fit_three, opts)?;
     // The same four experiments at other noise levels (fewer readings, no further sweep).
     let mut noise = Vec::new();
     if opts.noise_sweep {
@@ -692,6 +707,106 @@ pub fn run(opts: &ReproduceOptions) -> anyhow::Result<Report> {
         heat,
         noise,
     })
+}
+
+/// The height error over the whole board at [`HEAT_HEIGHT_M`] ([`HeatCell`]).
+fn heat_map(
+    lab: &mut Lab,
+    fit: &DepthFit,
+    opts: &ReproduceOptions,
+) -> anyhow::Result<Vec<HeatCell>> {
+    let n = opts.readings.clamp(1, 5);
+    let (cols, rows) = (
+        (BOARD_SIZE_M.0 / HEAT_CELL_M).floor() as i32 / 2,
+        (BOARD_SIZE_M.1 / HEAT_CELL_M).floor() as i32 / 2,
+    );
+    let mut cells = Vec::new();
+    for iy in -rows..=rows {
+        for ix in -cols..=cols {
+            let (x, y) = (HEAT_CELL_M * ix as f64, HEAT_CELL_M * iy as f64);
+            // Each reading: how it was measured, the height, and (one camera) the height
+            // without the off-axis correction.
+            let mut readings: Vec<(HeatMethod, f64, f64)> = Vec::new();
+            for _ in 0..n {
+                let mut seen = Vec::new();
+                for c in 0..2 {
+                    let img = lab.frame(c, x, y, HEAT_HEIGHT_M)?;
+                    if let Some(m) = measure(&img, opts.contrast) {
+                        seen.push((c, m));
+                    }
+                }
+                readings.push(match seen.as_slice() {
+                    [(c0, (_, p0)), (c1, (_, p1))] => {
+                        let obs = [
+                            Observation {
+                                camera: *c0,
+                                pixel: *p0,
+                            },
+                            Observation {
+                                camera: *c1,
+                                pixel: *p1,
+                            },
+                        ];
+                        let z = triangulate(&lab.calibrated, &obs)?.point_world.z;
+                        (HeatMethod::BothCameras, z, f64::NAN)
+                    }
+                    [(c, (area, p))] => {
+                        let cam = &lab.calibrated[*c];
+                        let corrected = on_axis_area(cam, *p, *area)?;
+                        let d = fit.model.depth_from_area(corrected, fit.range)?;
+                        let d_raw = fit.model.depth_from_area(*area, fit.range)?;
+                        (
+                            HeatMethod::OneCamera(*c),
+                            point_from_depth(cam, *p, d.depth)?.z,
+                            point_from_depth(cam, *p, d_raw.depth)?.z,
+                        )
+                    }
+                    _ => (HeatMethod::Unseen, f64::NAN, f64::NAN),
+                });
+            }
+            // Noise can hide a target at the edge of a view in some readings: the cell is
+            // measured the way most of its readings were, from those readings.
+            let count = |m: HeatMethod| readings.iter().filter(|r| r.0 == m).count();
+            let method = [
+                HeatMethod::BothCameras,
+                HeatMethod::OneCamera(0),
+                HeatMethod::OneCamera(1),
+                HeatMethod::Unseen,
+            ]
+            .into_iter()
+            .max_by_key(|&m| count(m))
+            .unwrap_or(HeatMethod::Unseen);
+            let used: Vec<&(HeatMethod, f64, f64)> =
+                readings.iter().filter(|r| r.0 == method).collect();
+            let err = |pick: fn(&(HeatMethod, f64, f64)) -> f64| {
+                let mean = used.iter().map(|r| pick(r)).sum::<f64>() / used.len().max(1) as f64;
+                (HEAT_HEIGHT_M - (mean - BALL_RADIUS_M)) * 100.0
+            };
+            let (error_cm, uncorrected_error_cm) = match method {
+                HeatMethod::BothCameras => (err(|r| r.1), f64::NAN),
+                HeatMethod::OneCamera(_) => (err(|r| r.1), err(|r| r.2)),
+                HeatMethod::Unseen => (f64::NAN, f64::NAN),
+            };
+            cells.push(HeatCell {
+                x_cm: x * 100.0,
+                y_cm: y * 100.0,
+                method,
+                error_cm,
+                uncorrected_error_cm,
+            });
+        }
+    }
+    Ok(cells)
+}
+
+/// RMS and largest absolute value of the finite values.
+fn rms_max(values: impl Iterator<Item = f64>) -> Option<(f64, f64, usize)> {
+    let v: Vec<f64> = values.filter(|e| e.is_finite()).collect();
+    if v.is_empty() {
+        return None;
+    }
+    let rms = (v.iter().map(|e| e * e).sum::<f64>() / v.len() as f64).sqrt();
+    Some((rms, v.iter().map(|e| e.abs()).fold(0.0, f64::max), v.len()))
 }
 
 fn table_md(e: &Experiment) -> String {
@@ -732,7 +847,7 @@ pub fn summary_md(r: &Report, opts: &ReproduceOptions) -> String {
     let mut s = String::from("# The thesis's experiments, reproduced\n\n");
     let _ = writeln!(
         s,
-        "Setting: 320 × 240 cameras with PAR 0.86, Gaussian noise σ = {} grey levels, defocus blur σ = {} px, target {} levels above a background of {}; {} readings per height; seed {}. Calibration: {} views of a 9 × 7 dot grid (8 cm), RMS reprojection error {:.3} px.\n",
+        "Setting: 320 × 240 cameras with PAR 0.86, Gaussian noise σ = {} grey levels, defocus blur σ = {} px, target {} levels above a background of {}; {} readings per height; seed {}. Calibration: {} views of a {} × {} dot grid ({} cm), RMS reprojection error {:.3} px.\n",
         opts.noise_sigma,
         opts.blur_sigma_px,
         opts.contrast,
@@ -740,6 +855,9 @@ pub fn summary_md(r: &Report, opts: &ReproduceOptions) -> String {
         opts.readings,
         opts.seed,
         r.calibration_views,
+        BOARD.0,
+        BOARD.1,
+        BOARD.2 * 100.0,
         r.calibration_rms_px
     );
     s.push_str("| experiment | thesis table | thesis RMS (cm) | ours RMS (cm) | goal: ⅕ of the thesis (cm) | met |\n|---|---|---|---|---|---|\n");
@@ -764,24 +882,46 @@ pub fn summary_md(r: &Report, opts: &ReproduceOptions) -> String {
         h_max,
         if h_rms <= 1.0 { "met" } else { "not met" }
     );
-    let cells: Vec<f64> = r
+    let both = rms_max(
+        r.heat
+            .iter()
+            .filter(|c| c.method == HeatMethod::BothCameras)
+            .map(|c| c.error_cm),
+    );
+    let one = rms_max(
+        r.heat
+            .iter()
+            .filter(|c| matches!(c.method, HeatMethod::OneCamera(_)))
+            .map(|c| c.error_cm),
+    );
+    let one_raw = rms_max(r.heat.iter().map(|c| c.uncorrected_error_cm));
+    let unseen = r
         .heat
         .iter()
-        .map(|h| h.2)
-        .filter(|e| e.is_finite())
-        .collect();
-    if !cells.is_empty() {
-        let rms = (cells.iter().map(|e| e * e).sum::<f64>() / cells.len() as f64).sqrt();
-        let worst = cells.iter().map(|e| e.abs()).fold(0.0, f64::max);
-        let _ = writeln!(
+        .filter(|c| c.method == HeatMethod::Unseen)
+        .count();
+    let _ = write!(
+        s,
+        "\nHeight error across the whole {:.2} × {:.2} m board at {:.0} cm, measured as the live fusion does ({} cells, {:.0} cm apart; `heat_map.csv`, `heat_map.png`):",
+        BOARD_SIZE_M.0,
+        BOARD_SIZE_M.1,
+        HEAT_HEIGHT_M * 100.0,
+        r.heat.len(),
+        HEAT_CELL_M * 100.0
+    );
+    if let Some((rms, worst, k)) = both {
+        let _ = write!(
             s,
-            "\nTwo-camera height error across the shared view at {:.0} cm ({} cells, 15 cm apart; `heat_map.csv`, `heat_map.png`): RMS {:.3} cm, largest {:.3} cm.",
-            HEAT_HEIGHT_M * 100.0,
-            cells.len(),
-            rms,
-            worst
+            " both cameras in {k} cells, RMS {rms:.3} cm, largest {worst:.3} cm;"
         );
     }
+    if let (Some((rms, worst, k)), Some((raw, _, _))) = (one, one_raw) {
+        let _ = write!(
+            s,
+            " one camera (depth from area, three parameters) in {k} cells, RMS {rms:.3} cm, largest {worst:.3} cm ({raw:.3} cm without the off-axis area correction);"
+        );
+    }
+    let _ = writeln!(s, " {unseen} cells seen whole by neither camera.");
     if !r.noise.is_empty() {
         s.push_str("\nRMS (cm) as the pixel noise grows (other settings as above, at most 10 readings per height):\n\n| noise σ (grey levels) | one camera, 2 parameters | one camera, 3 parameters | two cameras, centre | two cameras, corner |\n|---|---|---|---|---|\n");
         for (sigma, rms) in &r.noise {
@@ -878,26 +1018,27 @@ fn plot_area(path: &Path, r: &Report, cam0_height_cm: f64) -> anyhow::Result<()>
 
 fn plot_heat(path: &Path, r: &Report) -> anyhow::Result<()> {
     use plotters::prelude::*;
-    let root = BitMapBackend::new(path, (640, 560)).into_drawing_area();
+    let (hx, hy) = (BOARD_SIZE_M.0 * 50.0, BOARD_SIZE_M.1 * 50.0);
+    let root = BitMapBackend::new(path, (1000, 900)).into_drawing_area();
     root.fill(&WHITE).map_err(|e| anyhow!("{e}"))?;
     let limit = r
         .heat
         .iter()
-        .map(|h| h.2.abs())
+        .map(|h| h.error_cm.abs())
         .filter(|e| e.is_finite())
         .fold(0.05, f64::max);
     let mut chart = ChartBuilder::on(&root)
         .caption(
             format!(
-                "Height error (cm) at {:.0} cm, two cameras; colour range ±{limit:.2} cm",
+                "Height error (cm) at {:.0} cm over the board; colour range ±{limit:.2} cm; bold: both cameras, plain: one camera, grey: neither",
                 HEAT_HEIGHT_M * 100.0
             ),
-            ("sans-serif", 16),
+            ("sans-serif", 15),
         )
         .margin(12)
         .x_label_area_size(40)
         .y_label_area_size(50)
-        .build_cartesian_2d(-52.5f64..52.5f64, -52.5f64..52.5f64)
+        .build_cartesian_2d(-hx..hx, -hy..hy)
         .map_err(|e| anyhow!("{e}"))?;
     chart
         .configure_mesh()
@@ -906,10 +1047,11 @@ fn plot_heat(path: &Path, r: &Report) -> anyhow::Result<()> {
         .disable_mesh()
         .draw()
         .map_err(|e| anyhow!("{e}"))?;
+    let half = HEAT_CELL_M * 50.0;
     chart
-        .draw_series(r.heat.iter().map(|&(x, y, e)| {
-            let colour = if e.is_finite() {
-                let t = (e / limit).clamp(-1.0, 1.0);
+        .draw_series(r.heat.iter().map(|c| {
+            let colour = if c.error_cm.is_finite() {
+                let t = (c.error_cm / limit).clamp(-1.0, 1.0);
                 // Blue below zero, red above, white at zero.
                 let (rr, gg, bb) = if t >= 0.0 {
                     (255.0, 255.0 * (1.0 - t), 255.0 * (1.0 - t))
@@ -920,12 +1062,27 @@ fn plot_heat(path: &Path, r: &Report) -> anyhow::Result<()> {
             } else {
                 RGBColor(160, 160, 160)
             };
-            Rectangle::new([(x - 7.5, y - 7.5), (x + 7.5, y + 7.5)], colour.filled())
+            Rectangle::new(
+                [
+                    (c.x_cm - half, c.y_cm - half),
+                    (c.x_cm + half, c.y_cm + half),
+                ],
+                colour.filled(),
+            )
         }))
         .map_err(|e| anyhow!("{e}"))?;
     chart
-        .draw_series(r.heat.iter().filter(|h| h.2.is_finite()).map(|&(x, y, e)| {
-            Text::new(format!("{e:+.2}"), (x - 5.0, y + 2.0), ("sans-serif", 12))
+        .draw_series(r.heat.iter().filter(|c| c.error_cm.is_finite()).map(|c| {
+            let style = if c.method == HeatMethod::BothCameras {
+                ("sans-serif", 12).into_font().style(FontStyle::Bold)
+            } else {
+                ("sans-serif", 12).into_font()
+            };
+            Text::new(
+                format!("{:+.2}", c.error_cm),
+                (c.x_cm - 6.0, c.y_cm + 2.0),
+                style,
+            )
         }))
         .map_err(|e| anyhow!("{e}"))?;
     root.present().map_err(|e| anyhow!("{e}"))?;
@@ -961,9 +1118,17 @@ pub fn write(r: &Report, opts: &ReproduceOptions) -> anyhow::Result<()> {
             let _ = writeln!(h, "{hc:.1},{t:.1},{m:.4},{e:.4}");
         }
         std::fs::write(staging.join("heading.csv"), h)?;
-        let mut hm = String::from("x_cm,y_cm,mean_error_cm\n");
-        for (x, y, e) in &r.heat {
-            let _ = writeln!(hm, "{x:.1},{y:.1},{e:.4}");
+        let mut hm = String::from("x_cm,y_cm,measured_by,mean_error_cm,uncorrected_error_cm\n");
+        for c in &r.heat {
+            let _ = writeln!(
+                hm,
+                "{:.1},{:.1},{},{:.4},{:.4}",
+                c.x_cm,
+                c.y_cm,
+                c.method.label(),
+                c.error_cm,
+                c.uncorrected_error_cm
+            );
         }
         std::fs::write(staging.join("heat_map.csv"), hm)?;
         if opts.plots {
