@@ -464,6 +464,32 @@ impl Cable {
     }
 }
 
+/// The serial-link service of the rig at `path` on `link`, a client of the router at `endpoint`.
+fn serial_service(
+    path: &str,
+    endpoint: &str,
+    link: &std::path::Path,
+    mode: &str,
+    baud: &str,
+) -> Proc {
+    Proc::start(&[
+        "service",
+        "serial",
+        "--rig",
+        path,
+        "--zenoh-mode",
+        "client",
+        "--zenoh-connect",
+        endpoint,
+        "--port",
+        link.to_str().unwrap(),
+        "--baud",
+        baud,
+        "--mode",
+        mode,
+    ])
+}
+
 #[test]
 fn serial_output_sends_fresh_poses_and_survives_an_unplugged_cable() {
     let _serial = serial();
@@ -474,41 +500,12 @@ fn serial_output_sends_fresh_poses_and_survives_an_unplugged_cable() {
     let _launcher = Proc::start(&["run", &path]);
     let watcher = PoseWatcher::new(&format!("tcp/127.0.0.1:{port}"), "demo");
     let endpoint = format!("tcp/127.0.0.1:{port}");
-    let link_s = link.to_str().unwrap();
     // 9600 baud: 3 objects × 26 bytes at 30 frames/s is more than the line takes (≈ 37
     // packets/s), so the service must pace itself and drop superseded poses.
-    let service = Proc::start(&[
-        "service",
-        "serial",
-        "--rig",
-        &path,
-        "--zenoh-mode",
-        "client",
-        "--zenoh-connect",
-        &endpoint,
-        "--port",
-        link_s,
-        "--baud",
-        "9600",
-        "--mode",
-        "framed",
-    ]);
+    let service = serial_service(&path, &endpoint, &link, "framed", "9600");
     // And the thesis's packet on a second line, for one object.
     let link2 = dir.0.join("ttyLegacy");
-    let legacy_service = Proc::start(&[
-        "service",
-        "serial",
-        "--rig",
-        &path,
-        "--zenoh-mode",
-        "client",
-        "--zenoh-connect",
-        &endpoint,
-        "--port",
-        link2.to_str().unwrap(),
-        "--mode",
-        "legacy",
-    ]);
+    let legacy_service = serial_service(&path, &endpoint, &link2, "legacy", "9600");
     watcher.until(Duration::from_secs(40), "three objects", both_cameras);
     let mut cable = Cable::plug(&link);
     let mut cable2 = Cable::plug(&link2);
@@ -763,6 +760,8 @@ fn a_recording_replays_to_the_same_poses_and_survives_sigkill() {
         "{} rows for {n} frames",
         csv.lines().count()
     );
+    // C3D export: two PyPI readers see every object, the frame rate and the coordinates.
+    check_c3d_export(&session, &dir.0.join("session.c3d"));
     // A broken line is named by file and line; an incomplete last one is skipped with a warning.
     let obs = std::fs::read_to_string(session.join("observations.jsonl")).unwrap();
     let mut lines: Vec<&str> = obs.lines().collect();
@@ -787,4 +786,368 @@ fn a_recording_replays_to_the_same_poses_and_survives_sigkill() {
         "{e}"
     );
     assert!(out.status.success(), "{e}");
+}
+
+// ---- Clients the project did not write (PyPI packages in a virtual environment) ----
+
+/// Runs a script of `tests/clients/` with the clients' Python; its JSON lines.
+fn python_client(script: &str, args: &[&str], limit: Duration) -> Vec<serde_json::Value> {
+    let python = common::python_clients();
+    let path = repo_root().join("tests/clients").join(script);
+    let mut all = vec![path.to_str().unwrap()];
+    all.extend_from_slice(args);
+    let o = common::run_program_with_limit(&python, &all, limit);
+    assert!(o.status.success(), "{script}: {}", stderr(&o));
+    String::from_utf8_lossy(&o.stdout)
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap_or_else(|e| panic!("{script}: {e}: {l}")))
+        .collect()
+}
+
+#[test]
+fn a_python_zenoh_client_decodes_the_pose_stream_as_documented() {
+    let _serial = serial();
+    let python = common::python_clients(); // before the chain starts: pip may take a while
+    assert!(python.exists());
+    let dir = TempDir::new("pyzenoh");
+    let (path, port) = one_pc_rig(&dir, 'y');
+    let endpoint = format!("tcp/127.0.0.1:{port}");
+    let _launcher = Proc::start(&["run", &path]);
+    let watcher = PoseWatcher::new(&endpoint, "demo");
+    watcher.until(Duration::from_secs(40), "three objects", both_cameras);
+    let lines = python_client(
+        "zenoh_poses.py",
+        &[&endpoint, "demo", "40", "30"],
+        Duration::from_secs(60),
+    );
+    let (done, frames) = lines.split_last().unwrap();
+    assert_eq!(done["frames"], 40, "{done}");
+    assert!(done["updates"].as_u64().unwrap() >= 40, "{done}");
+    // What Python decoded is what the Rust subscriber got, value for value.
+    let mut ours = std::collections::HashMap::new();
+    while let Ok(p) = watcher.rx.try_recv() {
+        ours.insert(p.sequence, p);
+    }
+    let mut compared = 0;
+    for f in frames {
+        assert_eq!(f["key"], "stereoscope/demo/poses");
+        let Some(p) = ours.get(&f["sequence"].as_u64().unwrap()) else {
+            continue;
+        };
+        assert_eq!(f["timestamp_ns"].as_u64().unwrap(), p.timestamp_ns);
+        let poses = f["poses"].as_array().unwrap();
+        assert_eq!(poses.len(), p.poses.len());
+        for (py, rs) in poses.iter().zip(&p.poses) {
+            assert_eq!(py[0].as_u64().unwrap(), rs.object_id as u64);
+            for k in 0..3 {
+                assert_eq!(py[1][k].as_f64().unwrap(), rs.position_m[k]);
+            }
+            assert_eq!(py[2].as_f64(), rs.heading_deg);
+        }
+        compared += 1;
+    }
+    assert!(
+        compared >= 30,
+        "{compared} of 40 frames also seen by the Rust subscriber"
+    );
+}
+
+/// A null-modem cable between two pseudo-terminals: what the service writes on `link` comes
+/// out at `far` (a real tty path, for pyserial); the bytes are also kept for a Rust decoder.
+struct NullModem {
+    far: String,
+    bytes: Arc<Mutex<Vec<u8>>>,
+    stop: Arc<std::sync::atomic::AtomicBool>,
+    relay: Option<std::thread::JoinHandle<()>>,
+    _far_slave: serialport::TTYPort,
+}
+
+impl NullModem {
+    fn plug(link: &std::path::Path) -> NullModem {
+        use std::io::Write;
+        let mut near = Cable::plug(link);
+        let (mut far_master, far_slave) = serialport::TTYPort::pair().expect("a pty pair");
+        let far = serialport::SerialPort::name(&far_slave).expect("far name");
+        let bytes = Arc::new(Mutex::new(Vec::new()));
+        let stop = Arc::new(std::sync::atomic::AtomicBool::new(false));
+        let (b, s) = (bytes.clone(), stop.clone());
+        let relay = std::thread::spawn(move || {
+            let mut buf = [0u8; 512];
+            while !s.load(std::sync::atomic::Ordering::Relaxed) {
+                if let Ok(k) = near.master.read(&mut buf)
+                    && k > 0
+                {
+                    let _ = far_master.write_all(&buf[..k]);
+                    b.lock().unwrap().extend_from_slice(&buf[..k]);
+                }
+            }
+            near.unplug();
+        });
+        NullModem {
+            far,
+            bytes,
+            stop,
+            relay: Some(relay),
+            _far_slave: far_slave,
+        }
+    }
+}
+
+impl Drop for NullModem {
+    fn drop(&mut self) {
+        self.stop.store(true, std::sync::atomic::Ordering::Relaxed);
+        if let Some(r) = self.relay.take() {
+            let _ = r.join();
+        }
+    }
+}
+
+#[test]
+fn a_pyserial_receiver_decodes_legacy_and_framed_packets_as_documented() {
+    let _serial = serial();
+    let _python = common::python_clients();
+    let dir = TempDir::new("pyserial");
+    let (path, port) = one_pc_rig(&dir, 'q');
+    let endpoint = format!("tcp/127.0.0.1:{port}");
+    let _launcher = Proc::start(&["run", &path]);
+    let watcher = PoseWatcher::new(&endpoint, "demo");
+    let (link_f, link_l) = (dir.0.join("ttyFramed"), dir.0.join("ttyLegacy"));
+    let _framed = serial_service(&path, &endpoint, &link_f, "framed", "115200");
+    let _legacy = serial_service(&path, &endpoint, &link_l, "legacy", "9600");
+    watcher.until(Duration::from_secs(40), "three objects", both_cameras);
+    let framed_cable = NullModem::plug(&link_f);
+    let legacy_cable = NullModem::plug(&link_l);
+    // Both receivers at once (two threads), each on its own line.
+    let (far_f, far_l) = (framed_cable.far.clone(), legacy_cable.far.clone());
+    let framed_py = std::thread::spawn(move || {
+        python_client(
+            "serial_receiver.py",
+            &[&far_f, "115200", "framed", "60", "30"],
+            Duration::from_secs(60),
+        )
+    });
+    let legacy_py = python_client(
+        "serial_receiver.py",
+        &[&far_l, "9600", "legacy", "20", "30"],
+        Duration::from_secs(60),
+    );
+    let framed_py = framed_py.join().unwrap();
+    let mut poses = Vec::new();
+    while let Ok(p) = watcher.rx.try_recv() {
+        poses.push(p);
+    }
+    // Python's packets are the ones the Rust decoder finds in the same bytes, in order.
+    let check = |py: &[serde_json::Value], cable: &NullModem, framed: bool| {
+        let (done, packets) = py.split_last().unwrap();
+        let bytes = cable.bytes.lock().unwrap().clone();
+        let ours: Vec<serde_json::Value> = if framed {
+            let mut d = stereoscope_proto::serial::FramedDecoder::default();
+            d.push(&bytes)
+                .into_iter()
+                .filter_map(|r| r.ok())
+                .map(|p| {
+                    serde_json::json!({"object_id": p.object_id, "sequence": p.sequence,
+                        "x_mm": p.x_mm, "y_mm": p.y_mm, "z_mm": p.z_mm,
+                        "theta_cdeg": p.heading_centideg, "flags": p.flags})
+                })
+                .collect()
+        } else {
+            let mut d = stereoscope_proto::serial::LegacyDecoder::default();
+            d.push(&bytes)
+                .into_iter()
+                .map(|p| {
+                    serde_json::json!({"x_cm": p.x_cm, "y_cm": p.y_cm, "z_cm": p.z_cm,
+                        "theta_cdeg": p.heading_centideg})
+                })
+                .collect()
+        };
+        assert_eq!(done["bad"], 0, "{done}");
+        assert!(!packets.is_empty(), "{done}");
+        // Python joined the line a little after the relay started: its packets are a run of
+        // ours.
+        let start = ours
+            .iter()
+            .position(|p| p == &packets[0])
+            .unwrap_or_else(|| panic!("{} not among {} decoded by Rust", packets[0], ours.len()));
+        assert_eq!(&ours[start..start + packets.len()], packets);
+        packets.to_vec()
+    };
+    let framed_packets = check(&framed_py, &framed_cable, true);
+    let legacy_packets = check(&legacy_py, &legacy_cable, false);
+    assert_eq!(framed_packets.len(), 60);
+    assert_eq!(legacy_packets.len(), 20);
+    // And they carry poses fusion published (millimetres / centimetres, rounded).
+    let near = |a: f64, b: i64| (a.round() as i64 - b).abs() <= 1;
+    let last = framed_packets.last().unwrap();
+    assert!(
+        poses.iter().flat_map(|f| &f.poses).any(|p| {
+            p.object_id as u64 == last["object_id"].as_u64().unwrap()
+                && near(p.position_m[0] * 1000.0, last["x_mm"].as_i64().unwrap())
+                && near(p.position_m[1] * 1000.0, last["y_mm"].as_i64().unwrap())
+                && near(p.position_m[2] * 1000.0, last["z_mm"].as_i64().unwrap())
+        }),
+        "{last} is no published pose"
+    );
+    let l = legacy_packets.last().unwrap();
+    assert!(
+        poses.iter().flat_map(|f| &f.poses).any(|p| {
+            near(p.position_m[0] * 100.0, l["x_cm"].as_i64().unwrap())
+                && near(p.position_m[1] * 100.0, l["y_cm"].as_i64().unwrap())
+                && near(p.position_m[2] * 100.0, l["z_cm"].as_i64().unwrap())
+        }),
+        "{l} is no published pose"
+    );
+}
+
+/// Exports `session` to C3D at `out` and checks what both PyPI readers find against the
+/// session's poses: one marker per object (and one along its heading, for objects with one),
+/// the pose frames' rate, every position in millimetres at its frame, nothing where no pose is.
+fn check_c3d_export(session: &std::path::Path, out: &std::path::Path) {
+    let o = run_with_limit(
+        &[
+            "export",
+            session.to_str().unwrap(),
+            "--format",
+            "c3d",
+            "--out",
+            out.to_str().unwrap(),
+        ],
+        Duration::from_secs(120),
+    );
+    assert!(o.status.success(), "{}", stderr(&o));
+    let frames: Vec<PoseFrame> = std::fs::read_to_string(session.join("poses.jsonl"))
+        .unwrap()
+        .lines()
+        .map(|l| PoseFrame::from_json(l.as_bytes()).unwrap())
+        .collect();
+    let mut objects = std::collections::BTreeMap::<u32, bool>::new();
+    for f in &frames {
+        for p in &f.poses {
+            *objects.entry(p.object_id).or_default() |= p.heading_deg.is_some();
+        }
+    }
+    let labels: Vec<String> = objects
+        .iter()
+        .flat_map(|(id, h)| {
+            std::iter::once(format!("obj{id}")).chain(h.then(|| format!("obj{id}_heading")))
+        })
+        .collect();
+    let mut gaps: Vec<u64> = frames
+        .windows(2)
+        .map(|w| w[1].timestamp_ns - w[0].timestamp_ns)
+        .collect();
+    gaps.sort_unstable();
+    let period = gaps[gaps.len() / 2] as f64;
+    let t0 = frames[0].timestamp_ns;
+    let slot = |t: u64| ((t - t0) as f64 / period).round() as usize;
+    let n = slot(frames.last().unwrap().timestamp_ns) + 1;
+    let out_s = out.to_str().unwrap();
+    let found = python_client("c3d_reader.py", &[out_s], Duration::from_secs(300));
+    assert_eq!(found.len(), 2, "two readers");
+    for r in &found {
+        let reader = r["reader"].as_str().unwrap();
+        assert_eq!(
+            r["markers"].as_u64().unwrap() as usize,
+            labels.len(),
+            "{reader}"
+        );
+        let got: Vec<&str> = r["labels"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|l| l.as_str().unwrap())
+            .collect();
+        assert_eq!(got, labels, "{reader}");
+        assert_eq!(r["units"], "mm", "{reader}");
+        let rate = r["rate"].as_f64().unwrap();
+        assert!((rate - 1e9 / period).abs() < 1e-3, "{reader}: {rate} Hz");
+        let c3d_frames = r["frames"].as_array().unwrap();
+        assert_eq!(c3d_frames.len(), n, "{reader}");
+        let mut placed = 0;
+        for f in &frames {
+            let row = &c3d_frames[slot(f.timestamp_ns)];
+            for p in &f.poses {
+                let col = labels
+                    .iter()
+                    .position(|l| *l == format!("obj{}", p.object_id))
+                    .unwrap();
+                let xyz = row[col]
+                    .as_array()
+                    .unwrap_or_else(|| panic!("{reader}: obj{} missing", p.object_id));
+                for k in 0..3 {
+                    let mm = p.position_m[k] * 1000.0;
+                    let v = xyz[k].as_f64().unwrap();
+                    assert!(
+                        (v - mm).abs() <= 1e-6 * mm.abs() + 1e-3,
+                        "{reader}: {v} vs {mm} mm"
+                    );
+                }
+                if let Some(h) = p.heading_deg {
+                    let head = row[col + 1].as_array().unwrap();
+                    let dx = head[0].as_f64().unwrap() - xyz[0].as_f64().unwrap();
+                    let dy = head[1].as_f64().unwrap() - xyz[1].as_f64().unwrap();
+                    let deg = dy.atan2(dx).to_degrees().rem_euclid(360.0);
+                    let off = (deg - h).rem_euclid(360.0);
+                    assert!(
+                        off.min(360.0 - off) < 0.01,
+                        "{reader}: heading {deg} vs {h}"
+                    );
+                    assert!((dx.hypot(dy) - 100.0).abs() < 0.01);
+                }
+                placed += 1;
+            }
+        }
+        let present: usize = c3d_frames
+            .iter()
+            .map(|row| {
+                row.as_array()
+                    .unwrap()
+                    .iter()
+                    .enumerate()
+                    .filter(|(i, v)| !v.is_null() && !labels[*i].ends_with("_heading"))
+                    .count()
+            })
+            .sum();
+        assert_eq!(present, placed, "{reader}: markers where no pose was");
+    }
+}
+
+#[test]
+fn a_long_session_exports_to_c3d_with_every_frame() {
+    // 70 000 frames at 120 Hz (more than C3D's 16-bit header counts): one object circling.
+    let dir = TempDir::new("c3dlong");
+    let session = dir.0.join("session");
+    std::fs::create_dir_all(&session).unwrap();
+    let info = serde_json::json!({"schema": 1, "rig": "demo", "started_ns": 1_000_000_000u64,
+        "rig_file": demo_rig()});
+    std::fs::write(session.join("session.json"), info.to_string()).unwrap();
+    let mut poses = String::new();
+    for k in 0..70_000u64 {
+        let a = k as f64 * 0.01;
+        let f = PoseFrame {
+            schema: 1,
+            rig: "demo".into(),
+            sequence: k,
+            timestamp_ns: 1_000_000_000 + k * 8_333_333,
+            frame_published_ns: 0,
+            published_ns: 0,
+            cameras: vec!["cam0".into(), "cam1".into()],
+            poses: vec![stereoscope_proto::messages::Pose {
+                object_id: 1,
+                position_m: [0.3 * a.cos(), 0.3 * a.sin(), 0.5],
+                velocity_m_per_s: [0.0; 3],
+                heading_deg: Some((a.to_degrees() + 90.0).rem_euclid(360.0)),
+                heading_directed: true,
+                method: stereoscope_proto::messages::PoseMethod::Triangulated,
+                cameras: vec!["cam0".into(), "cam1".into()],
+                residual_px: 0.1,
+                out_of_range: false,
+            }],
+        };
+        poses.push_str(std::str::from_utf8(&f.to_json()).unwrap());
+        poses.push('\n');
+    }
+    std::fs::write(session.join("poses.jsonl"), poses).unwrap();
+    std::fs::write(session.join("observations.jsonl"), "").unwrap();
+    check_c3d_export(&session, &dir.0.join("long.c3d"));
 }

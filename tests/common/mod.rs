@@ -41,14 +41,20 @@ impl Drop for TempDir {
 
 /// Runs `stereoscope ARGS` from the repository root; kills and reaps it after `limit`.
 pub fn run_with_limit(args: &[&str], limit: Duration) -> Output {
-    let mut child = Command::new(BIN)
+    run_program_with_limit(Path::new(BIN), args, limit)
+}
+
+/// Runs any program from the repository root, its output read while it runs; kills and reaps
+/// it after `limit`.
+pub fn run_program_with_limit(program: &Path, args: &[&str], limit: Duration) -> Output {
+    let mut child = Command::new(program)
         .args(args)
         .current_dir(repo_root())
         .stdin(Stdio::null())
         .stdout(Stdio::piped())
         .stderr(Stdio::piped())
         .spawn()
-        .expect("start stereoscope");
+        .unwrap_or_else(|e| panic!("cannot start {}: {e}", program.display()));
     let reader = |mut pipe: Box<dyn Read + Send>| {
         std::thread::spawn(move || {
             let mut buf = Vec::new();
@@ -66,7 +72,10 @@ pub fn run_with_limit(args: &[&str], limit: Duration) -> Output {
         if Instant::now() > deadline {
             let _ = child.kill();
             let _ = child.wait();
-            panic!("stereoscope {args:?} did not finish within {limit:?}");
+            panic!(
+                "{} {args:?} did not finish within {limit:?}",
+                program.display()
+            );
         }
         std::thread::sleep(Duration::from_millis(5));
     };
@@ -75,6 +84,73 @@ pub fn run_with_limit(args: &[&str], limit: Duration) -> Output {
         stdout: out.join().expect("stdout reader"),
         stderr: err.join().expect("stderr reader"),
     }
+}
+
+/// The Python interpreter of a virtual environment holding the PyPI packages of
+/// `tests/clients/requirements.txt` (clients the project did not write), made once under
+/// `target/` and reused while the requirements stay the same. Making it needs PyPI, or a
+/// mirror named by pip's own `PIP_INDEX_URL` / `PIP_FIND_LINKS`; a failure says so.
+pub fn python_clients() -> PathBuf {
+    use std::sync::OnceLock;
+    static PYTHON: OnceLock<PathBuf> = OnceLock::new();
+    PYTHON
+        .get_or_init(|| {
+            let root = repo_root();
+            let requirements = root.join("tests/clients/requirements.txt");
+            let wanted = std::fs::read_to_string(&requirements).unwrap();
+            let target = root.join("target");
+            std::fs::create_dir_all(&target).unwrap();
+            // One test binary at a time makes it (flock: released if the holder dies).
+            let lock = std::fs::File::create(target.join("py-clients.lock")).unwrap();
+            // SAFETY: flock on a file descriptor we own.
+            assert_eq!(
+                unsafe { libc::flock(std::os::fd::AsRawFd::as_raw_fd(&lock), libc::LOCK_EX) },
+                0
+            );
+            let venv = target.join("py-clients");
+            let python = venv.join("bin/python");
+            let stamp = venv.join("requirements.installed");
+            if std::fs::read_to_string(&stamp).ok().as_deref() == Some(wanted.as_str())
+                && python.exists()
+            {
+                return python;
+            }
+            let _ = std::fs::remove_dir_all(&venv);
+            let venv_s = venv.to_str().unwrap();
+            let o = run_program_with_limit(
+                Path::new("python3"),
+                &["-m", "venv", venv_s],
+                Duration::from_secs(120),
+            );
+            assert!(
+                o.status.success(),
+                "python3 -m venv {venv_s}: {}",
+                stderr(&o)
+            );
+            let o = run_program_with_limit(
+                &python,
+                &[
+                    "-m",
+                    "pip",
+                    "install",
+                    "--disable-pip-version-check",
+                    "--quiet",
+                    "-r",
+                    requirements.to_str().unwrap(),
+                ],
+                Duration::from_secs(600),
+            );
+            assert!(
+                o.status.success(),
+                "installing the Python clients from PyPI ({}) failed — this test needs PyPI or a \
+                 mirror in PIP_INDEX_URL / PIP_FIND_LINKS:\n{}",
+                requirements.display(),
+                stderr(&o)
+            );
+            std::fs::write(&stamp, &wanted).unwrap();
+            python
+        })
+        .clone()
 }
 
 /// [`run_with_limit`] with a minute.

@@ -8,6 +8,7 @@
 //! power cut loses at most the last interval, and a file never ends inside a record except
 //! when the process dies in the middle of that one write, which readers detect and skip.
 
+pub mod c3d;
 pub mod cli;
 pub mod replay;
 pub mod session;

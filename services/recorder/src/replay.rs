@@ -118,3 +118,116 @@ pub fn schedule(session: &Session) -> Vec<(u64, &Observation)> {
 pub fn poses(session: &Session) -> &[PoseFrame] {
     &session.poses
 }
+
+/// How far the heading marker of an object sits from it, along its heading (mm).
+pub const HEADING_MARKER_MM: f64 = 100.0;
+
+/// A session as a C3D trial, and what went into it.
+#[derive(Debug, Clone, PartialEq)]
+pub struct C3dExport {
+    pub trial: crate::c3d::C3dTrial,
+    /// Object poses that fell into a C3D frame where the same object already was (pose frames
+    /// closer than half a period); the first one is kept.
+    pub merged: usize,
+    pub pose_frames: usize,
+}
+
+/// The session's poses as C3D points (docs/recording.md): per object a marker `obj<id>` at its
+/// position and, for objects with a heading, `obj<id>_heading` [`HEADING_MARKER_MM`] along it
+/// in the horizontal plane; millimetres, world frame. The frame rate is the pose frames' median
+/// spacing; each pose frame goes to the C3D frame nearest its timestamp, frames without one
+/// have every marker missing.
+pub fn export_c3d(session: &Session) -> Result<C3dExport, String> {
+    use crate::c3d::{C3dPoint, C3dTrial};
+    use std::collections::BTreeMap;
+    let (_, rig) =
+        parse_rig(&session.info.rig_file).map_err(|e| format!("session.json rig_file: {e}"))?;
+    let mut times: Vec<u64> = session.poses.iter().map(|p| p.timestamp_ns).collect();
+    times.sort_unstable();
+    times.dedup();
+    let mut gaps: Vec<u64> = times.windows(2).map(|w| w[1] - w[0]).collect();
+    gaps.sort_unstable();
+    let Some(&period_ns) = gaps.get(gaps.len() / 2) else {
+        return Err(format!(
+            "poses.jsonl: {} pose frame time(s); a C3D file needs at least two to have a frame rate",
+            times.len()
+        ));
+    };
+    let t0 = times[0];
+    let slot = |t: u64| ((t - t0) as f64 / period_ns as f64).round() as usize;
+    let n_frames = slot(times[times.len() - 1]) + 1;
+    if n_frames > 50_000_000 {
+        return Err(format!(
+            "poses.jsonl: {n_frames} frames of {period_ns} ns: the session's times are too far apart for one C3D file"
+        ));
+    }
+    // Markers: every object in the session, in id order.
+    let mut objects: BTreeMap<u32, bool> = BTreeMap::new();
+    for pf in &session.poses {
+        for p in &pf.poses {
+            *objects.entry(p.object_id).or_default() |= p.heading_deg.is_some();
+        }
+    }
+    let mut labels = Vec::new();
+    let mut descriptions = Vec::new();
+    let mut column: BTreeMap<u32, (usize, Option<usize>)> = BTreeMap::new();
+    for (&id, &has_heading) in &objects {
+        let pos = labels.len();
+        labels.push(format!("obj{id}"));
+        descriptions.push(format!("object {id}"));
+        let head = has_heading.then(|| {
+            labels.push(format!("obj{id}_heading"));
+            descriptions.push(format!(
+                "object {id}, {HEADING_MARKER_MM} mm along its heading"
+            ));
+            pos + 1
+        });
+        column.insert(id, (pos, head));
+    }
+    let mut frames = vec![vec![None; labels.len()]; n_frames];
+    let mut merged = 0;
+    for pf in &session.poses {
+        let row = &mut frames[slot(pf.timestamp_ns)];
+        for p in &pf.poses {
+            let Some(&(pos, head)) = column.get(&p.object_id) else {
+                continue;
+            };
+            if row[pos].is_some() {
+                merged += 1;
+                continue;
+            }
+            let cameras = p
+                .cameras
+                .iter()
+                .filter_map(|c| rig.camera_index(c))
+                .filter(|&i| i < 7)
+                .fold(0u8, |m, i| m | (1 << i));
+            let mm = p.position_m.map(|v| v * 1000.0);
+            row[pos] = Some(C3dPoint {
+                xyz_mm: mm.map(|v| v as f32),
+                cameras,
+            });
+            if let (Some(h), Some(deg)) = (head, p.heading_deg) {
+                let (s, c) = deg.to_radians().sin_cos();
+                row[h] = Some(C3dPoint {
+                    xyz_mm: [
+                        (mm[0] + HEADING_MARKER_MM * c) as f32,
+                        (mm[1] + HEADING_MARKER_MM * s) as f32,
+                        mm[2] as f32,
+                    ],
+                    cameras,
+                });
+            }
+        }
+    }
+    Ok(C3dExport {
+        trial: C3dTrial {
+            frame_rate_hz: (1e9 / period_ns as f64) as f32,
+            labels,
+            descriptions,
+            frames,
+        },
+        merged,
+        pose_frames: session.poses.len(),
+    })
+}

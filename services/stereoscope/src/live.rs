@@ -259,16 +259,73 @@ pub fn replay(
     Ok(if r.identical == r.frames { 0 } else { 1 })
 }
 
-/// `stereoscope export --format csv`.
-pub fn export_csv(session: PathBuf, out: Option<PathBuf>) -> anyhow::Result<usize> {
+/// `stereoscope export --format csv|c3d`.
+pub fn export(session: PathBuf, format: &str, out: Option<PathBuf>) -> anyhow::Result<usize> {
     let s = stereoscope_recorder::session::Session::read(&session)?;
     for w in &s.warnings {
         eprintln!("warning: {w}");
     }
-    let csv = stereoscope_recorder::replay::export_csv(&s);
+    let bytes = match format {
+        "csv" => stereoscope_recorder::replay::export_csv(&s).into_bytes(),
+        "c3d" => {
+            let e = stereoscope_recorder::replay::export_c3d(&s)
+                .map_err(|e| anyhow::anyhow!("{}: {e}", session.display()))?;
+            let bytes = stereoscope_recorder::c3d::write(&e.trial)
+                .map_err(|e| anyhow::anyhow!("{}: {e}", session.display()))?;
+            eprintln!(
+                "{} frames at {:.3} Hz, {} markers, from {} pose frames{}",
+                e.trial.frames.len(),
+                e.trial.frame_rate_hz,
+                e.trial.labels.len(),
+                e.pose_frames,
+                if e.merged > 0 {
+                    format!(
+                        " ({} poses closer than half a frame to another dropped)",
+                        e.merged
+                    )
+                } else {
+                    String::new()
+                }
+            );
+            bytes
+        }
+        other => return Err(anyhow::anyhow!("--format {other}: csv or c3d")),
+    };
     match out {
-        Some(p) => std::fs::write(&p, csv).with_context(|| p.display().to_string())?,
-        None => print!("{csv}"),
+        Some(p) => write_whole(&p, &bytes)?,
+        None if format == "c3d" => {
+            return Err(anyhow::anyhow!(
+                "--format c3d needs --out FILE (it is binary)"
+            ));
+        }
+        None => {
+            use std::io::Write;
+            std::io::stdout().write_all(&bytes)?;
+        }
     }
     Ok(0)
+}
+
+/// Writes a file whole or not at all: into a temporary file beside it, synced, renamed.
+fn write_whole(path: &std::path::Path, bytes: &[u8]) -> anyhow::Result<()> {
+    use std::io::Write;
+    let name = path
+        .file_name()
+        .ok_or_else(|| anyhow::anyhow!("{}: not a file name", path.display()))?;
+    let tmp = path.with_file_name(format!(
+        ".{}.partial-{}",
+        name.to_string_lossy(),
+        std::process::id()
+    ));
+    let result = (|| -> std::io::Result<()> {
+        let mut f = std::fs::File::create(&tmp)?;
+        f.write_all(bytes)?;
+        f.sync_all()?;
+        std::fs::rename(&tmp, path)
+    })();
+    if let Err(e) = result {
+        let _ = std::fs::remove_file(&tmp);
+        return Err(anyhow::anyhow!("{}: {e}", path.display()));
+    }
+    Ok(())
 }

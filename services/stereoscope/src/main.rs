@@ -179,10 +179,12 @@ enum Command {
     Export {
         /// The session folder.
         session: PathBuf,
-        /// csv (one row per object per pose frame).
-        #[arg(long, value_parser = ["csv"])]
+        /// csv (one row per object per pose frame) or c3d (markers per object, for
+        /// biomechanics and animation tools; docs/recording.md).
+        #[arg(long, value_parser = ["csv", "c3d"])]
         format: String,
-        /// Output file (standard output if absent).
+        /// Output file (standard output if absent; required for c3d). Written whole or not at
+        /// all.
         #[arg(long)]
         out: Option<PathBuf>,
     },
@@ -438,9 +440,9 @@ fn main() -> ExitCode {
         } => finish(stereoscope::live::replay(session, publish, max_speed, json)),
         Command::Export {
             session,
-            format: _,
+            format,
             out,
-        } => finish(stereoscope::live::export_csv(session, out)),
+        } => finish(stereoscope::live::export(session, &format, out)),
         Command::Demo {
             seconds,
             rig,

@@ -1,0 +1,83 @@
+"""A client the project did not write: subscribes to a rig's poses with the eclipse-zenoh
+package from PyPI and decodes them following docs/protocol.md only (no Stereoscope code).
+
+usage: zenoh_poses.py ENDPOINT RIG COUNT SECONDS
+Prints one JSON line per pose frame received on stereoscope/<RIG>/poses (sequence, cameras,
+and per pose object id, position in metres, heading) and one per pose update received on
+stereoscope/<RIG>/pose/*, until COUNT pose frames came or SECONDS passed; then a last line
+{"done": ...}. Exits 1 on a message that does not follow the protocol.
+"""
+import json
+import sys
+import time
+
+import zenoh
+
+POSE_FIELDS = {"object_id", "position_m", "velocity_m_per_s", "heading_deg", "heading_directed",
+               "method", "cameras", "residual_px", "out_of_range"}
+FRAME_FIELDS = {"schema", "rig", "sequence", "timestamp_ns", "frame_published_ns",
+                "published_ns", "cameras", "poses"}
+UPDATE_FIELDS = {"schema", "rig", "sequence", "timestamp_ns", "frame_published_ns",
+                 "published_ns", "pose"}
+
+
+def check_pose(p):
+    if set(p) != POSE_FIELDS:
+        raise ValueError(f"pose fields {sorted(p)}")
+    if len(p["position_m"]) != 3 or not all(isinstance(v, (int, float)) for v in p["position_m"]):
+        raise ValueError(f"position_m {p['position_m']}")
+    h = p["heading_deg"]
+    if h is not None and not 0.0 <= h < 360.0:
+        raise ValueError(f"heading_deg {h}")
+    if p["method"] not in ("triangulated", "depth_from_area"):
+        raise ValueError(f"method {p['method']}")
+    return [p["object_id"], p["position_m"], h]
+
+
+def main():
+    endpoint, rig, count, seconds = sys.argv[1], sys.argv[2], int(sys.argv[3]), float(sys.argv[4])
+    conf = zenoh.Config.from_json5(json.dumps({
+        "mode": "client",
+        "connect": {"endpoints": [endpoint]},
+        "scouting": {"multicast": {"enabled": False}},
+    }))
+    session = zenoh.open(conf)
+    frames = session.declare_subscriber(f"stereoscope/{rig}/poses")
+    updates = session.declare_subscriber(f"stereoscope/{rig}/pose/*")
+    got = 0
+    got_updates = 0
+    end = time.monotonic() + seconds
+    while got < count and time.monotonic() < end:
+        idle = True
+        sample = frames.try_recv()
+        if sample is not None:
+            idle = False
+            m = json.loads(sample.payload.to_bytes())
+            if set(m) != FRAME_FIELDS or m["schema"] != 1 or m["rig"] != rig:
+                raise ValueError(f"pose frame {m}")
+            print(json.dumps({"key": str(sample.key_expr), "sequence": m["sequence"],
+                              "timestamp_ns": m["timestamp_ns"], "cameras": m["cameras"],
+                              "poses": [check_pose(p) for p in m["poses"]]}), flush=True)
+            got += 1
+        sample = updates.try_recv()
+        if sample is not None:
+            idle = False
+            m = json.loads(sample.payload.to_bytes())
+            if set(m) != UPDATE_FIELDS or m["schema"] != 1:
+                raise ValueError(f"pose update {m}")
+            oid = check_pose(m["pose"])[0]
+            if str(sample.key_expr) != f"stereoscope/{rig}/pose/{oid}":
+                raise ValueError(f"pose of object {oid} on {sample.key_expr}")
+            got_updates += 1
+        if idle:
+            time.sleep(0.002)
+    print(json.dumps({"done": True, "frames": got, "updates": got_updates}), flush=True)
+    session.close()
+
+
+if __name__ == "__main__":
+    try:
+        main()
+    except ValueError as e:
+        print(f"not the documented protocol: {e}", file=sys.stderr)
+        sys.exit(1)
