@@ -174,6 +174,16 @@ impl PoseWatcher {
     }
 }
 
+/// The demo rig running on one PC (see [`one_pc_rig`]), poses of three objects from both
+/// cameras already flowing: the launcher, a pose watcher, the rig file and the router's port.
+fn running_demo(dir: &TempDir, tag: char) -> (Proc, PoseWatcher, String, u16) {
+    let (path, port) = one_pc_rig(dir, tag);
+    let launcher = Proc::start(&["run", &path]);
+    let watcher = PoseWatcher::new(&format!("tcp/127.0.0.1:{port}"), "demo");
+    watcher.until(Duration::from_secs(40), "three objects", both_cameras);
+    (launcher, watcher, path, port)
+}
+
 fn both_cameras(p: &PoseFrame) -> bool {
     p.cameras.len() == 2 && p.poses.len() >= 3
 }
@@ -257,10 +267,7 @@ fn fusion_on_another_host_gets_observations_through_zenoh_only() {
 fn a_killed_capture_leaves_fusion_on_one_camera_and_is_restarted() {
     let _serial = serial();
     let dir = TempDir::new("kill-capture");
-    let (path, port) = one_pc_rig(&dir, 'k');
-    let launcher = Proc::start(&["run", &path]);
-    let watcher = PoseWatcher::new(&format!("tcp/127.0.0.1:{port}"), "demo");
-    watcher.until(Duration::from_secs(40), "both cameras", both_cameras);
+    let (launcher, watcher, _path, _port) = running_demo(&dir, 'k');
     let log = launcher.wait_for(Duration::from_secs(5), "capture/cam1's pid", |o| {
         o.contains("started capture/cam1 (pid ")
     });
@@ -810,11 +817,8 @@ fn a_python_zenoh_client_decodes_the_pose_stream_as_documented() {
     let python = common::python_clients(); // before the chain starts: pip may take a while
     assert!(python.exists());
     let dir = TempDir::new("pyzenoh");
-    let (path, port) = one_pc_rig(&dir, 'y');
+    let (_launcher, watcher, _path, port) = running_demo(&dir, 'y');
     let endpoint = format!("tcp/127.0.0.1:{port}");
-    let _launcher = Proc::start(&["run", &path]);
-    let watcher = PoseWatcher::new(&endpoint, "demo");
-    watcher.until(Duration::from_secs(40), "three objects", both_cameras);
     let lines = python_client(
         "zenoh_poses.py",
         &[&endpoint, "demo", "40", "30"],
@@ -1150,4 +1154,74 @@ fn a_long_session_exports_to_c3d_with_every_frame() {
     std::fs::write(session.join("poses.jsonl"), poses).unwrap();
     std::fs::write(session.join("observations.jsonl"), "").unwrap();
     check_c3d_export(&session, &dir.0.join("long.c3d"));
+}
+
+#[test]
+fn recorded_frames_replay_through_the_services_to_the_same_poses() {
+    let _serial = serial();
+    let dir = TempDir::new("framesreplay");
+    let (_launcher, _watcher, path, _port) = running_demo(&dir, 'f');
+    let session = dir.0.join("session");
+    let session_s = session.to_str().unwrap().to_string();
+    let mut recorder = Proc::start(&[
+        "record",
+        "--rig",
+        &path,
+        "--out",
+        &session_s,
+        "--frames",
+        "cam0,cam1",
+    ]);
+    recorder.wait_for(Duration::from_secs(20), "recording", |o| {
+        o.contains("recording")
+    });
+    // About 90 frames per camera.
+    let end = Instant::now() + Duration::from_secs(30);
+    while std::fs::read_to_string(session.join("poses.jsonl"))
+        .map(|p| p.lines().count())
+        .unwrap_or(0)
+        < 90
+    {
+        assert!(Instant::now() < end, "{}", recorder.output());
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    recorder.stop();
+    let recorded = std::fs::read_to_string(session.join("poses.jsonl"))
+        .unwrap()
+        .lines()
+        .count();
+    // The frames carry their recorded times.
+    let y4m = std::fs::read(session.join("frames-cam0.y4m")).unwrap();
+    assert!(
+        y4m.starts_with(b"YUV4MPEG2 W320 H240 F30000:1000"),
+        "{:?}",
+        &y4m[..40]
+    );
+    assert!(y4m.windows(10).any(|w| w == b"FRAME Xts="));
+    // Replayed through capture, moment workers and fusion (its own launcher, router and
+    // iceoryx2 prefix): poses at the same times, every object found again. The recording began
+    // while the chain ran, so the replay's moment workers start their thresholds and windows
+    // afresh: positions agree to millimetres, not bit for bit (a recording that starts with the
+    // chain replays exactly: docs/recording.md).
+    let o = run_with_limit(
+        &["replay", &session_s, "--frames", "--json"],
+        Duration::from_secs(90),
+    );
+    assert!(o.status.success(), "{}", stderr(&o));
+    let out = String::from_utf8_lossy(&o.stdout);
+    let v: serde_json::Value = serde_json::from_str(out.lines().last().unwrap()).unwrap();
+    assert_eq!(v["recorded_frames"].as_u64().unwrap() as usize, recorded);
+    assert!(
+        v["matched_frames"].as_u64().unwrap() as usize >= recorded * 95 / 100,
+        "{v}\n{}",
+        stderr(&o)
+    );
+    assert_eq!(v["objects_unmatched"], 0, "{v}");
+    assert!(v["position_rms_mm"].as_f64().unwrap() < 2.0, "{v}");
+    assert!(v["position_max_mm"].as_f64().unwrap() < 10.0, "{v}");
+    // A session without frames is refused, naming the files.
+    std::fs::remove_file(session.join("frames-cam1.y4m")).unwrap();
+    let o = run_with_limit(&["replay", &session_s, "--frames"], Duration::from_secs(30));
+    assert!(!o.status.success());
+    assert!(stderr(&o).contains("frames-cam1.y4m"), "{}", stderr(&o));
 }

@@ -104,6 +104,10 @@ pub enum SourceSpec {
         /// Start again at the end (files only).
         #[serde(default)]
         repeat: bool,
+        /// Replay recorded frames (their `Xts` times) at their recorded pace, every camera on
+        /// one clock (what `stereoscope replay --frames` writes; `realtime` is then ignored).
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        replay_clock: Option<ReplayClock>,
     },
     /// A sequence of PGM or PNG files, in name order.
     Images {
@@ -115,6 +119,14 @@ pub enum SourceSpec {
         #[serde(default)]
         repeat: bool,
     },
+}
+
+/// A frame recorded at `recorded_ns + d` is published at wall-clock time `wall_ns + d`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ReplayClock {
+    pub recorded_ns: u64,
+    pub wall_ns: u64,
 }
 
 fn yes() -> bool {

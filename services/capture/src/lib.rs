@@ -112,7 +112,12 @@ pub fn open_source(ctx: &Context, camera: &str) -> Result<Box<dyn FrameSource>, 
             path,
             realtime,
             repeat,
-        } => Box::new(y4m::Y4mSource::open(&rel(path), *realtime, *repeat).map_err(wrap)?),
+            replay_clock,
+        } => Box::new(
+            y4m::Y4mSource::open(&rel(path), *realtime, *repeat)
+                .map_err(wrap)?
+                .with_replay_clock(*replay_clock),
+        ),
         SourceSpec::Images {
             path,
             fps,

@@ -1,6 +1,7 @@
 //! YUV4MPEG2 files and pipes: the luma plane of each frame, read straight into the frame
 //! buffer; chroma is skipped. Headers: `YUV4MPEG2 W… H… F…:… [C…]`, then per frame
-//! `FRAME[ params]\n` and the planes. Colour spaces: 420 (all variants), 422, 444, mono
+//! `FRAME[ params]\n` and the planes; a frame's `Xts=<ns>` parameter (the recorder writes it) is
+//! its exposure time, so recorded frames replay with their recorded times. Colour spaces: 420 (all variants), 422, 444, mono
 //! (8-bit) and mono16 (16-bit little-endian luma). Any other input can be converted by
 //! `ffmpeg -i IN -f yuv4mpegpipe -pix_fmt gray PIPE`.
 
@@ -8,6 +9,7 @@ use crate::source::{FrameSource, Read, SourceError};
 use std::fs::File;
 use std::io::{BufRead, BufReader, Read as _, Seek, SeekFrom};
 use stereoscope_proto::frame::PixelFormat;
+use stereoscope_proto::rig::ReplayClock;
 
 #[derive(Debug)]
 pub struct Y4mSource {
@@ -22,6 +24,7 @@ pub struct Y4mSource {
     realtime: bool,
     repeat: bool,
     frames_read: u64,
+    replay_clock: Option<ReplayClock>,
 }
 
 fn fatal(path: &str, msg: impl std::fmt::Display) -> SourceError {
@@ -117,7 +120,18 @@ impl Y4mSource {
             realtime,
             repeat,
             frames_read: 0,
+            replay_clock: None,
         })
+    }
+
+    /// Publish recorded frames at their recorded pace on `clock` (frames without `Xts` go out
+    /// as fast as they are read).
+    pub fn with_replay_clock(mut self, clock: Option<ReplayClock>) -> Self {
+        if clock.is_some() {
+            self.realtime = false;
+        }
+        self.replay_clock = clock;
+        self
     }
 }
 
@@ -203,8 +217,28 @@ impl FrameSource for Y4mSource {
             ));
         }
         self.frames_read += 1;
-        Ok(Read::Frame { timestamp_ns: None })
+        let timestamp_ns = frame_timestamp(&line);
+        if let (Some(clock), Some(ts)) = (self.replay_clock, timestamp_ns) {
+            // Due at the replay's wall-clock time for this recorded time.
+            let due = clock.wall_ns + ts.saturating_sub(clock.recorded_ns);
+            let now = stereoscope_proto::messages::now_ns();
+            if due > now {
+                std::thread::sleep(std::time::Duration::from_nanos(due - now));
+            }
+        }
+        Ok(Read::Frame { timestamp_ns })
     }
+}
+
+/// The exposure time a FRAME line carries as `Xts=<ns>` (what the recorder writes; other
+/// writers' frames have none and are stamped when read).
+pub fn frame_timestamp(frame_line: &[u8]) -> Option<u64> {
+    std::str::from_utf8(frame_line)
+        .ok()?
+        .split_ascii_whitespace()
+        .skip(1)
+        .find_map(|p| p.strip_prefix("Xts="))
+        .and_then(|v| v.parse().ok())
 }
 
 /// Encodes grey frames as a Y4M stream (`Cmono`), for tests and for recording.
@@ -219,6 +253,18 @@ pub fn encode_mono(width: u32, height: u32, fps: u32, frames: &[&[u8]]) -> Vec<u
 
 #[cfg(test)]
 mod tests {
+    #[test]
+    fn frame_lines_give_their_recorded_time() {
+        use super::frame_timestamp;
+        assert_eq!(
+            frame_timestamp(b"FRAME Xts=1764601234533333333 Xseq=7\n"),
+            Some(1764601234533333333)
+        );
+        assert_eq!(frame_timestamp(b"FRAME\n"), None);
+        assert_eq!(frame_timestamp(b"FRAME Ixts=5 Xts=x\n"), None);
+        assert_eq!(frame_timestamp(b"FRAMEXts=5\n"), None);
+    }
+
     use super::*;
 
     #[test]

@@ -163,6 +163,7 @@ pub fn run(cfg: DemoConfig, shutdown: Shutdown) -> Result<DemoSummary, LaunchErr
             program: cfg.program.clone(),
             env: Vec::new(),
             router: true,
+            until_sources_end: false,
         };
         std::thread::spawn(move || crate::run(lc, stop))
     };

@@ -1,7 +1,8 @@
 //! The launcher: one per PC. It reads the rig file, starts the services assigned to this host
 //! (a capture and a moment worker per camera here, fusion if it is here) as separate
-//! processes, prefixes their log lines with the service name, restarts one that exits with a
-//! growing delay (0.5 s doubling to 10 s; reset once it has run 30 s), removes what dead
+//! processes, prefixes their log lines with the service name, restarts one that fails with a
+//! growing delay (0.5 s doubling to 10 s; reset once it has run 30 s) — a service that exits
+//! successfully has finished (a capture at the end of a file) and is not restarted —, removes what dead
 //! iceoryx2 nodes left behind before each start, and on Ctrl-C/SIGTERM stops every child
 //! (SIGTERM, then SIGKILL after 3 s). It also runs this PC's Zenoh router, which its services
 //! join as clients and other PCs' routers connect to (`docs/deploy.md`).
@@ -39,7 +40,15 @@ pub struct LaunchConfig {
     pub env: Vec<(String, String)>,
     /// Run this PC's Zenoh router (default true; off when the PC has a `zenohd`).
     pub router: bool,
+    /// Stop once every capture has finished (its finite source ended), after
+    /// [`DRAIN_AFTER_SOURCES_END`] for the workers and fusion to finish the last frames: for
+    /// replaying recorded frames.
+    pub until_sources_end: bool,
 }
+
+/// How long the other services run on after the last capture finished, with
+/// [`LaunchConfig::until_sources_end`].
+pub const DRAIN_AFTER_SOURCES_END: Duration = Duration::from_millis(1500);
 
 #[derive(Debug, thiserror::Error)]
 pub enum LaunchError {
@@ -101,6 +110,8 @@ struct Running {
     backoff: Duration,
     restart_at: Option<Instant>,
     restarts: u32,
+    /// Exited successfully: done, not restarted.
+    finished: bool,
 }
 
 fn pipe_lines(name: String, stream: impl std::io::Read + Send + 'static, to_err: bool) {
@@ -244,6 +255,7 @@ pub fn run(cfg: LaunchConfig, shutdown: Shutdown) -> Result<u32, LaunchError> {
             backoff: Duration::from_millis(500),
             restart_at: None,
             restarts: 0,
+            finished: false,
         });
     }
     let mut restarts = 0;
@@ -253,6 +265,11 @@ pub fn run(cfg: LaunchConfig, shutdown: Shutdown) -> Result<u32, LaunchError> {
                 && let Ok(Some(status)) = c.try_wait()
             {
                 r.child = None;
+                if status.success() {
+                    tracing::info!("{} finished", r.spec.name);
+                    r.finished = true;
+                    continue;
+                }
                 if r.started.elapsed() > Duration::from_secs(30) {
                     r.backoff = Duration::from_millis(500);
                 }
@@ -285,6 +302,16 @@ pub fn run(cfg: LaunchConfig, shutdown: Shutdown) -> Result<u32, LaunchError> {
                         r.restart_at = Some(Instant::now() + r.backoff);
                     }
                 }
+            }
+        }
+        if cfg.until_sources_end {
+            let captures = running
+                .iter()
+                .filter(|r| r.spec.name.starts_with("capture/"));
+            if captures.clone().count() > 0 && captures.clone().all(|r| r.finished) {
+                tracing::info!("every source ended");
+                shutdown.sleep(DRAIN_AFTER_SOURCES_END);
+                break;
             }
         }
         shutdown.sleep(Duration::from_millis(50));

@@ -19,7 +19,7 @@ use std::io::Write;
 use std::path::PathBuf;
 use std::sync::mpsc;
 use std::time::{Duration, Instant};
-use stereoscope_proto::frame::PixelFormat;
+use stereoscope_proto::frame::{FrameHeader, PixelFormat};
 use stereoscope_proto::messages::{Message, Observation, PoseFrame, now_ns};
 use stereoscope_proto::names::{iox as iox_names, zenoh as keys};
 use stereoscope_transport::iox::FrameSubscriber;
@@ -88,6 +88,75 @@ impl Out {
         })?;
         self.buf.clear();
         Ok(())
+    }
+}
+
+/// A camera's Y4M file being written. The stream header needs the frame rate, which the first
+/// two frames give (their sequence numbers and exposure times), so the first frame waits for
+/// the second; each frame line carries `Xts=<timestamp_ns> Xseq=<sequence>` for replay.
+#[derive(Default)]
+struct Y4mState {
+    header_done: bool,
+    last_sequence: Option<u64>,
+    /// The first frame (its FRAME line and luma), its sequence and time, and the header's
+    /// fields.
+    first: Option<(Vec<u8>, u64, u64, String)>,
+}
+
+impl Y4mState {
+    fn header(h: &FrameHeader, format: PixelFormat, rate: &str) -> String {
+        let c = if format == PixelFormat::Gray16 {
+            "mono16"
+        } else {
+            "mono"
+        };
+        format!(
+            "YUV4MPEG2 W{} H{} F{rate} Ip A1:1 C{c}\n",
+            h.width, h.height
+        )
+    }
+
+    fn push(&mut self, buf: &mut Vec<u8>, h: &FrameHeader, format: PixelFormat, frame: Vec<u8>) {
+        if self.header_done {
+            buf.extend_from_slice(&frame);
+            return;
+        }
+        match self.first.take() {
+            None => {
+                self.first = Some((
+                    frame,
+                    h.sequence,
+                    h.timestamp_ns,
+                    Self::header(h, format, "30:1"),
+                ))
+            }
+            Some((first, seq0, t0, fallback)) => {
+                let (dseq, dt) = (
+                    h.sequence.saturating_sub(seq0),
+                    h.timestamp_ns.saturating_sub(t0),
+                );
+                let header = if dseq > 0 && dt > 0 {
+                    // Frames per second in thousandths.
+                    let milli = (dseq as f64 * 1e12 / dt as f64).round().max(1.0) as u64;
+                    Self::header(h, format, &format!("{milli}:1000"))
+                } else {
+                    fallback
+                };
+                buf.extend_from_slice(header.as_bytes());
+                buf.extend_from_slice(&first);
+                buf.extend_from_slice(&frame);
+                self.header_done = true;
+            }
+        }
+    }
+
+    /// At the end: a lone first frame goes out with a nominal 30 frames/s.
+    fn finish(&mut self, buf: &mut Vec<u8>) {
+        if let Some((first, _, _, header)) = self.first.take() {
+            buf.extend_from_slice(header.as_bytes());
+            buf.extend_from_slice(&first);
+            self.header_done = true;
+        }
     }
 }
 
@@ -160,7 +229,7 @@ pub fn run(cfg: RecorderConfig, shutdown: Shutdown) -> Result<(u64, u64), Record
             let sub = FrameSubscriber::new(node, &iox_names::frames(&rig, cam))
                 .map_err(|e| setup(e.to_string()))?;
             let out = Out::create(&cfg.out, &format!("frames-{cam}.y4m"))?;
-            frame_subs.push((cam.clone(), sub, out, false));
+            frame_subs.push((cam.clone(), sub, out, Y4mState::default()));
         }
     }
     let mut health = HealthReporter::new(&session, &rig, &ctx.host, "recorder")
@@ -172,7 +241,13 @@ pub fn run(cfg: RecorderConfig, shutdown: Shutdown) -> Result<(u64, u64), Record
     loop {
         let stopping = shutdown.requested();
         let wait = if frame_subs.is_empty() { 20 } else { 1 };
-        while let Ok(item) = rx.recv_timeout(Duration::from_millis(wait)) {
+        // Wait for one message, then take whatever else is queued, without waiting: the
+        // frames below must be read at least every frame period.
+        let first = rx.recv_timeout(Duration::from_millis(wait)).ok();
+        for item in first
+            .into_iter()
+            .chain(std::iter::from_fn(|| rx.try_recv().ok()))
+        {
             match item {
                 Item::Poses(bytes, f) => {
                     poses_out.buf.extend_from_slice(&bytes);
@@ -194,33 +269,28 @@ pub fn run(cfg: RecorderConfig, shutdown: Shutdown) -> Result<(u64, u64), Record
                 break;
             }
         }
-        for (cam, sub, out, header_done) in frame_subs.iter_mut() {
-            if let Ok(Some((s, skipped))) = sub.next_newest(Duration::ZERO) {
-                counters.dropped += skipped;
+        for (cam, sub, out, state) in frame_subs.iter_mut() {
+            // Every frame waiting, oldest first; a gap in the sequence numbers is a frame the
+            // recorder was too slow for (counted as dropped).
+            while let Ok(Some(s)) = sub.next_oldest() {
                 let h = *s.user_header();
+                if let Some(last) = state.last_sequence
+                    && h.sequence > last + 1
+                {
+                    counters.dropped += h.sequence - last - 1;
+                }
+                state.last_sequence = Some(h.sequence);
                 match h.validate(s.payload().len()) {
                     Ok(format) => {
-                        if !*header_done {
-                            let c = if format == PixelFormat::Gray16 {
-                                "mono16"
-                            } else {
-                                "mono"
-                            };
-                            out.buf.extend_from_slice(
-                                format!(
-                                    "YUV4MPEG2 W{} H{} F30:1 Ip A1:1 C{c}\n",
-                                    h.width, h.height
-                                )
-                                .as_bytes(),
-                            );
-                            *header_done = true;
-                        }
-                        out.buf.extend_from_slice(b"FRAME\n");
+                        let mut frame =
+                            format!("FRAME Xts={} Xseq={}\n", h.timestamp_ns, h.sequence)
+                                .into_bytes();
                         let row = h.width as usize * format.bytes_per_pixel();
                         for y in 0..h.height as usize {
                             let start = y * h.stride_bytes as usize;
-                            out.buf.extend_from_slice(&s.payload()[start..start + row]);
+                            frame.extend_from_slice(&s.payload()[start..start + row]);
                         }
+                        state.push(&mut out.buf, &h, format, frame);
                     }
                     Err(e) => {
                         counters.rejected += 1;
@@ -235,7 +305,10 @@ pub fn run(cfg: RecorderConfig, shutdown: Shutdown) -> Result<(u64, u64), Record
             obs_out.flush()?;
             poses_out.flush()?;
             csv_out.flush()?;
-            for (_, _, out, _) in frame_subs.iter_mut() {
+            for (_, _, out, state) in frame_subs.iter_mut() {
+                if stopping {
+                    state.finish(&mut out.buf);
+                }
                 out.flush()?;
             }
             last_flush = Instant::now();

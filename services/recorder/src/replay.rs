@@ -231,3 +231,130 @@ pub fn export_c3d(session: &Session) -> Result<C3dExport, String> {
         pose_frames: session.poses.len(),
     })
 }
+
+/// The recorded frames of `camera` in a session folder.
+pub fn frames_file(session_dir: &std::path::Path, camera: &str) -> std::path::PathBuf {
+    session_dir.join(format!("frames-{camera}.y4m"))
+}
+
+/// A one-PC rig that feeds a session's recorded frames through the services: the session's
+/// rig with every camera reading its `frames-<camera>.y4m` at the recorded pace, the session's
+/// start at wall-clock `start_wall_ns`, every camera on that one clock (each frame keeps its
+/// recorded exposure time, so fusion pairs them as it did live), one host `replay` whose router listens on
+/// `listen` with iceoryx2 prefix `iox_prefix`, and no serial outputs. Every camera needs its
+/// frames: an error names the files missing.
+pub fn frames_rig(
+    session: &Session,
+    session_dir: &std::path::Path,
+    start_wall_ns: u64,
+    listen: &str,
+    iox_prefix: &str,
+) -> Result<String, String> {
+    use stereoscope_proto::rig::{HostSpec, ReplayClock, RigFile, SourceSpec};
+    let mut file = RigFile::from_toml(&session.info.rig_file)
+        .map_err(|e| format!("session.json rig_file: {e}"))?;
+    let missing: Vec<String> = file
+        .cameras
+        .iter()
+        .map(|c| frames_file(session_dir, &c.id))
+        .filter(|p| !p.is_file())
+        .map(|p| p.display().to_string())
+        .collect();
+    if !missing.is_empty() {
+        return Err(format!(
+            "no recorded frames: {} (record with --frames and every camera; without --frames, \
+             replay re-fuses the recorded observations)",
+            missing.join(", ")
+        ));
+    }
+    for c in &mut file.cameras {
+        let path = frames_file(session_dir, &c.id);
+        let path = std::path::absolute(&path).unwrap_or(path);
+        c.host = None;
+        c.source = Some(SourceSpec::Y4m {
+            path: path.display().to_string(),
+            realtime: false,
+            repeat: false,
+            replay_clock: Some(ReplayClock {
+                recorded_ns: session.info.started_ns,
+                wall_ns: start_wall_ns,
+            }),
+        });
+    }
+    if let Some(f) = &mut file.fusion {
+        f.host = None;
+    }
+    file.serial.clear();
+    file.hosts = vec![HostSpec {
+        name: "replay".into(),
+        zenoh_listen: vec![listen.to_string()],
+        zenoh_connect: Vec::new(),
+        iceoryx2_prefix: Some(iox_prefix.to_string()),
+    }];
+    file.to_toml().map_err(|e| format!("the replay rig: {e}"))
+}
+
+/// Replayed poses against the recorded ones.
+#[derive(Debug, Clone, PartialEq, Default, serde::Serialize)]
+pub struct FramesCompared {
+    pub recorded_frames: usize,
+    pub replayed_frames: usize,
+    /// Replayed pose frames with a recorded one of the same `timestamp_ns` (the same frames).
+    pub matched_frames: usize,
+    /// Objects of matched frames paired with a recorded object (nearest, within 5 cm).
+    pub objects_compared: usize,
+    /// Objects of matched frames without a recorded one near, and the other way round.
+    pub objects_unmatched: usize,
+    pub position_rms_mm: f64,
+    pub position_max_mm: f64,
+}
+
+/// Compares poses fusion made from replayed frames with the recorded poses: frames by
+/// timestamp (replayed frames keep their recorded exposure times), objects by position (the
+/// replay's fusion numbers objects afresh).
+pub fn compare_frames(recorded: &[PoseFrame], replayed: &[PoseFrame]) -> FramesCompared {
+    let by_time: HashMap<u64, &PoseFrame> = recorded.iter().map(|f| (f.timestamp_ns, f)).collect();
+    let mut out = FramesCompared {
+        recorded_frames: recorded.len(),
+        replayed_frames: replayed.len(),
+        ..Default::default()
+    };
+    let mut sum_sq = 0.0;
+    for f in replayed {
+        let Some(r) = by_time.get(&f.timestamp_ns) else {
+            continue;
+        };
+        out.matched_frames += 1;
+        let mut taken = vec![false; r.poses.len()];
+        for p in &f.poses {
+            let nearest = r
+                .poses
+                .iter()
+                .enumerate()
+                .filter(|(i, _)| !taken[*i])
+                .map(|(i, q)| {
+                    let d: f64 = (0..3)
+                        .map(|k| (p.position_m[k] - q.position_m[k]).powi(2))
+                        .sum::<f64>()
+                        .sqrt();
+                    (i, d)
+                })
+                .min_by(|a, b| a.1.total_cmp(&b.1));
+            match nearest {
+                Some((i, d)) if d < 0.05 => {
+                    taken[i] = true;
+                    out.objects_compared += 1;
+                    let mm = d * 1000.0;
+                    sum_sq += mm * mm;
+                    out.position_max_mm = out.position_max_mm.max(mm);
+                }
+                _ => out.objects_unmatched += 1,
+            }
+        }
+        out.objects_unmatched += taken.iter().filter(|t| !**t).count();
+    }
+    if out.objects_compared > 0 {
+        out.position_rms_mm = (sum_sq / out.objects_compared as f64).sqrt();
+    }
+    out
+}

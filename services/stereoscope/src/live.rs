@@ -32,6 +32,7 @@ pub fn run_rig(
             program: program?,
             env: Vec::new(),
             router,
+            until_sources_end: false,
         },
         shutdown,
     )?;
@@ -257,6 +258,128 @@ pub fn replay(
         }
     }
     Ok(if r.identical == r.frames { 0 } else { 1 })
+}
+
+/// `stereoscope replay SESSION --frames`: the recorded frames through the real services (a
+/// launcher with capture from the Y4M files, moment workers and fusion, on a router of its
+/// own), then the poses compared with the recorded ones.
+pub fn replay_frames(
+    session: PathBuf,
+    publish: Option<String>,
+    json: bool,
+    program: anyhow::Result<Vec<String>>,
+) -> anyhow::Result<usize> {
+    use std::io::Write as _;
+    use std::sync::{Arc, Mutex};
+    use stereoscope_proto::messages::{Message, PoseFrame};
+    use stereoscope_recorder::replay::{compare_frames, frames_rig};
+    use stereoscope_recorder::session::Session;
+    use stereoscope_transport::context::{Context, parse_rig};
+    use stereoscope_transport::net::{self, ZenohSpec};
+    let s = Session::read(&session)?;
+    for w in &s.warnings {
+        eprintln!("warning: {w}");
+    }
+    let listen = match publish {
+        Some(e) => e,
+        None => format!("tcp/127.0.0.1:{}", net::free_loopback_port()?),
+    };
+    let prefix = format!("stsc_replay{}_", std::process::id());
+    // The services take a second or two to start: the session's start replays 3 s from now.
+    let start_wall_ns = stereoscope_proto::messages::now_ns() + 3_000_000_000;
+    let text = frames_rig(&s, &session, start_wall_ns, &listen, &prefix)
+        .map_err(|e| anyhow::anyhow!("{}: {e}", session.display()))?;
+    let (rig_file, rig) = parse_rig(&text).map_err(|e| anyhow::anyhow!("the replay rig: {e}"))?;
+    let work = std::env::temp_dir().join(format!("stereoscope-replay-{}", std::process::id()));
+    std::fs::create_dir_all(&work).with_context(|| work.display().to_string())?;
+    let rig_path = work.join("replay-rig.toml");
+    std::fs::write(&rig_path, &text).with_context(|| rig_path.display().to_string())?;
+    let client = ZenohSpec::client_of(&stereoscope_transport::context::local_endpoint(&listen));
+    let ctx = Context {
+        rig_path,
+        rig_file: rig_file.clone(),
+        rig,
+        host: "replay".into(),
+        iox_prefix: prefix,
+        zenoh: client.clone(),
+    };
+    let shutdown = Shutdown::on_signals()?;
+    let launcher = {
+        let lc = LaunchConfig {
+            ctx,
+            program: program?,
+            env: Vec::new(),
+            router: true,
+            until_sources_end: true,
+        };
+        let stop = shutdown.clone();
+        std::thread::spawn(move || run(lc, stop))
+    };
+    // The router starts in the launcher's thread; subscribe once it is up.
+    let replayed: Arc<Mutex<Vec<PoseFrame>>> = Arc::default();
+    let deadline = std::time::Instant::now() + std::time::Duration::from_secs(10);
+    let zs = loop {
+        match net::open(&client) {
+            Ok(z) => break Some(z),
+            Err(_) if std::time::Instant::now() < deadline && !launcher.is_finished() => {
+                std::thread::sleep(std::time::Duration::from_millis(100))
+            }
+            Err(e) => {
+                eprintln!("no replay router at {listen}: {e}");
+                break None;
+            }
+        }
+    };
+    let _sub = match &zs {
+        Some(z) => {
+            let sink = replayed.clone();
+            Some(net::subscribe(
+                z,
+                &stereoscope_proto::names::zenoh::poses(&rig_file.name),
+                move |_, b| {
+                    if let Ok(p) = PoseFrame::from_json(b)
+                        && let Ok(mut v) = sink.lock()
+                    {
+                        v.push(p);
+                    }
+                },
+            )?)
+        }
+        None => {
+            shutdown.request();
+            None
+        }
+    };
+    let total = s.poses.len();
+    while !launcher.is_finished() {
+        let n = replayed.lock().map(|v| v.len()).unwrap_or(0);
+        eprint!("\rreplaying frames: {n} pose frames (recorded: {total})");
+        let _ = std::io::stderr().flush();
+        std::thread::sleep(std::time::Duration::from_millis(200));
+    }
+    eprintln!();
+    let result = launcher
+        .join()
+        .map_err(|_| anyhow::anyhow!("the launcher thread panicked"));
+    let _ = std::fs::remove_dir_all(&work);
+    result??;
+    let replayed = replayed.lock().map(|v| v.clone()).unwrap_or_default();
+    let c = compare_frames(&s.poses, &replayed);
+    if json {
+        println!("{}", serde_json::to_string(&c)?);
+    } else {
+        println!(
+            "{} pose frames from the replayed frames, {} at the time of a recorded one ({} recorded); {} objects compared, {} unmatched; position difference RMS {:.3} mm, largest {:.3} mm",
+            c.replayed_frames,
+            c.matched_frames,
+            c.recorded_frames,
+            c.objects_compared,
+            c.objects_unmatched,
+            c.position_rms_mm,
+            c.position_max_mm
+        );
+    }
+    Ok(if c.matched_frames > 0 { 0 } else { 1 })
 }
 
 /// `stereoscope export --format csv|c3d`.

@@ -165,12 +165,17 @@ enum Command {
     Replay {
         /// The session folder.
         session: PathBuf,
-        /// Publish the recorded observations on Zenoh through this router endpoint.
+        /// Publish the recorded observations on Zenoh through this router endpoint (with
+        /// --frames: the replay's own router listens there, for clients).
         #[arg(long)]
         publish: Option<String>,
         /// With --publish: as fast as possible instead of at the recorded pace.
         #[arg(long)]
         max_speed: bool,
+        /// Feed the recorded frames (frames-<camera>.y4m) through capture, moment workers and
+        /// fusion at the recorded pace, and compare the poses with the recorded ones.
+        #[arg(long, conflicts_with = "max_speed")]
+        frames: bool,
         /// The comparison as one JSON object.
         #[arg(long)]
         json: bool,
@@ -435,8 +440,21 @@ fn main() -> ExitCode {
         Command::Replay {
             session,
             publish,
+            frames: true,
+            json,
+            ..
+        } => finish(stereoscope::live::replay_frames(
+            session,
+            publish,
+            json,
+            service_program(),
+        )),
+        Command::Replay {
+            session,
+            publish,
             max_speed,
             json,
+            ..
         } => finish(stereoscope::live::replay(session, publish, max_speed, json)),
         Command::Export {
             session,

@@ -246,6 +246,14 @@ impl FrameSubscriber {
         })
     }
 
+    /// The oldest frame waiting, without waiting (for readers that want every frame: the
+    /// recorder).
+    pub fn next_oldest(&self) -> Result<Option<FrameSample>, TransportError> {
+        self.subscriber
+            .receive()
+            .map_err(|e| err("frame receive", &self.name, e))
+    }
+
     /// The newest frame waiting (older ones are released unread and counted in the second
     /// value), or `None` after `timeout`.
     pub fn next_newest(
