@@ -1204,7 +1204,7 @@ fn recorded_frames_replay_through_the_services_to_the_same_poses() {
     // afresh: positions agree to millimetres, not bit for bit (a recording that starts with the
     // chain replays exactly: docs/recording.md).
     let o = run_with_limit(
-        &["replay", &session_s, "--frames", "--json"],
+        &["replay", &session_s, "--frames", "--speed", "3", "--json"],
         Duration::from_secs(90),
     );
     assert!(o.status.success(), "{}", stderr(&o));

@@ -121,12 +121,23 @@ pub enum SourceSpec {
     },
 }
 
-/// A frame recorded at `recorded_ns + d` is published at wall-clock time `wall_ns + d`.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+/// A frame recorded at `recorded_ns + d` is published at wall-clock time `wall_ns + d / speed`.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct ReplayClock {
     pub recorded_ns: u64,
     pub wall_ns: u64,
+    /// 1 = the recorded pace (default); 2 = twice as fast.
+    #[serde(default = "one", skip_serializing_if = "is_one")]
+    pub speed: f64,
+}
+
+fn one() -> f64 {
+    1.0
+}
+
+fn is_one(v: &f64) -> bool {
+    *v == 1.0
 }
 
 fn yes() -> bool {

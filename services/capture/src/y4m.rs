@@ -220,7 +220,12 @@ impl FrameSource for Y4mSource {
         let timestamp_ns = frame_timestamp(&line);
         if let (Some(clock), Some(ts)) = (self.replay_clock, timestamp_ns) {
             // Due at the replay's wall-clock time for this recorded time.
-            let due = clock.wall_ns + ts.saturating_sub(clock.recorded_ns);
+            let speed = if clock.speed.is_finite() && clock.speed > 0.0 {
+                clock.speed
+            } else {
+                1.0
+            };
+            let due = clock.wall_ns + (ts.saturating_sub(clock.recorded_ns) as f64 / speed) as u64;
             let now = stereoscope_proto::messages::now_ns();
             if due > now {
                 std::thread::sleep(std::time::Duration::from_nanos(due - now));

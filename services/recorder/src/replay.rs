@@ -238,7 +238,7 @@ pub fn frames_file(session_dir: &std::path::Path, camera: &str) -> std::path::Pa
 }
 
 /// A one-PC rig that feeds a session's recorded frames through the services: the session's
-/// rig with every camera reading its `frames-<camera>.y4m` at the recorded pace, the session's
+/// rig with every camera reading its `frames-<camera>.y4m` at `speed` × the recorded pace, the session's
 /// start at wall-clock `start_wall_ns`, every camera on that one clock (each frame keeps its
 /// recorded exposure time, so fusion pairs them as it did live), one host `replay` whose router listens on
 /// `listen` with iceoryx2 prefix `iox_prefix`, and no serial outputs. Every camera needs its
@@ -247,6 +247,7 @@ pub fn frames_rig(
     session: &Session,
     session_dir: &std::path::Path,
     start_wall_ns: u64,
+    speed: f64,
     listen: &str,
     iox_prefix: &str,
 ) -> Result<String, String> {
@@ -278,6 +279,7 @@ pub fn frames_rig(
             replay_clock: Some(ReplayClock {
                 recorded_ns: session.info.started_ns,
                 wall_ns: start_wall_ns,
+                speed,
             }),
         });
     }

@@ -266,9 +266,15 @@ pub fn replay(
 pub fn replay_frames(
     session: PathBuf,
     publish: Option<String>,
+    speed: f64,
     json: bool,
     program: anyhow::Result<Vec<String>>,
 ) -> anyhow::Result<usize> {
+    if !(speed.is_finite() && speed > 0.0) {
+        return Err(anyhow::anyhow!(
+            "--speed {speed}: must be a number above zero"
+        ));
+    }
     use std::io::Write as _;
     use std::sync::{Arc, Mutex};
     use stereoscope_proto::messages::{Message, PoseFrame};
@@ -287,7 +293,7 @@ pub fn replay_frames(
     let prefix = format!("stsc_replay{}_", std::process::id());
     // The services take a second or two to start: the session's start replays 3 s from now.
     let start_wall_ns = stereoscope_proto::messages::now_ns() + 3_000_000_000;
-    let text = frames_rig(&s, &session, start_wall_ns, &listen, &prefix)
+    let text = frames_rig(&s, &session, start_wall_ns, speed, &listen, &prefix)
         .map_err(|e| anyhow::anyhow!("{}: {e}", session.display()))?;
     let (rig_file, rig) = parse_rig(&text).map_err(|e| anyhow::anyhow!("the replay rig: {e}"))?;
     let work = std::env::temp_dir().join(format!("stereoscope-replay-{}", std::process::id()));

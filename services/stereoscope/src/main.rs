@@ -176,6 +176,10 @@ enum Command {
         /// fusion at the recorded pace, and compare the poses with the recorded ones.
         #[arg(long, conflicts_with = "max_speed")]
         frames: bool,
+        /// With --frames: this many times the recorded pace (frames are dropped if a moment
+        /// worker cannot keep up).
+        #[arg(long, default_value_t = 1.0, requires = "frames")]
+        speed: f64,
         /// The comparison as one JSON object.
         #[arg(long)]
         json: bool,
@@ -441,11 +445,13 @@ fn main() -> ExitCode {
             session,
             publish,
             frames: true,
+            speed,
             json,
             ..
         } => finish(stereoscope::live::replay_frames(
             session,
             publish,
+            speed,
             json,
             service_program(),
         )),
