@@ -667,6 +667,40 @@ fn find_row_runs<P: Pixel>(row: &[P], segs: &[Seg], out: &mut Vec<(u32, u32, boo
 }
 
 impl Scratch {
+    /// Adds the run `x0..=x1` of row `y` to blob `label`'s sums (and weighted sums).
+    #[inline(always)]
+    #[allow(clippy::too_many_arguments)]
+    fn add_run<P: Pixel>(
+        &mut self,
+        label: u32,
+        x0: u32,
+        x1: u32,
+        y: u32,
+        clipped: bool,
+        background: Option<(u32, u32)>,
+        row: &[P],
+    ) {
+        let a = &mut self.acc[label as usize];
+        a.m.add_run(x0, x1, y);
+        a.bbox.x0 = a.bbox.x0.min(x0);
+        a.bbox.x1 = a.bbox.x1.max(x1);
+        a.bbox.y1 = y;
+        if clipped {
+            a.flags.insert(BlobFlags::CLIPPED);
+        }
+        if let Some((bg, cap)) = background {
+            let (mut sw, mut swx, mut swxx) = (0u64, 0u64, 0u64);
+            for (x, p) in (x0..=x1).zip(&row[x0 as usize..=x1 as usize]) {
+                let w = p.value().saturating_sub(bg).min(cap) as u64;
+                let xf = x as u64;
+                sw += w;
+                swx += w * xf;
+                swxx += w * xf * xf;
+            }
+            self.wacc[label as usize].add_row_sums(sw, swx, swxx, y);
+        }
+    }
+
     fn reset(&mut self) {
         self.prev.clear();
         self.cur.clear();
@@ -714,6 +748,7 @@ impl Scratch {
                 // Empty rows (most rows of a tracking window) are skipped in a tight loop: they
                 // join nothing, and an empty cut row needs no record for the band joins.
                 let skip_from = y;
+                let mut narrow_mask = 0u64;
                 let row = match narrow {
                     Some(seg) => {
                         let (x0, n) = (seg.x0 as usize, seg.x1 - seg.x0 + 1);
@@ -742,9 +777,7 @@ impl Scratch {
                             skip_fours = true;
                             y += 1;
                         }
-                        if y < y1 {
-                            runs_from_mask(mask, &seg, &mut row_runs);
-                        }
+                        narrow_mask = mask;
                         None
                     }
                     None => {
@@ -759,12 +792,47 @@ impl Scratch {
                 if y >= y1 {
                     break;
                 }
+                // The common row of a tracked blob: one run, continuing the one run of the row
+                // above — no labels to join, so it goes straight into that blob's sums.
+                if let Some(seg) = narrow
+                    && y != ya
+                    && y + 1 != yb
+                    && prev_y == Some(y - 1)
+                    && self.prev.len() == 1
+                {
+                    let start = narrow_mask.trailing_zeros();
+                    let ones = (!(narrow_mask >> start)).trailing_zeros();
+                    let (x0, x1) = (seg.x0 + start, seg.x0 + start + ones - 1);
+                    let p = self.prev[0];
+                    let single = start + ones >= 64 || narrow_mask >> (start + ones) == 0;
+                    if single && p.x0 <= x1 + k && p.x1 + k >= x0 {
+                        let n = seg.x1 - seg.x0 + 1;
+                        let hclip =
+                            (start == 0 && seg.open_left) || (start + ones == n && seg.open_right);
+                        let label = find(&mut self.parent, p.label);
+                        let edge_row = (band.check_top && y == band.y0)
+                            || (band.check_bottom && y + 1 == band.y1);
+                        let clipped =
+                            hclip || (edge_row && region.vertically_clipped(bi, y, x0, x1));
+                        self.add_run(label, x0, x1, y, clipped, background, img.row(y));
+                        self.prev[0] = RunRef { x0, x1, label };
+                        self.runs += 1;
+                        prev_y = Some(y);
+                        y += 1;
+                        continue;
+                    }
+                }
                 let row = match row {
                     Some(row) => {
                         find_row_runs(row, segs, &mut row_runs);
                         row
                     }
-                    None => img.row(y),
+                    None => {
+                        if let Some(seg) = narrow {
+                            runs_from_mask(narrow_mask, &seg, &mut row_runs);
+                        }
+                        img.row(y)
+                    }
                 };
                 if prev_y != Some(y.wrapping_sub(1)) || y == 0 {
                     self.prev.clear();
@@ -815,25 +883,7 @@ impl Scratch {
                             self.wacc.push(WeightedMoments::default());
                         }
                     }
-                    let a = &mut self.acc[label as usize];
-                    a.m.add_run(x0, x1, y);
-                    a.bbox.x0 = a.bbox.x0.min(x0);
-                    a.bbox.x1 = a.bbox.x1.max(x1);
-                    a.bbox.y1 = y;
-                    if clipped {
-                        a.flags.insert(BlobFlags::CLIPPED);
-                    }
-                    if let Some((bg, cap)) = background {
-                        let (mut sw, mut swx, mut swxx) = (0u64, 0u64, 0u64);
-                        for (x, p) in (x0..=x1).zip(&row[x0 as usize..=x1 as usize]) {
-                            let w = p.value().saturating_sub(bg).min(cap) as u64;
-                            let xf = x as u64;
-                            sw += w;
-                            swx += w * xf;
-                            swxx += w * xf * xf;
-                        }
-                        self.wacc[label as usize].add_row_sums(sw, swx, swxx, y);
-                    }
+                    self.add_run(label, x0, x1, y, clipped, background, row);
                     self.cur.push(RunRef { x0, x1, label });
                 }
                 self.runs += row_runs.len();
