@@ -678,7 +678,7 @@ impl Scratch {
         y: u32,
         clipped: bool,
         background: Option<(u32, u32)>,
-        row: &[P],
+        img: &GrayView<'_, P>,
     ) {
         let a = &mut self.acc[label as usize];
         a.m.add_run(x0, x1, y);
@@ -689,6 +689,7 @@ impl Scratch {
             a.flags.insert(BlobFlags::CLIPPED);
         }
         if let Some((bg, cap)) = background {
+            let row = img.row(y);
             let (mut sw, mut swx, mut swxx) = (0u64, 0u64, 0u64);
             for (x, p) in (x0..=x1).zip(&row[x0 as usize..=x1 as usize]) {
                 let w = p.value().saturating_sub(bg).min(cap) as u64;
@@ -814,7 +815,7 @@ impl Scratch {
                             || (band.check_bottom && y + 1 == band.y1);
                         let clipped =
                             hclip || (edge_row && region.vertically_clipped(bi, y, x0, x1));
-                        self.add_run(label, x0, x1, y, clipped, background, img.row(y));
+                        self.add_run(label, x0, x1, y, clipped, background, img);
                         self.prev[0] = RunRef { x0, x1, label };
                         self.runs += 1;
                         prev_y = Some(y);
@@ -822,18 +823,11 @@ impl Scratch {
                         continue;
                     }
                 }
-                let row = match row {
-                    Some(row) => {
-                        find_row_runs(row, segs, &mut row_runs);
-                        row
-                    }
-                    None => {
-                        if let Some(seg) = narrow {
-                            runs_from_mask(narrow_mask, &seg, &mut row_runs);
-                        }
-                        img.row(y)
-                    }
-                };
+                match (row, narrow) {
+                    (Some(row), _) => find_row_runs(row, segs, &mut row_runs),
+                    (None, Some(seg)) => runs_from_mask(narrow_mask, &seg, &mut row_runs),
+                    (None, None) => row_runs.clear(),
+                }
                 if prev_y != Some(y.wrapping_sub(1)) || y == 0 {
                     self.prev.clear();
                 }
@@ -883,7 +877,7 @@ impl Scratch {
                             self.wacc.push(WeightedMoments::default());
                         }
                     }
-                    self.add_run(label, x0, x1, y, clipped, background, row);
+                    self.add_run(label, x0, x1, y, clipped, background, img);
                     self.cur.push(RunRef { x0, x1, label });
                 }
                 self.runs += row_runs.len();
