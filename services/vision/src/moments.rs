@@ -180,6 +180,9 @@ pub struct AxisShape {
     /// in squared units of pixel height.
     pub major_var: f64,
     pub minor_var: f64,
+    /// `[cos, sin]` of `angle_deg`, from the moments without trigonometry (for the
+    /// third-order direction).
+    pub axis_unit: [f64; 2],
 }
 
 impl AxisShape {
@@ -213,10 +216,23 @@ impl CentralMoments {
         }
         let mean = 0.5 * (cxx + cyy);
         let diff = (0.25 * (cxx - cyy) * (cxx - cyy) + cxy * cxy).sqrt();
+        // cos 2θ = (cxx − cyy) / 2·diff, sin 2θ = 2·cxy / 2·diff; θ in (−90°, 90°] has
+        // cos θ ≥ 0 and sin θ of the sign of sin 2θ (+1 at 90°).
+        let axis_unit = if diff > 0.0 {
+            let c2 = ((cxx - cyy) / (2.0 * diff)).clamp(-1.0, 1.0);
+            let sin = ((1.0 - c2) / 2.0).sqrt();
+            [
+                ((1.0 + c2) / 2.0).sqrt(),
+                if cxy < 0.0 { -sin } else { sin },
+            ]
+        } else {
+            [1.0, 0.0]
+        };
         AxisShape {
             angle_deg,
             major_var: mean + diff,
             minor_var: mean - diff,
+            axis_unit,
         }
     }
 
@@ -256,9 +272,8 @@ pub fn directed_angle_deg(
         return None;
     }
     let [mu30, mu21, mu12, mu03] = raw.central_third();
-    let t = shape.angle_deg.to_radians();
     // Physical axis (X right, Y up) → pixel-offset weights: X = par·dx, Y = −dy.
-    let (ux, uy) = (t.cos() * par, -t.sin());
+    let (ux, uy) = (shape.axis_unit[0] * par, -shape.axis_unit[1]);
     let skew = ux * ux * ux * mu30
         + 3.0 * ux * ux * uy * mu21
         + 3.0 * ux * uy * uy * mu12
@@ -344,6 +359,46 @@ impl WeightedMoments {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The axis' unit vector agrees with the cosine and sine of its angle, every quadrant and
+    /// the edge cases (a circle, 90°, −0 products).
+    #[test]
+    fn axis_unit_is_the_angle_without_trigonometry() {
+        let mut rng = crate::raster::SplitMix64::new(7);
+        let mut cases: Vec<(f64, f64, f64)> = (0..2000)
+            .map(|_| {
+                let a = rng.next_u64() as f64 / u64::MAX as f64 * 100.0;
+                let b = rng.next_u64() as f64 / u64::MAX as f64 * 100.0;
+                let c = (rng.next_u64() as f64 / u64::MAX as f64 - 0.5) * 100.0;
+                (a, b, c)
+            })
+            .collect();
+        cases.extend([
+            (5.0, 5.0, 0.0),
+            (1.0, 4.0, 0.0),
+            (4.0, 1.0, 0.0),
+            (2.0, 2.0, 1.5),
+            (2.0, 2.0, -1.5),
+            (1.0, 4.0, -0.0),
+        ]);
+        for (mu20, mu02, mu11) in cases {
+            for par in [1.0, 0.86, 1.3] {
+                let c = CentralMoments { mu20, mu02, mu11 };
+                let s = c.axis_shape(par);
+                let t = s.angle_deg.to_radians();
+                if s.major_var - s.minor_var < 1e-9 {
+                    continue; // a circle: any axis
+                }
+                assert!(
+                    (s.axis_unit[0] - t.cos()).abs() < 1e-9
+                        && (s.axis_unit[1] - t.sin()).abs() < 1e-9,
+                    "{mu20} {mu02} {mu11} par {par}: {:?} vs {}°",
+                    s.axis_unit,
+                    s.angle_deg
+                );
+            }
+        }
+    }
 
     fn brute(pixels: &[(u32, u32)]) -> RawMoments {
         let mut m = RawMoments::default();
