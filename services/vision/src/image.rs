@@ -47,6 +47,25 @@ pub trait Pixel: Copy + Default + Send + Sync + PartialOrd + std::fmt::Debug + '
     fn any_foreground64x4(chunks: [&[Self]; 4], threshold: u32) -> bool {
         chunks.iter().any(|c| Self::any_foreground64(c, threshold))
     }
+
+    /// [`Pixel::foreground_mask64`] with 256-bit vectors where the type has them.
+    ///
+    /// # Safety
+    /// The CPU must support AVX2 (`is_x86_feature_detected!("avx2")`); the caller is compiled
+    /// with it enabled for the vector instructions to be inlined.
+    #[inline(always)]
+    unsafe fn foreground_mask64_avx2(chunk: &[Self], threshold: u32) -> u64 {
+        Self::foreground_mask64(chunk, threshold)
+    }
+
+    /// [`Pixel::any_foreground64x4`] with 256-bit vectors where the type has them.
+    ///
+    /// # Safety
+    /// As [`Pixel::foreground_mask64_avx2`].
+    #[inline(always)]
+    unsafe fn any_foreground64x4_avx2(chunks: [&[Self]; 4], threshold: u32) -> bool {
+        Self::any_foreground64x4(chunks, threshold)
+    }
 }
 
 impl Pixel for u8 {
@@ -115,6 +134,43 @@ impl Pixel for u8 {
             let t = _mm_set1_epi8(threshold.min(255) as u8 as i8);
             let ge = _mm_cmpeq_epi8(_mm_max_epu8(m, t), m);
             _mm_movemask_epi8(ge) != 0
+        }
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[inline(always)]
+    unsafe fn foreground_mask64_avx2(chunk: &[Self], threshold: u32) -> u64 {
+        use std::arch::x86_64::*;
+        let chunk = &chunk[..64];
+        // SAFETY: two 32-byte loads inside the 64-byte slice; the caller guarantees AVX2.
+        unsafe {
+            let t = _mm256_set1_epi8(threshold.min(255) as u8 as i8);
+            let p = chunk.as_ptr() as *const __m256i;
+            let (a, b) = (_mm256_loadu_si256(p), _mm256_loadu_si256(p.add(1)));
+            let ga = _mm256_cmpeq_epi8(_mm256_max_epu8(a, t), a);
+            let gb = _mm256_cmpeq_epi8(_mm256_max_epu8(b, t), b);
+            (_mm256_movemask_epi8(ga) as u32 as u64)
+                | ((_mm256_movemask_epi8(gb) as u32 as u64) << 32)
+        }
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[inline(always)]
+    unsafe fn any_foreground64x4_avx2(chunks: [&[Self]; 4], threshold: u32) -> bool {
+        use std::arch::x86_64::*;
+        let chunks = chunks.map(|c| &c[..64]);
+        // SAFETY: two 32-byte loads inside each 64-byte chunk; the caller guarantees AVX2.
+        unsafe {
+            let mut m = _mm256_setzero_si256();
+            for c in chunks {
+                let p = c.as_ptr() as *const __m256i;
+                m = _mm256_max_epu8(
+                    m,
+                    _mm256_max_epu8(_mm256_loadu_si256(p), _mm256_loadu_si256(p.add(1))),
+                );
+            }
+            let t = _mm256_set1_epi8(threshold.min(255) as u8 as i8);
+            _mm256_movemask_epi8(_mm256_cmpeq_epi8(_mm256_max_epu8(m, t), m)) != 0
         }
     }
 }
@@ -234,6 +290,20 @@ impl<'a, P: Pixel> GrayView<'a, P> {
     pub fn row(&self, y: u32) -> &'a [P] {
         let start = y as usize * self.stride;
         &self.data[start..start + self.width as usize]
+    }
+
+    /// The 64 pixels from `(x0, y)` on, without bounds checks: the tracking windows' inner loop
+    /// reads one such chunk per row.
+    ///
+    /// # Safety
+    /// `y < height` and `x0 + 64 <= width`.
+    #[inline(always)]
+    pub(crate) unsafe fn chunk64_unchecked(&self, y: u32, x0: usize) -> &'a [P] {
+        debug_assert!(y < self.height && x0 + 64 <= self.width as usize);
+        let start = y as usize * self.stride + x0;
+        // SAFETY: `new` checked `(height − 1)·stride + width <= data.len()`, and the caller
+        // guarantees `y < height` and `x0 + 64 <= width`, so `start + 64 <= data.len()`.
+        unsafe { self.data.get_unchecked(start..start + 64) }
     }
 
     /// The pixel at `(x, y)`, or `None` outside the image.

@@ -47,6 +47,25 @@ fn sum2(k: u64) -> u64 {
     k * (k + 1) * (2 * k + 1) / 6
 }
 
+/// `v` rounded to the nearest `f64`, as `v as f64`, but through the one-instruction `i64`
+/// conversion when `v` fits (central moments of blobs of any practical size do).
+#[inline(always)]
+fn to_f64(v: i128) -> f64 {
+    // The wide conversion kept out of line: inlined, the compiler folds both arms into the
+    // (library-call) `i128` conversion.
+    #[cold]
+    #[inline(never)]
+    fn wide(v: i128) -> f64 {
+        v as f64
+    }
+    let narrow = v as i64;
+    if narrow as i128 == v {
+        narrow as f64
+    } else {
+        wide(v)
+    }
+}
+
 impl RawMoments {
     /// Adds the run of pixels `x = a..=b` on row `y` (a ≤ b) in closed form.
     ///
@@ -125,9 +144,9 @@ impl RawMoments {
         let mu11 = n * self.m11 as i128 - m10 * m01;
         let nf = self.m00 as f64;
         CentralMoments {
-            mu20: mu20 as f64 / nf,
-            mu02: mu02 as f64 / nf,
-            mu11: mu11 as f64 / nf,
+            mu20: to_f64(mu20) / nf,
+            mu02: to_f64(mu02) / nf,
+            mu11: to_f64(mu11) / nf,
         }
     }
 
@@ -153,11 +172,102 @@ impl RawMoments {
         let mu12 = nn * m12 - n * m10 * m02 - 2 * n * m01 * m11 + 2 * m01 * m01 * m10;
         let d = (self.m00 as f64) * (self.m00 as f64);
         [
-            mu30 as f64 / d,
-            mu21 as f64 / d,
-            mu12 as f64 / d,
-            mu03 as f64 / d,
+            to_f64(mu30) / d,
+            to_f64(mu21) / d,
+            to_f64(mu12) / d,
+            to_f64(mu03) / d,
         ]
+    }
+}
+
+/// `SQUARES_BELOW[n]` = Σ i² for i < n, n ≤ 64.
+const SQUARES_BELOW: [u64; 65] = {
+    let mut t = [0u64; 65];
+    let mut n = 1;
+    while n < 65 {
+        t[n] = t[n - 1] + ((n - 1) * (n - 1)) as u64;
+        n += 1;
+    }
+    t
+};
+
+/// The runs of consecutive rows of one blob, summed relative to the first row `y0` so that
+/// every sum stays in `u64`, then added to the blob's [`RawMoments`] once (the same Eq. 3.33–
+/// 3.43 sums as [`RawMoments::add_run`], expanded binomially in `y = y0 + dy`).
+///
+/// Exact for runs of at most 64 pixels in frames up to 8192 × 8192 (`MAX_SIDE_PX`): a row adds
+/// at most 64 · 8191³ < 2^45 to any sum and a block has at most 8192 rows, so every sum stays
+/// below 2^58. This is what the tracker's windows need: a window's blob row is one short run
+/// continuing the one above, and a run of such rows costs a few `u64` multiply-adds each
+/// instead of four `u128` additions.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct RunBlock {
+    y0: u32,
+    n: u64,
+    s1: u64,
+    s2: u64,
+    s3: u64,
+    n_dy: u64,
+    s1_dy: u64,
+    s2_dy: u64,
+    n_dy2: u64,
+    s1_dy2: u64,
+    n_dy3: u64,
+}
+
+impl RunBlock {
+    /// An empty block whose rows are counted from `y0`.
+    #[inline(always)]
+    pub fn new(y0: u32) -> Self {
+        RunBlock {
+            y0,
+            ..Default::default()
+        }
+    }
+
+    /// Adds the run `x = a..=b` (a ≤ b, at most 64 pixels) on row `y0 + dy`.
+    #[inline(always)]
+    pub fn add_run(&mut self, a: u32, b: u32, dy: u32) {
+        debug_assert!(a <= b && b - a < 64 && b < crate::image::MAX_SIDE_PX);
+        let (a, b, dy) = (a as u64, b as u64, dy as u64);
+        let n = b - a + 1;
+        let s1 = (a + b) * n / 2;
+        // Σ (a + i)² over i < n = a·n·(a + n − 1) + Σ i², the last from a table (n ≤ 64).
+        let s2 = a * n * (a + n - 1) + SQUARES_BELOW[n as usize];
+        let t_lo = if a == 0 { 0 } else { sum1(a - 1) };
+        let s3 = s1 * (sum1(b) + t_lo);
+        let dy2 = dy * dy;
+        self.n += n;
+        self.s1 += s1;
+        self.s2 += s2;
+        self.s3 += s3;
+        self.n_dy += n * dy;
+        self.s1_dy += s1 * dy;
+        self.s2_dy += s2 * dy;
+        self.n_dy2 += n * dy2;
+        self.s1_dy2 += s1 * dy2;
+        self.n_dy3 += n * dy2 * dy;
+    }
+
+    /// Adds the block's sums to `m`: `Σ x^p (y0 + dy)^q` expanded in powers of `y0`.
+    #[inline]
+    pub fn add_to(&self, m: &mut RawMoments) {
+        let y = self.y0 as u64;
+        let y2 = y * y;
+        m.m00 += self.n;
+        m.m10 += self.s1;
+        m.m01 += y * self.n + self.n_dy;
+        m.m20 += self.s2;
+        m.m11 += y * self.s1 + self.s1_dy;
+        m.m02 += y2 * self.n + 2 * y * self.n_dy + self.n_dy2;
+        let (yw, y2w) = (y as u128, y2 as u128);
+        m.m30 += self.s3 as u128;
+        m.m21 += yw * self.s2 as u128 + self.s2_dy as u128;
+        m.m12 += y2w * self.s1 as u128 + 2 * yw * self.s1_dy as u128 + self.s1_dy2 as u128;
+        m.m03 += y2w * yw * self.n as u128
+            + 3 * y2w * self.n_dy as u128
+            + 3 * yw * self.n_dy2 as u128
+            + self.n_dy3 as u128;
     }
 }
 
@@ -289,7 +399,8 @@ pub fn directed_angle_deg(
     if normalised < 0.0 {
         deg += 180.0;
     }
-    Some(deg.rem_euclid(360.0))
+    // `deg` is in (−90, 270]: into [0, 360) without a floating-point remainder.
+    Some(if deg < 0.0 { deg + 360.0 } else { deg })
 }
 
 /// Grey-level (intensity-weighted) moments of a blob's pixels, Eq. 3.1 with the weight
@@ -343,9 +454,9 @@ impl WeightedMoments {
         }
         let w = self.w00 as i128;
         let (w10, w01) = (self.w10 as i128, self.w01 as i128);
-        let c20 = (w * self.w20 as i128 - w10 * w10) as f64;
-        let c02 = (w * self.w02 as i128 - w01 * w01) as f64;
-        let c11 = (w * self.w11 as i128 - w10 * w01) as f64;
+        let c20 = to_f64(w * self.w20 as i128 - w10 * w10);
+        let c02 = to_f64(w * self.w02 as i128 - w01 * w01);
+        let c11 = to_f64(w * self.w11 as i128 - w10 * w01);
         // Σw(x−x̄)² = c20 / W; scale by area / W so that uniform weights reproduce mu20.
         let s = area_px as f64 / (self.w00 as f64 * self.w00 as f64);
         CentralMoments {
@@ -359,6 +470,48 @@ impl WeightedMoments {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A block of rows gives exactly the sums of its runs added one by one, at the edges of
+    /// the 8192-pixel frame too.
+    #[test]
+    fn run_block_equals_runs_added_one_by_one() {
+        let mut rng = crate::raster::SplitMix64::new(11);
+        for case in 0..300 {
+            let y0 = match case {
+                0 => 0,
+                1 => 8191 - 63,
+                _ => (rng.next_u64() % 8100) as u32,
+            };
+            let rows = 1 + (rng.next_u64() % 64) as u32;
+            let rows = rows.min(8192 - y0);
+            let mut block = RunBlock::new(y0);
+            let mut one_by_one = RawMoments::default();
+            for dy in 0..rows {
+                let len = 1 + (rng.next_u64() % 64) as u32;
+                let a = match case {
+                    0 => 0,
+                    1 => 8192 - len,
+                    _ => (rng.next_u64() % (8192 - len as u64)) as u32,
+                };
+                block.add_run(a, a + len - 1, dy);
+                one_by_one.add_run(a, a + len - 1, y0 + dy);
+            }
+            let mut from_block = RawMoments::default();
+            block.add_to(&mut from_block);
+            assert_eq!(from_block, one_by_one, "case {case}, y0 {y0}, {rows} rows");
+        }
+        // The largest block: 8192 rows of the frame's last 64 columns (overflow would panic in
+        // this test's build).
+        let mut block = RunBlock::new(0);
+        let mut one_by_one = RawMoments::default();
+        for y in 0..8192 {
+            block.add_run(8128, 8191, y);
+            one_by_one.add_run(8128, 8191, y);
+        }
+        let mut from_block = RawMoments::default();
+        block.add_to(&mut from_block);
+        assert_eq!(from_block, one_by_one);
+    }
 
     /// The axis' unit vector agrees with the cosine and sine of its angle, every quadrant and
     /// the edge cases (a circle, 90°, −0 products).

@@ -167,8 +167,25 @@ pub struct Tracker {
     frames_since_search: u32,
     windows: Vec<Window>,
     cost: Vec<f64>,
+    /// This step's blob centroids, for the costs.
+    centroids: Vec<(f64, f64)>,
     assigner: Assigner,
     taken: Vec<bool>,
+}
+
+/// `c.round() as i64` (halves away from zero, saturating) without the library call that
+/// `round` is on the x86-64 baseline.
+#[inline]
+fn round_half_away(c: f64) -> i64 {
+    let i = c as i64;
+    let f = c - i as f64;
+    if f >= 0.5 {
+        i.saturating_add(1)
+    } else if f <= -0.5 {
+        i.saturating_sub(1)
+    } else {
+        i
+    }
 }
 
 /// The window of half-width `half` centred at `(cx, cy)`, shifted inside the frame and clipped
@@ -180,7 +197,7 @@ pub fn clamp_window(cx: f64, cy: f64, half: u32, width: u32, height: u32) -> Pix
             return (0, size - 1);
         }
         let c = if c.is_finite() {
-            c.round() as i64
+            round_half_away(c)
         } else {
             size as i64 / 2
         };
@@ -203,6 +220,7 @@ impl Tracker {
             frames_since_search: 0,
             windows: Vec::new(),
             cost: Vec::new(),
+            centroids: Vec::new(),
             assigner: Assigner::default(),
             taken: Vec::new(),
         })
@@ -288,10 +306,12 @@ impl Tracker {
 
         // Global assignment: cost = squared distance to the prediction, gated by the window.
         self.cost.clear();
+        self.centroids.clear();
+        self.centroids
+            .extend(blobs.iter().map(|b| b.best_centroid_px()));
         for t in &self.tracks {
             let (px, py) = t.predicted();
-            self.cost.extend(blobs.iter().map(|b| {
-                let (bx, by) = b.best_centroid_px();
+            self.cost.extend(self.centroids.iter().map(|&(bx, by)| {
                 if t.window.contains(bx, by) {
                     (bx - px).powi(2) + (by - py).powi(2)
                 } else {
@@ -311,7 +331,7 @@ impl Tracker {
                 Some(j) => {
                     let b = blobs[*j];
                     self.taken[*j] = true;
-                    let (bx, by) = b.best_centroid_px();
+                    let (bx, by) = self.centroids[*j];
                     let k = (t.lost_frames + 1) as f64;
                     t.vx_px = (bx - t.x_px) / k;
                     t.vy_px = (by - t.y_px) / k;
@@ -402,6 +422,31 @@ mod tests {
             draw_ellipse(&mut img, &Ellipse::disc(x, y, r), 1.0, 10.0, 210.0, 4);
         }
         img
+    }
+
+    #[test]
+    fn rounding_matches_the_library_round() {
+        for c in [
+            0.0,
+            0.49999999999999994,
+            0.5,
+            1.5,
+            2.5,
+            -0.5,
+            -1.5,
+            -2.4,
+            1e300,
+            -1e300,
+            4e18,
+            1919.5,
+        ] {
+            assert_eq!(round_half_away(c), c.round() as i64, "{c}");
+        }
+        let mut rng = crate::raster::SplitMix64::new(3);
+        for _ in 0..10_000 {
+            let c = (rng.uniform() - 0.5) * 1e4;
+            assert_eq!(round_half_away(c), c.round() as i64, "{c}");
+        }
     }
 
     #[test]
