@@ -123,6 +123,9 @@ impl FrameSource for ImageSource {
                 )));
             }
         }
-        Ok(Read::Frame { timestamp_ns: None })
+        Ok(Read::Frame {
+            timestamp_ns: None,
+            sequence: None,
+        })
     }
 }

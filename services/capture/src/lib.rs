@@ -24,7 +24,7 @@ use stereoscope_proto::frame::FrameHeader;
 use stereoscope_proto::messages::{SCHEMA_VERSION, Truth, now_ns};
 use stereoscope_proto::names::{iox as iox_names, zenoh as keys};
 use stereoscope_proto::rig::SourceSpec;
-use stereoscope_transport::iox::{FramePublisher, MessagePublisher};
+use stereoscope_transport::iox::{FramePublisher, FrameStamp, MessagePublisher};
 use stereoscope_transport::net::JsonPublisher;
 use stereoscope_transport::{Context, Counters, HealthReporter, Shutdown, net};
 
@@ -250,7 +250,13 @@ pub fn run(cfg: CaptureConfig, shutdown: Shutdown) -> Result<CaptureSummary, Cap
         };
         header.timestamp_ns = nominal_ns;
         let result = frames.publish(header, |buf| match source.read(slot, scene_time_s, buf) {
-            Ok(Read::Frame { timestamp_ns }) => Ok(timestamp_ns),
+            Ok(Read::Frame {
+                timestamp_ns,
+                sequence,
+            }) => Ok(FrameStamp {
+                timestamp_ns,
+                sequence,
+            }),
             Ok(Read::End) => Err(None),
             Err(e) => Err(Some(e)),
         });

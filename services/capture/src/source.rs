@@ -18,8 +18,12 @@ pub enum SourceError {
 /// What a frame read produced.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Read {
-    /// A frame; `timestamp_ns` when the source knows when it was exposed.
-    Frame { timestamp_ns: Option<u64> },
+    /// A frame; `timestamp_ns` when the source knows when it was exposed, `sequence` when it
+    /// replays a recording that numbered its frames (the number the live camera gave it).
+    Frame {
+        timestamp_ns: Option<u64>,
+        sequence: Option<u64>,
+    },
     /// The source has no more frames.
     End,
 }

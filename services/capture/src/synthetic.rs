@@ -238,7 +238,10 @@ impl FrameSource for SyntheticSource {
         } else {
             self.render(index, t_s, out)?;
         }
-        Ok(Read::Frame { timestamp_ns: None })
+        Ok(Read::Frame {
+            timestamp_ns: None,
+            sequence: None,
+        })
     }
 
     fn truth(&self) -> Option<Vec<TargetTruth>> {

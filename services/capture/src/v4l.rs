@@ -197,6 +197,7 @@ impl FrameSource for V4lSource {
         .map_err(|m| SourceError::BadFrame(format!("{}: {m}", self.device)))?;
         Ok(Read::Frame {
             timestamp_ns: Some(timestamp_ns),
+            sequence: None,
         })
     }
 }

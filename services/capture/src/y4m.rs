@@ -218,6 +218,7 @@ impl FrameSource for Y4mSource {
         }
         self.frames_read += 1;
         let timestamp_ns = frame_timestamp(&line);
+        let sequence = frame_sequence(&line);
         if let (Some(clock), Some(ts)) = (self.replay_clock, timestamp_ns) {
             // Due at the replay's wall-clock time for this recorded time.
             let speed = if clock.speed.is_finite() && clock.speed > 0.0 {
@@ -231,18 +232,32 @@ impl FrameSource for Y4mSource {
                 std::thread::sleep(std::time::Duration::from_nanos(due - now));
             }
         }
-        Ok(Read::Frame { timestamp_ns })
+        Ok(Read::Frame {
+            timestamp_ns,
+            sequence,
+        })
     }
 }
 
 /// The exposure time a FRAME line carries as `Xts=<ns>` (what the recorder writes; other
 /// writers' frames have none and are stamped when read).
 pub fn frame_timestamp(frame_line: &[u8]) -> Option<u64> {
+    frame_parameter(frame_line, "Xts=")
+}
+
+/// The live camera's sequence number a FRAME line carries as `Xseq=<n>` (the recorder's);
+/// a replay publishes the frame under it, so the moment workers schedule their thresholds and
+/// searches on the frames the live ones did.
+pub fn frame_sequence(frame_line: &[u8]) -> Option<u64> {
+    frame_parameter(frame_line, "Xseq=")
+}
+
+fn frame_parameter(frame_line: &[u8], key: &str) -> Option<u64> {
     std::str::from_utf8(frame_line)
         .ok()?
         .split_ascii_whitespace()
         .skip(1)
-        .find_map(|p| p.strip_prefix("Xts="))
+        .find_map(|p| p.strip_prefix(key))
         .and_then(|v| v.parse().ok())
 }
 
@@ -265,6 +280,11 @@ mod tests {
             frame_timestamp(b"FRAME Xts=1764601234533333333 Xseq=7\n"),
             Some(1764601234533333333)
         );
+        assert_eq!(
+            super::frame_sequence(b"FRAME Xts=1764601234533333333 Xseq=7\n"),
+            Some(7)
+        );
+        assert_eq!(super::frame_sequence(b"FRAME Xts=5\n"), None);
         assert_eq!(frame_timestamp(b"FRAME\n"), None);
         assert_eq!(frame_timestamp(b"FRAME Ixts=5 Xts=x\n"), None);
         assert_eq!(frame_timestamp(b"FRAMEXts=5\n"), None);
@@ -312,7 +332,10 @@ mod tests {
         let mut out = vec![0u8; 12];
         assert_eq!(
             s.read(0, 0.0, &mut out).unwrap(),
-            Read::Frame { timestamp_ns: None }
+            Read::Frame {
+                timestamp_ns: None,
+                sequence: None
+            }
         );
         assert_eq!(out, a);
         s.read(1, 0.0, &mut out).unwrap();

@@ -133,7 +133,8 @@ pub struct Worker {
     settings: WorkerSettings,
     tracker: Tracker,
     threshold: Option<u32>,
-    frames: u64,
+    /// The sequence number of the frame the threshold was last taken from.
+    threshold_sequence: Option<u64>,
     rig: String,
     camera: String,
 }
@@ -145,7 +146,7 @@ impl Worker {
             settings,
             tracker,
             threshold: None,
-            frames: 0,
+            threshold_sequence: None,
             rig: rig.into(),
             camera: camera.into(),
         })
@@ -163,11 +164,19 @@ impl Worker {
             .count()
     }
 
-    fn refresh_threshold<P: Pixel>(&mut self, img: &GrayView<'_, P>) -> Result<u32, VisionError> {
+    /// The frame threshold, taken afresh from the histogram on the first frame of each period
+    /// of `threshold_every_frames` sequence numbers: workers fed the same frames (live, and a
+    /// replay of a recording that began mid-run) take it from the same frames.
+    fn refresh_threshold<P: Pixel>(
+        &mut self,
+        img: &GrayView<'_, P>,
+        sequence: u64,
+    ) -> Result<u32, VisionError> {
+        let every = self.settings.threshold_every_frames as u64;
         let due = self.threshold.is_none()
             || self
-                .frames
-                .is_multiple_of(self.settings.threshold_every_frames as u64);
+                .threshold_sequence
+                .is_none_or(|l| sequence / every != l / every);
         if let (false, Some(t)) = (due, self.threshold) {
             return Ok(t);
         }
@@ -193,6 +202,7 @@ impl Worker {
             self.tracker.set_extract_config(ex);
         }
         self.threshold = Some(t);
+        self.threshold_sequence = Some(sequence);
         Ok(t)
     }
 
@@ -206,9 +216,8 @@ impl Worker {
         img: GrayView<'_, P>,
         header: &FrameHeader,
     ) -> Result<Observation, VisionError> {
-        let threshold = self.refresh_threshold(&img)?;
-        self.frames += 1;
-        let step = self.tracker.step(img, threshold)?;
+        let threshold = self.refresh_threshold(&img, header.sequence)?;
+        let step = self.tracker.step_frame(img, threshold, header.sequence)?;
         let par = self.settings.tracker.par;
         let mut blobs = Vec::new();
         for t in self.tracker.tracks().iter().take(MAX_REPORTED_BLOBS) {
@@ -455,6 +464,41 @@ mod tests {
             ..Default::default()
         });
         assert!(e.contains("threshold_every_frames"), "{e}");
+    }
+
+    /// Thresholds come from the frames of the same sequence numbers whenever a worker
+    /// started: one fed from frame 13 on (a replay of a recording made mid-run) takes its own
+    /// from frame 13, then both take frame 30's and agree from there.
+    #[test]
+    fn thresholds_are_taken_on_the_same_frames_by_sequence_number() {
+        let frame = |seq: u64| {
+            let bg = 10 + 2 * seq as u8;
+            let mut img = vec![bg; 64 * 48];
+            for y in 20..26 {
+                for x in 30..40 {
+                    img[y * 64 + x] = 230;
+                }
+            }
+            let mut h = FrameHeader::new("c", PixelFormat::Gray8, 64, 48).unwrap();
+            h.sequence = seq;
+            (h, img)
+        };
+        let mut live = Worker::new(settings(None, 1.0, "m").unwrap(), "r", "c").unwrap();
+        let mut late = Worker::new(settings(None, 1.0, "m").unwrap(), "r", "c").unwrap();
+        for seq in 0..45 {
+            let (h, img) = frame(seq);
+            let a = live.process_frame(&h, &img).unwrap();
+            if seq < 13 {
+                continue;
+            }
+            let b = late.process_frame(&h, &img).unwrap();
+            if seq < 30 {
+                assert_ne!(live.threshold(), late.threshold(), "frame {seq}");
+            } else {
+                assert_eq!(live.threshold(), late.threshold(), "frame {seq}");
+                assert_eq!(a.blobs, b.blobs, "frame {seq}");
+            }
+        }
     }
 
     #[test]

@@ -18,7 +18,7 @@ use stereoscope_moments::{Worker, settings};
 use stereoscope_proto::frame::{FrameHeader, PixelFormat};
 use stereoscope_proto::messages::now_ns;
 use stereoscope_transport::context::parse_rig;
-use stereoscope_transport::iox::{FramePublisher, FrameSubscriber, node};
+use stereoscope_transport::iox::{FramePublisher, FrameStamp, FrameSubscriber, node};
 use stereoscope_transport::net::{self, ZenohMode, ZenohSpec};
 use stereoscope_transport::{Shutdown, init_logging};
 
@@ -49,7 +49,7 @@ fn iox_latency(w: u32, h: u32, frames: usize) -> (f64, f64) {
                 for row in buf.chunks_exact_mut(w as usize) {
                     row[0] = i as u8;
                 }
-                Ok(None)
+                Ok(FrameStamp::default())
             })
             .unwrap()
             .unwrap();

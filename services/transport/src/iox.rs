@@ -104,6 +104,15 @@ impl Waker {
     }
 }
 
+/// What a frame's writer knows better than the header it was given.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct FrameStamp {
+    /// When the frame was exposed (a camera's driver time, a recording's time).
+    pub timestamp_ns: Option<u64>,
+    /// The number the live camera gave it (a recording's).
+    pub sequence: Option<u64>,
+}
+
 /// Publishes frames of one camera.
 pub struct FramePublisher {
     publisher: Publisher<IoxService, [u8], FrameHeader>,
@@ -166,13 +175,13 @@ impl FramePublisher {
     }
 
     /// Loans `header.payload_len()` bytes of shared memory, lets `fill` write the pixels in
-    /// place (returning the exposure time when it knows a better one than the header's),
-    /// stamps `published_ns` and sends. Returns how many subscribers got it. `fill`
-    /// returning an error sends nothing.
+    /// place (returning the exposure time and sequence number when it knows better ones than
+    /// the header's), stamps `published_ns` and sends. Returns how many subscribers got it.
+    /// `fill` returning an error sends nothing.
     pub fn publish<E>(
         &self,
         mut header: FrameHeader,
-        fill: impl FnOnce(&mut [u8]) -> Result<Option<u64>, E>,
+        fill: impl FnOnce(&mut [u8]) -> Result<FrameStamp, E>,
     ) -> Result<Result<usize, E>, TransportError> {
         let len = header.payload_len() as usize;
         let sample = self
@@ -182,8 +191,10 @@ impl FramePublisher {
         // Zero-initialise once (a memset at memory speed), then let the source write.
         let mut sample = sample.write_from_fn(|_| 0u8);
         match fill(sample.payload_mut()) {
-            Ok(Some(ts)) => header.timestamp_ns = ts,
-            Ok(None) => {}
+            Ok(stamp) => {
+                header.timestamp_ns = stamp.timestamp_ns.unwrap_or(header.timestamp_ns);
+                header.sequence = stamp.sequence.unwrap_or(header.sequence);
+            }
             Err(e) => return Ok(Err(e)),
         }
         header.published_ns = stereoscope_proto::messages::now_ns();

@@ -164,7 +164,9 @@ pub struct Tracker {
     extractor: Extractor,
     tracks: Vec<Track>,
     next_id: u32,
-    frames_since_search: u32,
+    /// The last step's frame number (the caller's, see [`Tracker::step_frame`], or counted).
+    last_frame: Option<u64>,
+    counted_frames: u64,
     windows: Vec<Window>,
     cost: Vec<f64>,
     /// This step's blob centroids, for the costs.
@@ -217,7 +219,8 @@ impl Tracker {
             extractor: Extractor::new(extract),
             tracks: Vec::new(),
             next_id: 1,
-            frames_since_search: 0,
+            last_frame: None,
+            counted_frames: 0,
             windows: Vec::new(),
             cost: Vec::new(),
             centroids: Vec::new(),
@@ -259,11 +262,27 @@ impl Tracker {
     }
 
     /// Tracks one frame: `threshold` is the frame threshold (windows may override it, see
-    /// [`TrackerConfig::window_threshold`]).
+    /// [`TrackerConfig::window_threshold`]). Frames are numbered by the calls.
     pub fn step<P: Pixel>(
         &mut self,
         img: GrayView<'_, P>,
         threshold: u32,
+    ) -> Result<TrackStep, VisionError> {
+        let frame = self.counted_frames;
+        self.counted_frames += 1;
+        self.step_frame(img, threshold, frame)
+    }
+
+    /// [`Tracker::step`] for frame number `frame` (the camera's sequence number): the periodic
+    /// search for new objects runs on the first frame of each period of
+    /// `search_every_frames` numbers, so trackers fed the same frames search on the same ones
+    /// whenever each started (a replay of recorded frames finds objects when the live system
+    /// did), and a skipped frame does not skip a period's search.
+    pub fn step_frame<P: Pixel>(
+        &mut self,
+        img: GrayView<'_, P>,
+        threshold: u32,
+        frame: u64,
     ) -> Result<TrackStep, VisionError> {
         let (w, h) = (img.width(), img.height());
         let limit = w.max(h);
@@ -288,12 +307,12 @@ impl Tracker {
                 threshold: thr,
             });
         }
-        self.frames_since_search += 1;
-        let searching = self.tracks.len() < self.cfg.max_objects
-            && self.frames_since_search >= self.cfg.search_every_frames;
+        let every = self.cfg.search_every_frames as u64;
+        let new_period = self.last_frame.is_none_or(|l| frame / every != l / every);
+        self.last_frame = Some(frame);
+        let searching = self.tracks.len() < self.cfg.max_objects && new_period;
         let full_frame = needs_full || searching;
         if full_frame {
-            self.frames_since_search = 0;
             self.windows.clear();
         }
         self.extractor.extract(img, threshold, &self.windows)?;
@@ -422,6 +441,56 @@ mod tests {
             draw_ellipse(&mut img, &Ellipse::disc(x, y, r), 1.0, 10.0, 210.0, 4);
         }
         img
+    }
+
+    /// Two trackers fed the same numbered frames, one from frame 0 and one from frame 13 (a
+    /// replay of a recording that began mid-run): an object appearing at frame 15 is found by
+    /// both at frame 20, the next search period, and from then on they report the same.
+    #[test]
+    fn periodic_searches_follow_the_frame_numbers() {
+        let scene = |f: u64| {
+            let mut objs = vec![(60.0 + f as f64, 80.0, 5.0)];
+            if f >= 15 {
+                objs.push((200.0, 150.0 - f as f64, 6.0));
+            }
+            frame(&objs)
+        };
+        let cfg = TrackerConfig {
+            search_every_frames: 10,
+            ..Default::default()
+        };
+        let mut live = Tracker::new(cfg, ExtractConfig::default()).unwrap();
+        let mut replay = Tracker::new(cfg, ExtractConfig::default()).unwrap();
+        let mut found = [None, None];
+        for f in 0..40u64 {
+            let img = scene(f);
+            let mut seen = Vec::new();
+            for (k, tr) in [&mut live, &mut replay].into_iter().enumerate() {
+                if k == 1 && f < 13 {
+                    continue;
+                }
+                let step = tr.step_frame(img.view(), 128, f).unwrap();
+                if tr.tracks().len() == 2 && found[k].is_none() {
+                    found[k] = Some(f);
+                    assert_eq!(step.new, 1);
+                }
+                let mut xy: Vec<(f64, f64)> =
+                    tr.tracks().iter().map(|t| (t.x_px, t.y_px)).collect();
+                xy.sort_by(|a, b| a.0.total_cmp(&b.0));
+                seen.push(xy);
+            }
+            if f >= 20 {
+                assert_eq!(seen[0], seen[1], "frame {f}");
+            }
+        }
+        assert_eq!(found, [Some(20), Some(20)]);
+        // Numbered by the calls, the same schedule.
+        let mut counted = Tracker::new(cfg, ExtractConfig::default()).unwrap();
+        let first_two = (0..40u64).find(|&f| {
+            counted.step(scene(f).view(), 128).unwrap();
+            counted.tracks().len() == 2
+        });
+        assert_eq!(first_two, Some(20));
     }
 
     #[test]
