@@ -307,6 +307,11 @@ pub struct FramesCompared {
     pub objects_compared: usize,
     /// Objects of matched frames without a recorded one near, and the other way round.
     pub objects_unmatched: usize,
+    /// Compared objects at exactly the recorded position.
+    pub objects_identical: usize,
+    /// The last matched frames (in replay order) whose every object is identical to the
+    /// recorded one, none unmatched: where the replay has converged to the live system.
+    pub identical_last_frames: usize,
     pub position_rms_mm: f64,
     pub position_max_mm: f64,
 }
@@ -327,6 +332,7 @@ pub fn compare_frames(recorded: &[PoseFrame], replayed: &[PoseFrame]) -> FramesC
             continue;
         };
         out.matched_frames += 1;
+        let mut identical = true;
         let mut taken = vec![false; r.poses.len()];
         for p in &f.poses {
             let nearest = r
@@ -349,14 +355,93 @@ pub fn compare_frames(recorded: &[PoseFrame], replayed: &[PoseFrame]) -> FramesC
                     let mm = d * 1000.0;
                     sum_sq += mm * mm;
                     out.position_max_mm = out.position_max_mm.max(mm);
+                    if d == 0.0 {
+                        out.objects_identical += 1;
+                    } else {
+                        identical = false;
+                    }
                 }
-                _ => out.objects_unmatched += 1,
+                _ => {
+                    out.objects_unmatched += 1;
+                    identical = false;
+                }
             }
         }
-        out.objects_unmatched += taken.iter().filter(|t| !**t).count();
+        let left = taken.iter().filter(|t| !**t).count();
+        out.objects_unmatched += left;
+        out.identical_last_frames = if identical && left == 0 {
+            out.identical_last_frames + 1
+        } else {
+            0
+        };
     }
     if out.objects_compared > 0 {
         out.position_rms_mm = (sum_sq / out.objects_compared as f64).sqrt();
     }
     out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use stereoscope_proto::messages::{Pose, PoseMethod};
+
+    fn frame(t: u64, xs: &[f64]) -> PoseFrame {
+        PoseFrame {
+            schema: 1,
+            rig: "r".into(),
+            sequence: t,
+            timestamp_ns: t,
+            frame_published_ns: t,
+            published_ns: t,
+            cameras: vec!["cam0".into(), "cam1".into()],
+            poses: xs
+                .iter()
+                .enumerate()
+                .map(|(i, &x)| Pose {
+                    object_id: i as u32 + 1,
+                    position_m: [x, 0.5, 1.0],
+                    velocity_m_per_s: [0.0; 3],
+                    heading_deg: None,
+                    heading_directed: false,
+                    method: PoseMethod::Triangulated,
+                    cameras: vec!["cam0".into(), "cam1".into()],
+                    residual_px: 0.0,
+                    out_of_range: false,
+                })
+                .collect(),
+        }
+    }
+
+    /// Objects pair by position whatever their ids; a frame counts towards the identical tail
+    /// only with every object identical and none left over; frames at other times are not
+    /// compared.
+    #[test]
+    fn replayed_poses_compare_by_time_and_position() {
+        let recorded = vec![
+            frame(1, &[0.1, 0.5]),
+            frame(2, &[0.1, 0.5]),
+            frame(3, &[0.1, 0.5]),
+            frame(4, &[0.1, 0.5]),
+            frame(5, &[0.1, 0.5]),
+        ];
+        let replayed = vec![
+            frame(1, &[0.5, 0.102]),    // 2 mm off
+            frame(2, &[0.5]),           // one missing
+            frame(3, &[0.5, 0.1]),      // identical, in another order
+            frame(4, &[0.1, 0.5, 0.9]), // one extra
+            frame(5, &[0.1, 0.5]),
+            frame(6, &[0.1, 0.5]), // no recorded frame at this time
+        ];
+        let c = compare_frames(&recorded, &replayed);
+        assert_eq!((c.recorded_frames, c.replayed_frames), (5, 6));
+        assert_eq!(c.matched_frames, 5);
+        assert_eq!(c.objects_compared, 9);
+        assert_eq!(c.objects_unmatched, 2);
+        assert_eq!(c.objects_identical, 8);
+        assert_eq!(c.identical_last_frames, 1);
+        assert!((c.position_max_mm - 2.0).abs() < 1e-9, "{c:?}");
+        let same = compare_frames(&recorded, &recorded);
+        assert_eq!((same.identical_last_frames, same.position_rms_mm), (5, 0.0));
+    }
 }

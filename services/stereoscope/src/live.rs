@@ -375,14 +375,16 @@ pub fn replay_frames(
         println!("{}", serde_json::to_string(&c)?);
     } else {
         println!(
-            "{} pose frames from the replayed frames, {} at the time of a recorded one ({} recorded); {} objects compared, {} unmatched; position difference RMS {:.3} mm, largest {:.3} mm",
+            "{} pose frames from the replayed frames, {} at the time of a recorded one ({} recorded); {} objects compared, {} unmatched, {} identical; position difference RMS {:.3} mm, largest {:.3} mm; the last {} frames identical",
             c.replayed_frames,
             c.matched_frames,
             c.recorded_frames,
             c.objects_compared,
             c.objects_unmatched,
+            c.objects_identical,
             c.position_rms_mm,
-            c.position_max_mm
+            c.position_max_mm,
+            c.identical_last_frames
         );
     }
     Ok(if c.matched_frames > 0 { 0 } else { 1 })
