@@ -195,6 +195,26 @@ pub fn run(cfg: RecorderConfig, shutdown: Shutdown) -> Result<(u64, u64), Record
     let mut csv_out = Out::create(&cfg.out, "poses.csv")?;
     csv_out.buf.extend_from_slice(POSES_CSV_HEADER.as_bytes());
 
+    // Raw frames, through shared memory — subscribed before the poses, so that every pose
+    // recorded has its frames (a shared-memory subscriber gets every frame published after
+    // it exists; creating one takes a while).
+    let node = if cfg.frames.is_empty() {
+        None
+    } else {
+        Some(
+            stereoscope_transport::iox::node(&ctx.iox_prefix, "recorder")
+                .map_err(|e| setup(e.to_string()))?,
+        )
+    };
+    let mut frame_subs = Vec::new();
+    if let Some(node) = &node {
+        for cam in &cfg.frames {
+            let sub = FrameSubscriber::new(node, &iox_names::frames(&rig, cam))
+                .map_err(|e| setup(e.to_string()))?;
+            let out = Out::create(&cfg.out, &format!("frames-{cam}.y4m"))?;
+            frame_subs.push((cam.clone(), sub, out, Y4mState::default()));
+        }
+    }
     let session = net::open(&ctx.zenoh).map_err(|e| setup(e.to_string()))?;
     let (tx, rx) = mpsc::sync_channel::<Item>(4096);
     let tx2 = tx.clone();
@@ -214,24 +234,6 @@ pub fn run(cfg: RecorderConfig, shutdown: Shutdown) -> Result<(u64, u64), Record
         let _ = tx2.send(item);
     })
     .map_err(|e| setup(e.to_string()))?;
-    // Raw frames, through shared memory.
-    let node = if cfg.frames.is_empty() {
-        None
-    } else {
-        Some(
-            stereoscope_transport::iox::node(&ctx.iox_prefix, "recorder")
-                .map_err(|e| setup(e.to_string()))?,
-        )
-    };
-    let mut frame_subs = Vec::new();
-    if let Some(node) = &node {
-        for cam in &cfg.frames {
-            let sub = FrameSubscriber::new(node, &iox_names::frames(&rig, cam))
-                .map_err(|e| setup(e.to_string()))?;
-            let out = Out::create(&cfg.out, &format!("frames-{cam}.y4m"))?;
-            frame_subs.push((cam.clone(), sub, out, Y4mState::default()));
-        }
-    }
     let mut health = HealthReporter::new(&session, &rig, &ctx.host, "recorder")
         .map_err(|e| setup(e.to_string()))?;
     tracing::info!(out = %cfg.out.display(), "recording");
