@@ -734,9 +734,18 @@ fn a_recording_replays_to_the_same_poses_and_survives_sigkill() {
     assert!(poses.ends_with('\n'), "the last record is cut");
     let n = poses.lines().count();
     assert!(n >= 60, "{n} pose frames recorded");
+    // Pose frames go out in time order, one per frame set (a late camera's observation does
+    // not make a second one for a time already published).
+    let mut last_ns = 0;
     for l in poses.lines() {
         let f = PoseFrame::from_json(l.as_bytes()).unwrap();
         assert_eq!(f.rig, "demo");
+        assert!(
+            f.timestamp_ns > last_ns,
+            "{} after {last_ns}",
+            f.timestamp_ns
+        );
+        last_ns = f.timestamp_ns;
     }
     // Replay re-fuses the recorded observations into exactly the recorded poses.
     let out = run_with_limit(&["replay", &session_s, "--json"], Duration::from_secs(60));

@@ -234,6 +234,9 @@ pub fn run(cfg: FusionConfig, shutdown: Shutdown) -> Result<u64, FusionError> {
                 .insert("cameras_live".into(), live.join(","));
             counters
                 .detail
+                .insert("late".into(), pairer.late.to_string());
+            counters
+                .detail
                 .insert("objects".into(), fuser.objects().to_string());
         }
         health.tick(&counters);

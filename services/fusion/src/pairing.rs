@@ -10,6 +10,11 @@
 //! heard again; its stale observations are discarded. Right after start, a camera not heard
 //! yet counts as live for `camera_timeout` (from the first observation of any camera), so
 //! the first sets wait for cameras that start a little later instead of going out alone.
+//!
+//! Sets go out in time order, each at most once: an observation that arrives after its set was
+//! released without it (its camera was late by more than `max_wait`), or that is older than
+//! the last set released, is discarded and counted as late — it would otherwise go out as a
+//! second, one-camera pose frame for a time already published, after newer ones.
 
 use std::collections::VecDeque;
 use stereoscope_proto::messages::Observation;
@@ -32,8 +37,12 @@ struct Queue {
 pub struct Pairer {
     cfg: PairingConfig,
     queues: Vec<Queue>,
-    /// Observations thrown away unpaired (too old, or superseded).
+    /// Observations thrown away unpaired (too old, superseded, or late).
     pub discarded: u64,
+    /// Of those, observations that came after their set had gone out without them.
+    pub late: u64,
+    /// The last released set: its reference time and the cameras in it.
+    released: Option<(u64, Vec<bool>)>,
     /// When the first observation of any camera arrived.
     first_arrival_ns: Option<u64>,
 }
@@ -51,6 +60,8 @@ impl Pairer {
                 })
                 .collect(),
             discarded: 0,
+            late: 0,
+            released: None,
             first_arrival_ns: None,
         }
     }
@@ -89,6 +100,27 @@ impl Pairer {
             if !self.live(c, now_ns) && !self.queues[c].items.is_empty() {
                 self.discarded += self.queues[c].items.len() as u64;
                 self.queues[c].items.clear();
+            }
+        }
+        // Drop what came too late for a set already released: anything not newer than it, and
+        // a missing camera's observation within its window.
+        if let Some((t, ref cameras)) = self.released {
+            let skew = self.cfg.max_skew_ns;
+            for (c, q) in self.queues.iter_mut().enumerate() {
+                let limit = if cameras[c] {
+                    t
+                } else {
+                    t.saturating_add(skew)
+                };
+                while q
+                    .items
+                    .front()
+                    .is_some_and(|(o, _)| o.timestamp_ns <= limit)
+                {
+                    q.items.pop_front();
+                    self.discarded += 1;
+                    self.late += 1;
+                }
             }
         }
         let (ref_cam, ref_ts, ref_arrival) = (0..n)
@@ -134,6 +166,7 @@ impl Pairer {
             return None;
         }
         let mut set = Vec::new();
+        self.released = Some((ref_ts, chosen.iter().map(Option::is_some).collect()));
         for c in 0..n {
             let q = &mut self.queues[c].items;
             if let Some(i) = chosen[c] {
@@ -206,6 +239,34 @@ mod tests {
         let s = p.pop(103 * MS).unwrap();
         assert_eq!(s.iter().map(|x| x.0).collect::<Vec<_>>(), vec![0, 1]);
         assert!(p.pop(103 * MS).is_none());
+    }
+
+    /// A camera later than `max_wait`: its set goes out without it, and its observation, when
+    /// it comes, is dropped as late — never a second set for that time, after newer ones.
+    #[test]
+    fn a_late_observation_never_makes_a_second_set_for_its_time() {
+        let mut p = Pairer::new(2, cfg());
+        p.push(0, obs("a", 100), 101 * MS);
+        p.push(1, obs("b", 100), 101 * MS);
+        assert_eq!(p.pop(101 * MS).unwrap().len(), 2);
+        // Frame 133: cam1 is late, cam0's goes out alone after max_wait.
+        p.push(0, obs("a", 133), 134 * MS);
+        assert!(p.pop(140 * MS).is_none());
+        let s = p.pop(155 * MS).unwrap();
+        assert_eq!(s.iter().map(|x| x.0).collect::<Vec<_>>(), vec![0]);
+        // Frame 166 of both, and cam1's 133 (1 ms off its clock) arriving after it.
+        p.push(0, obs("a", 166), 167 * MS);
+        p.push(1, obs("b", 166), 167 * MS);
+        p.push(1, obs("b", 134), 168 * MS);
+        let s = p.pop(168 * MS).unwrap();
+        assert_eq!(s.len(), 2);
+        assert!(s.iter().all(|(_, o)| o.timestamp_ns == 166 * MS), "{s:?}");
+        assert!(p.pop(200 * MS).is_none());
+        assert_eq!((p.late, p.discarded), (1, 1));
+        // Sets keep coming: the next frame pairs as usual.
+        p.push(0, obs("a", 200), 201 * MS);
+        p.push(1, obs("b", 200), 201 * MS);
+        assert_eq!(p.pop(201 * MS).unwrap().len(), 2);
     }
 
     #[test]
