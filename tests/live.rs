@@ -1077,9 +1077,9 @@ fn check_c3d_export(session: &std::path::Path, out: &std::path::Path) {
         let c3d_frames = r["frames"].as_array().unwrap();
         assert_eq!(c3d_frames.len(), n, "{reader}");
         let mut placed = 0;
-        // A pose frame closer than half a period to the one before (fusion gave up waiting
-        // for a late camera, then had its frame) shares that C3D frame: the first pose of
-        // each object there is kept, the export says how many it dropped.
+        // A pose frame closer than half a period to the one before (exposure times that jitter
+        // against the median period) shares that C3D frame: the first pose of each object
+        // there is kept, the export says how many it dropped.
         let mut filled = std::collections::HashSet::new();
         let mut merged = 0;
         for f in &frames {
@@ -1151,8 +1151,8 @@ fn a_long_session_exports_to_c3d_with_every_frame() {
         "rig_file": demo_rig()});
     std::fs::write(session.join("session.json"), info.to_string()).unwrap();
     let mut poses = String::new();
-    // Frame 500 comes twice, the second 1 ms late and elsewhere (as when fusion publishes a
-    // late camera's set): the C3D frame keeps the first.
+    // Frame 500 comes twice, the second 1 ms later and elsewhere (exposure times that jitter):
+    // the C3D frame keeps the first.
     let mut stamps: Vec<(u64, u64, f64)> = (0..70_000u64)
         .map(|k| (k, 1_000_000_000 + k * 8_333_333, 0.0))
         .collect();
