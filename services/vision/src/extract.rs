@@ -568,27 +568,10 @@ fn row_has_foreground<P: Pixel>(row: &[P], segs: &[Seg]) -> bool {
     false
 }
 
-/// The first row in `y..y1` with a foreground pixel in `segs`, or `y1`. A band made of one
-/// segment no wider than 64 pixels (a tracking window) is tested four rows per compare.
-#[inline(always)]
-fn next_nonempty_row<P: Pixel, const AVX2: bool>(
-    img: &GrayView<'_, P>,
-    segs: &[Seg],
-    mut y: u32,
-    y1: u32,
-) -> u32 {
-    if let [seg] = segs
-        && seg.x1 - seg.x0 < 64
-        && seg.x0 + 64 <= img.width()
-    {
-        let (x0, thr) = (seg.x0 as usize, seg.threshold);
-        let chunk = |y: u32| &img.row(y)[x0..x0 + 64];
-        while y + 4 <= y1
-            && !any64x4::<P, AVX2>([chunk(y), chunk(y + 1), chunk(y + 2), chunk(y + 3)], thr)
-        {
-            y += 4;
-        }
-    }
+/// The first row in `y..y1` with a foreground pixel in `segs`, or `y1` (bands of whole rows
+/// or several segments; a narrow window's band is skipped four rows at a time in the scan).
+#[inline]
+fn next_nonempty_row<P: Pixel>(img: &GrayView<'_, P>, segs: &[Seg], mut y: u32, y1: u32) -> u32 {
     while y < y1 && !row_has_foreground(img.row(y), segs) {
         y += 1;
     }
@@ -822,8 +805,12 @@ impl Scratch {
             let segs = &region.segs[band.segs.0..band.segs.1];
             // A band that is one segment of at most 64 pixels (a tracking window) is read as
             // one 64-pixel chunk per row, its runs taken straight from the chunk's mask.
+            // With the mask of its `n` pixels in a 64-pixel chunk.
             let narrow = match segs {
-                [seg] if seg.x1 - seg.x0 < 64 && seg.x0 + 64 <= img.width() => Some(*seg),
+                [seg] if seg.x1 - seg.x0 < 64 && seg.x0 + 64 <= img.width() => {
+                    let n = seg.x1 - seg.x0 + 1;
+                    Some((*seg, if n == 64 { u64::MAX } else { (1u64 << n) - 1 }))
+                }
                 _ => None,
             };
             let mut row_runs = std::mem::take(&mut self.row_runs);
@@ -834,9 +821,8 @@ impl Scratch {
                 let skip_from = y;
                 let mut narrow_mask = 0u64;
                 let row = match narrow {
-                    Some(seg) => {
-                        let (x0, n) = (seg.x0 as usize, seg.x1 - seg.x0 + 1);
-                        let limit = if n == 64 { u64::MAX } else { (1u64 << n) - 1 };
+                    Some((seg, limit)) => {
+                        let x0 = seg.x0 as usize;
                         // SAFETY: a narrow band has `seg.x0 + 64 <= width` (checked above) and
                         // its rows are below `y1 <= height`; every call below is for a row < y1.
                         let chunk = |y: u32| unsafe { img.chunk64_unchecked(y, x0) };
@@ -867,7 +853,7 @@ impl Scratch {
                         None
                     }
                     None => {
-                        y = next_nonempty_row::<P, AVX2>(img, segs, y, y1);
+                        y = next_nonempty_row(img, segs, y, y1);
                         if y < y1 { Some(img.row(y)) } else { None }
                     }
                 };
@@ -880,7 +866,7 @@ impl Scratch {
                 }
                 // The common row of a tracked blob: one run, continuing the one run of the row
                 // above — no labels to join, so it goes straight into that blob's sums.
-                if let Some(seg) = narrow
+                if let Some((seg, limit)) = narrow
                     && y != ya
                     && y + 1 != yb
                     && prev_y == Some(y - 1)
@@ -916,10 +902,7 @@ impl Scratch {
                             stop = stop.min(band.y1 - 1);
                         }
                         let edge_bits = seg.open_left as u64 | (seg.open_right as u64) << (n - 1);
-                        let (cx0, limit) = (
-                            seg.x0 as usize,
-                            if n == 64 { u64::MAX } else { (1u64 << n) - 1 },
-                        );
+                        let cx0 = seg.x0 as usize;
                         let mut yy = y + 1;
                         while yy < stop {
                             // SAFETY: as for the skipped rows: `yy < stop <= y1` and the
@@ -967,7 +950,7 @@ impl Scratch {
                 }
                 match (row, narrow) {
                     (Some(row), _) => find_row_runs(row, segs, &mut row_runs),
-                    (None, Some(seg)) => runs_from_mask(narrow_mask, &seg, &mut row_runs),
+                    (None, Some((seg, _))) => runs_from_mask(narrow_mask, &seg, &mut row_runs),
                     (None, None) => row_runs.clear(),
                 }
                 if prev_y != Some(y.wrapping_sub(1)) || y == 0 {
