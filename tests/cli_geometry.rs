@@ -6,12 +6,13 @@
 use nalgebra::{Isometry3, Point2, Point3, Vector3};
 use std::fmt::Write as _;
 use stereoscope_geometry::dotgrid::{DotGrid, render};
-use stereoscope_geometry::rig::Rig;
 use stereoscope_geometry::synthetic::{ViewSpread, calibration_views, example_camera, grid};
 use stereoscope_geometry::transform::look_at;
 use stereoscope_geometry::{Camera, Distortion, Intrinsics};
+use stereoscope_numeric::SplitMix64;
 use stereoscope_proto::reports::{CalibrationReport, DepthFitReport, TriangulatedPoint};
-use stereoscope_vision::raster::{SplitMix64, add_gaussian_noise};
+use stereoscope_rig::Rig;
+use stereoscope_vision::raster::add_gaussian_noise;
 
 mod common;
 use common::{TempDir, repo_root, run, stderr};

@@ -4,7 +4,6 @@
 //! - [`messages`]: observations, poses, ground truth and health, as JSON (Zenoh) and postcard
 //!   (iceoryx2);
 //! - [`names`]: iceoryx2 service names with their sizes, Zenoh key expressions;
-//! - [`rig`]: the rig file every service reads (`docs/rig.md`), with its deployment sections;
 //! - [`serial`]: the serial-link packets with their decoders;
 //! - [`blobs`], [`reports`]: the commands' JSON output.
 //!
@@ -15,5 +14,4 @@ pub mod frame;
 pub mod messages;
 pub mod names;
 pub mod reports;
-pub mod rig;
 pub mod serial;

@@ -18,6 +18,56 @@
 use std::fmt;
 
 /// A pose as the serial link carries it: position in metres, heading in degrees.
+
+/// Which packet a serial link carries: the rig file's `mode`, the serial service's `--mode`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum SerialMode {
+    /// The thesis's 10-byte packet, one object.
+    Legacy,
+    /// Object id, sequence number, CRC, COBS framing (the default).
+    #[default]
+    Framed,
+}
+
+impl SerialMode {
+    pub fn as_str(self) -> &'static str {
+        match self {
+            SerialMode::Legacy => "legacy",
+            SerialMode::Framed => "framed",
+        }
+    }
+}
+
+impl std::fmt::Display for SerialMode {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.as_str())
+    }
+}
+
+/// A word that is not a [`SerialMode`].
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct UnknownSerialMode(pub String);
+
+impl std::fmt::Display for UnknownSerialMode {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{:?} is not legacy or framed", self.0)
+    }
+}
+
+impl std::error::Error for UnknownSerialMode {}
+
+impl std::str::FromStr for SerialMode {
+    type Err = UnknownSerialMode;
+    fn from_str(s: &str) -> Result<Self, UnknownSerialMode> {
+        match s {
+            "legacy" => Ok(SerialMode::Legacy),
+            "framed" => Ok(SerialMode::Framed),
+            o => Err(UnknownSerialMode(o.to_string())),
+        }
+    }
+}
+
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct SerialPose {
     pub object_id: u16,

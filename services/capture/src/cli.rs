@@ -2,7 +2,8 @@
 //! capture`.
 
 use crate::{CaptureConfig, run};
-use stereoscope_transport::{CommonArgs, Shutdown, init_logging};
+use stereoscope_rig::CommonArgs;
+use stereoscope_transport::{Shutdown, init_logging};
 
 #[derive(clap::Args, Debug, Clone)]
 pub struct Args {

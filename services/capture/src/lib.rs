@@ -23,10 +23,11 @@ use std::time::{Duration, Instant};
 use stereoscope_proto::frame::FrameHeader;
 use stereoscope_proto::messages::{SCHEMA_VERSION, Truth, now_ns};
 use stereoscope_proto::names::{iox as iox_names, zenoh as keys};
-use stereoscope_proto::rig::SourceSpec;
+use stereoscope_rig::Context;
+use stereoscope_rig::schema::SourceSpec;
 use stereoscope_transport::iox::{FramePublisher, FrameStamp, MessagePublisher};
 use stereoscope_transport::net::JsonPublisher;
-use stereoscope_transport::{Context, Counters, HealthReporter, Shutdown, net};
+use stereoscope_transport::{Counters, HealthReporter, Shutdown, net};
 
 /// What to run.
 #[derive(Debug, Clone)]
@@ -68,7 +69,7 @@ pub fn open_source(ctx: &Context, camera: &str) -> Result<Box<dyn FrameSource>, 
         .rig
         .camera_index(camera)
         .ok_or_else(|| setup(format!("not a camera of {}", ctx.rig_path.display())))?;
-    let spec = &ctx.rig_file.cameras[index];
+    let spec = &ctx.rig.spec.cameras[index];
     let src = spec.source.as_ref().ok_or_else(|| {
         setup(format!(
             "camera[{index}].source is missing in {}: say where its frames come from",
@@ -99,7 +100,7 @@ pub fn open_source(ctx: &Context, camera: &str) -> Result<Box<dyn FrameSource>, 
             bit_depth,
         } => Box::new(
             synthetic::SyntheticSource::new(
-                &ctx.rig_file,
+                &ctx.rig.spec,
                 ctx.rig.cameras[index].camera,
                 index,
                 *fps,
@@ -162,7 +163,7 @@ pub fn run(cfg: CaptureConfig, shutdown: Shutdown) -> Result<CaptureSummary, Cap
         message,
     };
     let ctx = &cfg.ctx;
-    let rig = &ctx.rig_file.name;
+    let rig = &ctx.rig.spec.name;
     let mut source = open_source(ctx, &cam)?;
     let (w, h) = source.size();
     let format = source.format();

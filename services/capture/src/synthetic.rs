@@ -6,13 +6,12 @@
 use crate::source::{FrameSource, Read, SourceError};
 use nalgebra::{Point3, Vector3};
 use stereoscope_geometry::Camera;
-use stereoscope_geometry::rig::unit_scale;
 use stereoscope_proto::frame::PixelFormat;
 use stereoscope_proto::messages::TargetTruth;
-use stereoscope_proto::rig::{MotionSpec, RigFile, SyntheticSpec};
 use stereoscope_render::{
     Actor, Background, Motion, RenderOptions, Scene, Shape, render_u8, render_u16, scene_at,
 };
+use stereoscope_rig::schema::{MotionSpec, RigFile, SyntheticSpec, TargetShape};
 
 pub struct SyntheticSource {
     camera: Camera,
@@ -43,10 +42,10 @@ pub fn actors(spec: &SyntheticSpec, scale: f64) -> Vec<(Actor, bool)> {
         .map(|t| {
             let r = t.radius * scale;
             // (shape, has an axis); all three are symmetric end to end.
-            let (shape, has_axis) = match t.shape.as_str() {
-                "double_sphere" => (Shape::DoubleSphere { radius_m: r }, true),
-                "disc" => (Shape::Disc { radius_m: r }, false),
-                _ => (Shape::Sphere { radius_m: r }, false),
+            let (shape, has_axis) = match t.shape {
+                TargetShape::DoubleSphere => (Shape::DoubleSphere { radius_m: r }, true),
+                TargetShape::Disc => (Shape::Disc { radius_m: r }, false),
+                TargetShape::Sphere => (Shape::Sphere { radius_m: r }, false),
             };
             let motion = match &t.motion {
                 MotionSpec::Static {
@@ -112,7 +111,7 @@ impl SyntheticSource {
             .synthetic
             .as_ref()
             .ok_or_else(|| SourceError::Fatal("the rig file has no [synthetic] scene".into()))?;
-        let scale = unit_scale(&file.units).map_err(|e| SourceError::Fatal(e.to_string()))?;
+        let scale = file.units.metres();
         let (actors, has_axis): (Vec<Actor>, Vec<bool>) = actors(spec, scale).into_iter().unzip();
         let base = Scene {
             background: Background {

@@ -9,7 +9,7 @@ use crate::source::{FrameSource, Read, SourceError};
 use std::fs::File;
 use std::io::{BufRead, BufReader, Read as _, Seek, SeekFrom};
 use stereoscope_proto::frame::PixelFormat;
-use stereoscope_proto::rig::ReplayClock;
+use stereoscope_rig::schema::ReplayClock;
 
 #[derive(Debug)]
 pub struct Y4mSource {

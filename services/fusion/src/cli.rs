@@ -2,7 +2,8 @@
 //! fusion`.
 
 use crate::{FusionConfig, run};
-use stereoscope_transport::{CommonArgs, Shutdown, init_logging};
+use stereoscope_rig::CommonArgs;
+use stereoscope_transport::{Shutdown, init_logging};
 
 #[derive(clap::Args, Debug, Clone)]
 pub struct Args {

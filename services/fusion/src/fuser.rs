@@ -11,11 +11,11 @@ use nalgebra::{Point2, Point3, Vector3};
 use stereoscope_geometry::Camera;
 use stereoscope_geometry::correspond::{CorrespondConfig, match_blobs};
 use stereoscope_geometry::depth::{on_axis_area, point_from_depth};
-use stereoscope_geometry::rig::Rig;
 use stereoscope_geometry::world_heading::{AxisView, fuse};
+use stereoscope_numeric::angle::wrap_half_turn_deg;
+use stereoscope_numeric::assign::Assigner;
 use stereoscope_proto::messages::{BlobObservation, Observation, Pose, PoseMethod, TrackState};
-use stereoscope_vision::assign::Assigner;
-use stereoscope_vision::heading::wrap_half_turn_deg;
+use stereoscope_rig::Rig;
 use stereoscope_vision::{HeadingConfig, HeadingTracker};
 
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -68,7 +68,7 @@ pub struct Fuser {
     cfg: FuserConfig,
     cameras: Vec<Camera>,
     ids: Vec<String>,
-    depth: Vec<Option<stereoscope_geometry::rig::DepthFromArea>>,
+    depth: Vec<Option<stereoscope_rig::DepthFromArea>>,
     objects: Vec<Object>,
     next_id: u32,
     assigner: Assigner,

@@ -19,15 +19,15 @@ use pairing::{Pairer, PairingConfig};
 use std::sync::mpsc;
 use std::time::Duration;
 use stereoscope_geometry::correspond::CorrespondConfig;
-use stereoscope_geometry::rig::unit_scale;
 use stereoscope_proto::messages::{
     Message, Observation, PoseFrame, PoseUpdate, SCHEMA_VERSION, now_ns,
 };
 use stereoscope_proto::names::{iox as iox_names, zenoh as keys};
-use stereoscope_proto::rig::RigFile;
+use stereoscope_rig::Context;
+use stereoscope_rig::schema::{ObservationRoute, RigFile};
 use stereoscope_transport::iox::{MessagePublisher, MessageSubscriber, Waker};
 use stereoscope_transport::net::{JsonPublisher, KeyedPublisher};
-use stereoscope_transport::{Context, Counters, HealthReporter, Shutdown, net};
+use stereoscope_transport::{Counters, HealthReporter, Shutdown, net};
 
 #[derive(Debug, Clone)]
 pub struct FusionConfig {
@@ -42,10 +42,11 @@ pub enum FusionError {
     Setup(String),
 }
 
-/// Fusion's settings from the rig file's `[fusion]` table (defaults in `docs/services.md`).
-pub fn settings(file: &RigFile) -> Result<(PairingConfig, FuserConfig, bool), String> {
+/// Fusion's settings from the rig file's `[fusion]` table (defaults in `docs/services.md`;
+/// values checked when the rig was loaded).
+pub fn settings(file: &RigFile) -> (PairingConfig, FuserConfig, bool) {
     let f = file.fusion.clone().unwrap_or_default();
-    let scale = unit_scale(&file.units).map_err(|e| e.to_string())?;
+    let scale = file.units.metres();
     let ms = |v: Option<f64>, d: f64| (v.unwrap_or(d) * 1e6) as u64;
     let pairing = PairingConfig {
         max_skew_ns: ms(f.max_skew_ms, 5.0),
@@ -62,8 +63,8 @@ pub fn settings(file: &RigFile) -> Result<(PairingConfig, FuserConfig, bool), St
         drop_after_ns: (f.drop_after_s.unwrap_or(1.0) * 1e9) as u64,
         ..FuserConfig::default()
     };
-    let all_zenoh = f.observations.as_deref() == Some("zenoh");
-    Ok((pairing, fuser, all_zenoh))
+    let all_zenoh = f.observations == Some(ObservationRoute::Zenoh);
+    (pairing, fuser, all_zenoh)
 }
 
 enum Input {
@@ -75,9 +76,8 @@ enum Input {
 pub fn run(cfg: FusionConfig, shutdown: Shutdown) -> Result<u64, FusionError> {
     let ctx = &cfg.ctx;
     let setup = |m: String| FusionError::Setup(m);
-    let rig = ctx.rig_file.name.clone();
-    let (pair_cfg, fuser_cfg, all_zenoh) =
-        settings(&ctx.rig_file).map_err(|e| setup(format!("{}: {e}", ctx.rig_path.display())))?;
+    let rig = ctx.rig.spec.name.clone();
+    let (pair_cfg, fuser_cfg, all_zenoh) = settings(&ctx.rig.spec);
     let n = ctx.rig.cameras.len();
     if n == 0 {
         return Err(setup(format!("{} has no cameras", ctx.rig_path.display())));

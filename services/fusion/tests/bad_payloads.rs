@@ -10,9 +10,10 @@ use stereoscope_proto::messages::{
     BlobObservation, Health, Message, Observation, PoseFrame, SCHEMA_VERSION, TrackState,
 };
 use stereoscope_proto::names::zenoh as keys;
-use stereoscope_transport::context::parse_rig;
+use stereoscope_rig::Context;
+use stereoscope_rig::Rig;
+use stereoscope_transport::Shutdown;
 use stereoscope_transport::net::{self, JsonPublisher, ZenohMode, ZenohSpec};
-use stereoscope_transport::{Context, Shutdown};
 
 const RIG: &str = include_str!("../../../deploy/rigs/demo.toml");
 
@@ -54,12 +55,11 @@ fn observation(camera: &str, pixel: (f64, f64), ts: u64) -> Observation {
 #[test]
 fn undecodable_payload_is_named_and_fusion_goes_on() {
     let text = RIG.replace("[fusion]\n", "[fusion]\nobservations = \"zenoh\"\n");
-    let (rig_file, rig) = parse_rig(&text).unwrap();
+    let rig = Rig::from_toml(&text).unwrap();
     let port = net::free_loopback_port().unwrap();
     let endpoint = format!("tcp/127.0.0.1:{port}");
     let ctx = Context {
         rig_path: "demo.toml".into(),
-        rig_file,
         rig: rig.clone(),
         host: "local".into(),
         iox_prefix: format!("stsc_f{}_", std::process::id()),

@@ -6,26 +6,22 @@
 use stereoscope_capture::source::FrameSource;
 use stereoscope_capture::synthetic::SyntheticSource;
 use stereoscope_fusion::fuser::{Fuser, FuserConfig};
-use stereoscope_moments::{Worker, settings};
+use stereoscope_moments::Worker;
 use stereoscope_proto::frame::{FrameHeader, PixelFormat};
-use stereoscope_transport::context::parse_rig;
+use stereoscope_rig::Rig;
 
 const RIG: &str = include_str!("../../../deploy/rigs/demo.toml");
 
 fn errors(rig_text: &str, frames: u64) -> Vec<(f64, Option<f64>)> {
-    let (file, rig) = parse_rig(rig_text).unwrap();
+    let rig = Rig::from_toml(rig_text).unwrap();
+    let file = &rig.spec;
     let n = rig.cameras.len();
     let mut sources: Vec<SyntheticSource> = (0..n)
-        .map(|i| SyntheticSource::new(&file, rig.cameras[i].camera, i, 30.0, None, None).unwrap())
+        .map(|i| SyntheticSource::new(file, rig.cameras[i].camera, i, 30.0, None, None).unwrap())
         .collect();
     let mut workers: Vec<Worker> = (0..n)
         .map(|i| {
-            let s = settings(
-                file.cameras[i].moments.as_ref(),
-                rig.cameras[i].camera.intrinsics.par(),
-                "m",
-            )
-            .unwrap();
+            let s = rig.worker_settings(i).unwrap();
             Worker::new(s, "demo", &rig.cameras[i].id).unwrap()
         })
         .collect();
@@ -66,7 +62,7 @@ fn errors(rig_text: &str, frames: u64) -> Vec<(f64, Option<f64>)> {
             if let Some((d, p)) = best {
                 let herr = if tt.has_axis {
                     p.heading_deg.map(|h| {
-                        stereoscope_vision::heading::wrap_half_turn_deg(h - tt.heading_deg).abs()
+                        stereoscope_numeric::angle::wrap_half_turn_deg(h - tt.heading_deg).abs()
                     })
                 } else {
                     None

@@ -9,13 +9,14 @@ use std::collections::{BTreeMap, VecDeque};
 use std::io::Write;
 use std::sync::mpsc;
 use std::time::{Duration, Instant};
+use stereoscope_numeric::angle::{wrap_half_turn_deg, wrap_turn_deg};
+use stereoscope_numeric::assign::assign_min_cost;
 use stereoscope_proto::messages::{Message, PoseFrame, Truth};
 use stereoscope_proto::names::zenoh as keys;
-use stereoscope_transport::context::parse_rig;
+use stereoscope_rig::Context;
+use stereoscope_rig::Rig;
+use stereoscope_transport::Shutdown;
 use stereoscope_transport::net::{self, ZenohSpec};
-use stereoscope_transport::{Context, Shutdown};
-use stereoscope_vision::assign::assign_min_cost;
-use stereoscope_vision::heading::{wrap_half_turn_deg, wrap_turn_deg};
 
 /// The built-in rig.
 pub const DEMO_RIG: &str = include_str!("../../../deploy/rigs/demo.toml");
@@ -136,7 +137,7 @@ pub fn run(cfg: DemoConfig, shutdown: Shutdown) -> Result<DemoSummary, LaunchErr
     let text = format!(
         "{base}\n[[host]]\nname = \"demo\"\nzenoh_listen = [\"tcp/127.0.0.1:{port}\"]\niceoryx2_prefix = \"{prefix}\"\n"
     );
-    let (rig_file, rig) = parse_rig(&text).map_err(|e| setup(format!("demo rig: {e}")))?;
+    let rig = Rig::from_toml(&text).map_err(|e| setup(format!("demo rig: {e}")))?;
     std::fs::create_dir_all(&cfg.work_dir)
         .map_err(|e| setup(format!("{}: {e}", cfg.work_dir.display())))?;
     let rig_path = cfg.work_dir.join("demo-rig.toml");
@@ -144,13 +145,12 @@ pub fn run(cfg: DemoConfig, shutdown: Shutdown) -> Result<DemoSummary, LaunchErr
     let client = ZenohSpec::client_of(&format!("tcp/127.0.0.1:{port}"));
     let ctx = Context {
         rig_path: rig_path.clone(),
-        rig_file: rig_file.clone(),
-        rig,
+        rig: rig.clone(),
         host: "demo".into(),
         iox_prefix: prefix.clone(),
         zenoh: client.clone(),
     };
-    let first_cam = rig_file
+    let first_cam = rig
         .cameras
         .first()
         .map(|c| c.id.clone())
@@ -167,14 +167,7 @@ pub fn run(cfg: DemoConfig, shutdown: Shutdown) -> Result<DemoSummary, LaunchErr
         };
         std::thread::spawn(move || crate::run(lc, stop))
     };
-    let result = watch(
-        &cfg,
-        &shutdown,
-        &client,
-        &rig_file.name,
-        &first_cam,
-        &prefix,
-    );
+    let result = watch(&cfg, &shutdown, &client, &rig.name, &first_cam, &prefix);
     launch_stop.request();
     let restarts = match launcher.join() {
         Ok(Ok(r)) => r,

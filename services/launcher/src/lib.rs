@@ -16,9 +16,10 @@ pub mod status;
 use std::io::{BufRead, BufReader};
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
-use stereoscope_transport::context::local_endpoint;
+use stereoscope_rig::Context;
+use stereoscope_rig::context::local_endpoint;
 use stereoscope_transport::net::{ZenohMode, ZenohSpec};
-use stereoscope_transport::{Context, Shutdown, iox, net};
+use stereoscope_transport::{Shutdown, iox, net};
 
 /// One service to run.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -71,7 +72,7 @@ pub fn services_here(ctx: &Context, service_zenoh: &ZenohSpec) -> Vec<ServiceSpe
             });
         }
     }
-    for s in &ctx.rig_file.serial {
+    for s in &ctx.rig.spec.serial {
         if s.host.as_deref().is_some_and(|h| h != ctx.host) {
             continue;
         }
@@ -79,10 +80,7 @@ pub fn services_here(ctx: &Context, service_zenoh: &ZenohSpec) -> Vec<ServiceSpe
         args.extend(common.clone());
         args.extend(["--port".to_string(), s.port.clone()]);
         args.extend(["--baud".to_string(), s.baud.unwrap_or(9600).to_string()]);
-        args.extend([
-            "--mode".to_string(),
-            s.mode.clone().unwrap_or_else(|| "framed".into()),
-        ]);
+        args.extend(["--mode".to_string(), s.mode.unwrap_or_default().to_string()]);
         if !s.objects.is_empty() {
             let ids: Vec<String> = s.objects.iter().map(|i| i.to_string()).collect();
             args.extend(["--objects".to_string(), ids.join(",")]);
@@ -92,7 +90,7 @@ pub fn services_here(ctx: &Context, service_zenoh: &ZenohSpec) -> Vec<ServiceSpe
             args,
         });
     }
-    if ctx.fusion_here() && ctx.rig_file.fusion.is_some() {
+    if ctx.fusion_here() && ctx.rig.spec.fusion.is_some() {
         let mut args = vec!["fusion".to_string()];
         args.extend(common);
         out.push(ServiceSpec {
@@ -197,9 +195,9 @@ pub const DEFAULT_ROUTER: &str = "tcp/127.0.0.1:7447";
 /// The Zenoh spec of this host's router, and that of its services (clients of it). A rig with
 /// no `[[host]]` runs on one PC with its router on [`DEFAULT_ROUTER`].
 pub fn router_specs(ctx: &Context) -> Option<(ZenohSpec, ZenohSpec)> {
-    let (listen, connect) = match ctx.rig_file.hosts.iter().find(|h| h.name == ctx.host) {
+    let (listen, connect) = match ctx.rig.spec.hosts.iter().find(|h| h.name == ctx.host) {
         Some(h) => (h.zenoh_listen.clone(), h.zenoh_connect.clone()),
-        None if ctx.rig_file.hosts.is_empty() => (vec![DEFAULT_ROUTER.to_string()], Vec::new()),
+        None if ctx.rig.spec.hosts.is_empty() => (vec![DEFAULT_ROUTER.to_string()], Vec::new()),
         None => return None,
     };
     let first = listen.first()?.clone();
@@ -325,13 +323,12 @@ pub fn run(cfg: LaunchConfig, shutdown: Shutdown) -> Result<u32, LaunchError> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use stereoscope_transport::context::parse_rig;
+    use stereoscope_rig::Rig;
 
     fn ctx(text: &str, host: &str) -> Context {
-        let (rig_file, rig) = parse_rig(text).unwrap();
+        let rig = Rig::from_toml(text).unwrap();
         Context {
             rig_path: "r.toml".into(),
-            rig_file,
             rig,
             host: host.into(),
             iox_prefix: "p_".into(),

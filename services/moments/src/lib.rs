@@ -21,14 +21,15 @@ use stereoscope_proto::messages::{
     BlobObservation, Observation, SCHEMA_VERSION, TrackState, now_ns,
 };
 use stereoscope_proto::names::{iox as iox_names, zenoh as keys};
-use stereoscope_proto::rig::{MomentsSpec, ThresholdSpec};
+use stereoscope_rig::Context;
+use stereoscope_rig::moments::WorkerSettings;
+use stereoscope_rig::schema::WeightingSpec;
 use stereoscope_transport::iox::{FrameSubscriber, MessagePublisher};
 use stereoscope_transport::net::JsonPublisher;
-use stereoscope_transport::{Context, Counters, HealthReporter, Shutdown, net};
-use stereoscope_vision::extract::{BlobFlags, Connectivity, ExtractConfig, Weighting};
+use stereoscope_transport::{Counters, HealthReporter, Shutdown, net};
+use stereoscope_vision::extract::{BlobFlags, Weighting};
 use stereoscope_vision::{
-    GrayView, HeadingStatus, Histogram, Pixel, ThresholdMethod, TrackStatus, Tracker,
-    TrackerConfig, VisionError,
+    GrayView, HeadingStatus, Histogram, Pixel, TrackStatus, Tracker, VisionError,
 };
 
 /// Most blobs one observation carries.
@@ -46,85 +47,6 @@ pub struct MomentsConfig {
 pub enum MomentsError {
     #[error("moments/{camera}: {message}")]
     Setup { camera: String, message: String },
-}
-
-/// The worker's settings, checked, from the camera's `moments` table.
-#[derive(Debug, Clone, PartialEq)]
-pub struct WorkerSettings {
-    pub threshold: ThresholdMethod,
-    pub threshold_every_frames: u32,
-    pub weighting: WeightingChoice,
-    pub full_level: Option<u32>,
-    pub tracker: TrackerConfig,
-    pub extract: ExtractConfig,
-}
-
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum WeightingChoice {
-    Binary,
-    Intensity,
-    Coverage,
-}
-
-/// Reads a `moments` table; errors name `camera[i].moments.KEY`.
-pub fn settings(spec: Option<&MomentsSpec>, par: f64, key: &str) -> Result<WorkerSettings, String> {
-    let d = MomentsSpec::default();
-    let s = spec.unwrap_or(&d);
-    let threshold = match &s.threshold {
-        None => ThresholdMethod::Auto,
-        Some(ThresholdSpec::Level(l)) => ThresholdMethod::Fixed(*l),
-        Some(ThresholdSpec::Method(m)) => ThresholdMethod::parse(m).ok_or_else(|| {
-            format!("{key}.threshold: {m:?} is not auto, otsu, triangle or a grey level")
-        })?,
-    };
-    let window_threshold = match &s.window_threshold {
-        None => None,
-        Some(m) => Some(ThresholdMethod::parse(m).ok_or_else(|| {
-            format!("{key}.window_threshold: {m:?} is not auto, otsu or triangle")
-        })?),
-    };
-    let weighting = match s.weighting.as_deref() {
-        None | Some("coverage") => WeightingChoice::Coverage,
-        Some("intensity") => WeightingChoice::Intensity,
-        Some("binary") => WeightingChoice::Binary,
-        Some(o) => {
-            return Err(format!(
-                "{key}.weighting: {o:?} is not binary, intensity or coverage"
-            ));
-        }
-    };
-    let connectivity = match s.connectivity {
-        None | Some(8) => Connectivity::Eight,
-        Some(4) => Connectivity::Four,
-        Some(o) => return Err(format!("{key}.connectivity: {o} is not 4 or 8")),
-    };
-    let tracker = TrackerConfig {
-        max_objects: s.max_objects.unwrap_or(8),
-        min_new_area_px: s.min_area_px.unwrap_or(4),
-        search_every_frames: s.search_every_frames.unwrap_or(10),
-        min_half_width_px: s.min_half_width_px.unwrap_or(30),
-        par,
-        window_threshold,
-        ..TrackerConfig::default()
-    };
-    tracker.validate().map_err(|e| format!("{key}: {e}"))?;
-    if s.threshold_every_frames == Some(0) {
-        return Err(format!("{key}.threshold_every_frames: must be at least 1"));
-    }
-    Ok(WorkerSettings {
-        threshold,
-        threshold_every_frames: s.threshold_every_frames.unwrap_or(30),
-        weighting,
-        full_level: s.full_level,
-        tracker,
-        extract: ExtractConfig {
-            connectivity,
-            min_area_px: s.min_area_px.unwrap_or(4),
-            max_blobs: 256,
-            weighting: Weighting::Binary,
-            threads: 1,
-        },
-    })
 }
 
 /// The per-frame processing, independent of transport: thresholds, tracking, the message.
@@ -185,9 +107,9 @@ impl Worker {
         let t = t.clamp(1, P::MAX_VALUE);
         let background = hist.mode()?.min(t.saturating_sub(1));
         let weighting = match self.settings.weighting {
-            WeightingChoice::Binary => Weighting::Binary,
-            WeightingChoice::Intensity => Weighting::Intensity { background },
-            WeightingChoice::Coverage => Weighting::Coverage {
+            WeightingSpec::Binary => Weighting::Binary,
+            WeightingSpec::Intensity => Weighting::Intensity { background },
+            WeightingSpec::Coverage => Weighting::Coverage {
                 background,
                 full: self
                     .settings
@@ -337,18 +259,15 @@ pub fn run(cfg: MomentsConfig, shutdown: Shutdown) -> Result<u64, MomentsError> 
         message,
     };
     let ctx = &cfg.ctx;
-    let rig = ctx.rig_file.name.clone();
+    let rig = ctx.rig.spec.name.clone();
     let index = ctx
         .rig
         .camera_index(&cam)
         .ok_or_else(|| setup(format!("not a camera of {}", ctx.rig_path.display())))?;
-    let par = ctx.rig.cameras[index].camera.intrinsics.par();
-    let settings = settings(
-        ctx.rig_file.cameras[index].moments.as_ref(),
-        par,
-        &format!("camera[{index}].moments"),
-    )
-    .map_err(|e| setup(format!("{}: {e}", ctx.rig_path.display())))?;
+    let settings = ctx
+        .rig
+        .worker_settings(index)
+        .map_err(|e| setup(e.to_string()))?;
     let mut worker = Worker::new(settings, &rig, &cam).map_err(|e| setup(e.to_string()))?;
     let node = stereoscope_transport::iox::node(&ctx.iox_prefix, &format!("moments-{cam}"))
         .map_err(|e| setup(e.to_string()))?;
@@ -430,40 +349,8 @@ pub fn run(cfg: MomentsConfig, shutdown: Shutdown) -> Result<u64, MomentsError> 
 mod tests {
     use super::*;
 
-    #[test]
-    fn settings_name_the_bad_key() {
-        let ok = settings(None, 0.86, "camera[0].moments").unwrap();
-        assert_eq!(ok.threshold, ThresholdMethod::Auto);
-        assert_eq!(ok.weighting, WeightingChoice::Coverage);
-        let bad = |s: MomentsSpec| settings(Some(&s), 1.0, "camera[2].moments").unwrap_err();
-        let e = bad(MomentsSpec {
-            threshold: Some(ThresholdSpec::Method("median".into())),
-            ..Default::default()
-        });
-        assert!(
-            e.contains("camera[2].moments.threshold") && e.contains("median"),
-            "{e}"
-        );
-        let e = bad(MomentsSpec {
-            connectivity: Some(6),
-            ..Default::default()
-        });
-        assert!(e.contains("connectivity") && e.contains('6'), "{e}");
-        let e = bad(MomentsSpec {
-            max_objects: Some(0),
-            ..Default::default()
-        });
-        assert!(e.contains("max_objects"), "{e}");
-        let e = bad(MomentsSpec {
-            weighting: Some("gauss".into()),
-            ..Default::default()
-        });
-        assert!(e.contains("weighting"), "{e}");
-        let e = bad(MomentsSpec {
-            threshold_every_frames: Some(0),
-            ..Default::default()
-        });
-        assert!(e.contains("threshold_every_frames"), "{e}");
+    fn defaults() -> WorkerSettings {
+        stereoscope_rig::moments::worker_settings(None, 1.0, [640, 480], 65535, "m").unwrap()
     }
 
     /// Thresholds come from the frames of the same sequence numbers whenever a worker
@@ -483,8 +370,8 @@ mod tests {
             h.sequence = seq;
             (h, img)
         };
-        let mut live = Worker::new(settings(None, 1.0, "m").unwrap(), "r", "c").unwrap();
-        let mut late = Worker::new(settings(None, 1.0, "m").unwrap(), "r", "c").unwrap();
+        let mut live = Worker::new(defaults(), "r", "c").unwrap();
+        let mut late = Worker::new(defaults(), "r", "c").unwrap();
         for seq in 0..45 {
             let (h, img) = frame(seq);
             let a = live.process_frame(&h, &img).unwrap();
@@ -503,7 +390,7 @@ mod tests {
 
     #[test]
     fn a_frame_becomes_an_observation_with_its_blob() {
-        let s = settings(None, 1.0, "m").unwrap();
+        let s = defaults();
         let mut w = Worker::new(s, "r", "c").unwrap();
         let mut img = vec![10u8; 64 * 48];
         for y in 20..26 {
@@ -529,7 +416,7 @@ mod tests {
             .iter()
             .flat_map(|&v| (v as u16 * 256).to_le_bytes())
             .collect();
-        let mut w16 = Worker::new(settings(None, 1.0, "m").unwrap(), "r", "c").unwrap();
+        let mut w16 = Worker::new(defaults(), "r", "c").unwrap();
         let h16 = FrameHeader::new("c", PixelFormat::Gray16, 64, 48).unwrap();
         let o = w16.process_frame(&h16, &img16).unwrap();
         assert_eq!(o.blobs.len(), 1);

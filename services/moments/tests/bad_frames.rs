@@ -8,22 +8,22 @@ use stereoscope_moments::{MomentsConfig, run};
 use stereoscope_proto::frame::{FrameHeader, PixelFormat};
 use stereoscope_proto::messages::{Health, Message, Observation};
 use stereoscope_proto::names::{iox as iox_names, zenoh as keys};
-use stereoscope_transport::context::parse_rig;
+use stereoscope_rig::Context;
+use stereoscope_rig::Rig;
+use stereoscope_transport::Shutdown;
 use stereoscope_transport::iox::{FramePublisher, MessageSubscriber, node};
 use stereoscope_transport::net::{self, ZenohMode, ZenohSpec};
-use stereoscope_transport::{Context, Shutdown};
 
 const RIG: &str = include_str!("../../../deploy/rigs/demo.toml");
 
 #[test]
 fn inconsistent_frame_is_rejected_and_the_next_one_processed() {
-    let (rig_file, rig) = parse_rig(RIG).unwrap();
+    let rig = Rig::from_toml(RIG).unwrap();
     let prefix = format!("stsc_m{}_", std::process::id());
     let port = net::free_loopback_port().unwrap();
     let endpoint = format!("tcp/127.0.0.1:{port}");
     let ctx = Context {
         rig_path: "demo.toml".into(),
-        rig_file,
         rig,
         host: "local".into(),
         iox_prefix: prefix.clone(),

@@ -3,7 +3,8 @@
 use crate::{RecorderConfig, run};
 use std::path::PathBuf;
 use std::time::Duration;
-use stereoscope_transport::{CommonArgs, Shutdown, init_logging};
+use stereoscope_rig::CommonArgs;
+use stereoscope_transport::{Shutdown, init_logging};
 
 #[derive(clap::Args, Debug, Clone)]
 pub struct Args {

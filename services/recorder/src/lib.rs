@@ -22,8 +22,9 @@ use std::time::{Duration, Instant};
 use stereoscope_proto::frame::{FrameHeader, PixelFormat};
 use stereoscope_proto::messages::{Message, Observation, PoseFrame, now_ns};
 use stereoscope_proto::names::{iox as iox_names, zenoh as keys};
+use stereoscope_rig::Context;
 use stereoscope_transport::iox::FrameSubscriber;
-use stereoscope_transport::{Context, Counters, HealthReporter, Shutdown, net};
+use stereoscope_transport::{Counters, HealthReporter, Shutdown, net};
 
 #[derive(Debug, Clone)]
 pub struct RecorderConfig {
@@ -164,7 +165,7 @@ impl Y4mState {
 pub fn run(cfg: RecorderConfig, shutdown: Shutdown) -> Result<(u64, u64), RecorderError> {
     let ctx = &cfg.ctx;
     let setup = |m: String| RecorderError::Setup(m);
-    let rig = ctx.rig_file.name.clone();
+    let rig = ctx.rig.spec.name.clone();
     if cfg.out.exists()
         && std::fs::read_dir(&cfg.out)
             .map(|mut d| d.next().is_some())

@@ -10,7 +10,7 @@ use crate::session::{POSES_CSV_HEADER, Session, csv_rows};
 use std::collections::HashMap;
 use stereoscope_fusion::fuser::Fuser;
 use stereoscope_proto::messages::{Observation, PoseFrame};
-use stereoscope_transport::context::parse_rig;
+use stereoscope_rig::Rig;
 
 /// What re-fusing a session gave.
 #[derive(Debug, Clone, PartialEq, Default)]
@@ -30,9 +30,9 @@ pub fn refuse(
     session: &Session,
     mut progress: impl FnMut(usize, usize),
 ) -> Result<Refused, String> {
-    let (file, rig) =
-        parse_rig(&session.info.rig_file).map_err(|e| format!("session.json rig_file: {e}"))?;
-    let (_, fuser_cfg, _) = stereoscope_fusion::settings(&file)?;
+    let rig = Rig::from_recording(&session.info.rig_file)
+        .map_err(|e| format!("session.json rig_file: {e}"))?;
+    let (_, fuser_cfg, _) = stereoscope_fusion::settings(&rig.spec);
     let mut fuser = Fuser::new(&rig, fuser_cfg);
     let mut by_key: HashMap<(String, u64), &Observation> = HashMap::new();
     for o in &session.observations {
@@ -140,8 +140,8 @@ pub struct C3dExport {
 pub fn export_c3d(session: &Session) -> Result<C3dExport, String> {
     use crate::c3d::{C3dPoint, C3dTrial};
     use std::collections::BTreeMap;
-    let (_, rig) =
-        parse_rig(&session.info.rig_file).map_err(|e| format!("session.json rig_file: {e}"))?;
+    let rig = Rig::from_recording(&session.info.rig_file)
+        .map_err(|e| format!("session.json rig_file: {e}"))?;
     let mut times: Vec<u64> = session.poses.iter().map(|p| p.timestamp_ns).collect();
     times.sort_unstable();
     times.dedup();
@@ -251,7 +251,7 @@ pub fn frames_rig(
     listen: &str,
     iox_prefix: &str,
 ) -> Result<String, String> {
-    use stereoscope_proto::rig::{HostSpec, ReplayClock, RigFile, SourceSpec};
+    use stereoscope_rig::schema::{HostSpec, ReplayClock, RigFile, SourceSpec};
     let mut file = RigFile::from_toml(&session.info.rig_file)
         .map_err(|e| format!("session.json rig_file: {e}"))?;
     let missing: Vec<String> = file

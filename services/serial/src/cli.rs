@@ -1,8 +1,10 @@
 //! The serial service's command line, shared by its own binary and `stereoscope service
 //! serial`.
 
-use crate::{Mode, SerialConfig, run};
-use stereoscope_transport::{CommonArgs, Shutdown, init_logging};
+use crate::{SerialConfig, run};
+use stereoscope_proto::serial::SerialMode;
+use stereoscope_rig::CommonArgs;
+use stereoscope_transport::{Shutdown, init_logging};
 
 #[derive(clap::Args, Debug, Clone)]
 pub struct Args {
@@ -16,7 +18,7 @@ pub struct Args {
     pub baud: u32,
     /// legacy (the thesis's 10-byte packet, one object) or framed (id, CRC, COBS).
     #[arg(long, default_value = "framed")]
-    pub mode: String,
+    pub mode: SerialMode,
     /// Object ids to send, comma-separated (default: every object; legacy: the lowest id).
     #[arg(long, value_delimiter = ',')]
     pub objects: Vec<u32>,
@@ -29,13 +31,12 @@ pub struct Args {
 pub fn main(args: Args) -> anyhow::Result<()> {
     init_logging("serial");
     let shutdown = Shutdown::on_signals()?;
-    let mode = Mode::parse(&args.mode).map_err(anyhow::Error::msg)?;
     let n = run(
         SerialConfig {
             ctx: args.common.resolve()?,
             port: args.port,
             baud: args.baud,
-            mode,
+            mode: args.mode,
             objects: args.objects,
             max_packets: args.max_packets,
         },

@@ -23,25 +23,9 @@ use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 use stereoscope_proto::messages::{Message, PoseFrame};
 use stereoscope_proto::names::zenoh as keys;
-use stereoscope_proto::serial::{SerialPose, encode_framed, encode_legacy};
-use stereoscope_transport::{Context, Counters, HealthReporter, Shutdown, net};
-
-/// Which packet to send.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Mode {
-    Legacy,
-    Framed,
-}
-
-impl Mode {
-    pub fn parse(s: &str) -> Result<Self, String> {
-        match s {
-            "legacy" => Ok(Mode::Legacy),
-            "framed" => Ok(Mode::Framed),
-            o => Err(format!("mode {o:?} is not legacy or framed")),
-        }
-    }
-}
+use stereoscope_proto::serial::{SerialMode, SerialPose, encode_framed, encode_legacy};
+use stereoscope_rig::Context;
+use stereoscope_transport::{Counters, HealthReporter, Shutdown, net};
 
 #[derive(Debug, Clone)]
 pub struct SerialConfig {
@@ -49,7 +33,7 @@ pub struct SerialConfig {
     /// The device (`/dev/ttyUSB0`).
     pub port: String,
     pub baud: u32,
-    pub mode: Mode,
+    pub mode: SerialMode,
     /// Object ids to send, in this order; every object when empty (legacy mode: the first
     /// given, or the lowest id seen).
     pub objects: Vec<u32>,
@@ -72,7 +56,7 @@ pub fn line_time(bytes: usize, baud: u32) -> Duration {
 pub fn selected<'a>(
     frame: &'a PoseFrame,
     objects: &[u32],
-    mode: Mode,
+    mode: SerialMode,
 ) -> Vec<&'a stereoscope_proto::messages::Pose> {
     let mut poses: Vec<_> = if objects.is_empty() {
         frame.poses.iter().collect()
@@ -85,7 +69,7 @@ pub fn selected<'a>(
     if objects.is_empty() {
         poses.sort_by_key(|p| p.object_id);
     }
-    if mode == Mode::Legacy {
+    if mode == SerialMode::Legacy {
         poses.truncate(1);
     }
     poses
@@ -108,7 +92,7 @@ pub fn round_robin(order: &[u32], last_sent: Option<u32>) -> Vec<u32> {
 /// One packet's bytes and how many fields were clamped.
 pub fn packet(
     pose: &stereoscope_proto::messages::Pose,
-    mode: Mode,
+    mode: SerialMode,
     sequence: u16,
 ) -> (Vec<u8>, u32) {
     let sp = SerialPose {
@@ -117,11 +101,11 @@ pub fn packet(
         heading_deg: pose.heading_deg.unwrap_or(0.0),
     };
     match mode {
-        Mode::Legacy => {
+        SerialMode::Legacy => {
             let (b, c) = encode_legacy(&sp);
             (b.to_vec(), c.count())
         }
-        Mode::Framed => {
+        SerialMode::Framed => {
             let (b, c) = encode_framed(&sp, sequence);
             (b, c.count())
         }
@@ -145,7 +129,7 @@ pub fn run(cfg: SerialConfig, shutdown: Shutdown) -> Result<u64, SerialServiceEr
     if cfg.baud == 0 {
         return Err(setup("baud rate 0".into()));
     }
-    let rig = ctx.rig_file.name.clone();
+    let rig = ctx.rig.spec.name.clone();
     let session = net::open(&ctx.zenoh).map_err(|e| setup(e.to_string()))?;
     let latest = Arc::new(Mutex::new(Latest::default()));
     let sink = latest.clone();
@@ -316,11 +300,11 @@ mod tests {
     fn selection_and_packets() {
         let f = frame(vec![pose(5, 0.1), pose(2, 0.2), pose(9, 400.0)]);
         let ids = |v: Vec<&Pose>| v.iter().map(|p| p.object_id).collect::<Vec<_>>();
-        assert_eq!(ids(selected(&f, &[], Mode::Framed)), [2, 5, 9]);
-        assert_eq!(ids(selected(&f, &[9, 5, 7], Mode::Framed)), [9, 5]);
-        assert_eq!(ids(selected(&f, &[], Mode::Legacy)), [2]);
-        assert_eq!(ids(selected(&f, &[5], Mode::Legacy)), [5]);
-        let (b, c) = packet(&f.poses[1], Mode::Legacy, 0);
+        assert_eq!(ids(selected(&f, &[], SerialMode::Framed)), [2, 5, 9]);
+        assert_eq!(ids(selected(&f, &[9, 5, 7], SerialMode::Framed)), [9, 5]);
+        assert_eq!(ids(selected(&f, &[], SerialMode::Legacy)), [2]);
+        assert_eq!(ids(selected(&f, &[5], SerialMode::Legacy)), [5]);
+        let (b, c) = packet(&f.poses[1], SerialMode::Legacy, 0);
         assert_eq!((b.len(), c), (10, 0));
         let p = LegacyDecoder::default().push(&b);
         assert_eq!(
@@ -328,8 +312,8 @@ mod tests {
             (20, 25, 150, 12345)
         );
         // 400 m does not fit int16 centimetres: clamped and counted.
-        assert_eq!(packet(&f.poses[2], Mode::Legacy, 0).1, 1);
-        let (b, c) = packet(&f.poses[0], Mode::Framed, 77);
+        assert_eq!(packet(&f.poses[2], SerialMode::Legacy, 0).1, 1);
+        let (b, c) = packet(&f.poses[0], SerialMode::Framed, 77);
         assert_eq!(c, 0);
         let p = FramedDecoder::default().push(&b);
         let p = p[0].as_ref().unwrap();

@@ -10,10 +10,10 @@ out="$root/target/bench-live"
 quick=()
 [ "${1:-}" = "--quick" ] && quick=(--quick)
 rm -rf "$out" && mkdir -p "$out/frames"
-. "$root/services/vision/benches/opencv-venv.sh"
+. "$root/services/lib/vision/benches/opencv-venv.sh"
 cd "$root"
 cargo bench -p stereoscope --bench live -- "${quick[@]}" --frames-dir "$out/frames" --json "$out/live.json" | tee "$out/report.md"
-"$venv/bin/python" "$root/services/vision/benches/opencv_bench.py" "$out/frames" "$out/opencv.json" "${quick[@]}"
+"$venv/bin/python" "$root/services/lib/vision/benches/opencv_bench.py" "$out/frames" "$out/opencv.json" "${quick[@]}"
 "$venv/bin/python" - "$out/live.json" "$out/opencv.json" <<'PY' | tee -a "$out/report.md"
 import json, sys
 live = json.load(open(sys.argv[1]))

@@ -14,10 +14,10 @@ use std::time::{Duration, Instant};
 use stereoscope_capture::source::FrameSource;
 use stereoscope_capture::synthetic::SyntheticSource;
 use stereoscope_launcher::demo::{DEMO_RIG, DemoConfig};
-use stereoscope_moments::{Worker, settings};
+use stereoscope_moments::Worker;
 use stereoscope_proto::frame::{FrameHeader, PixelFormat};
 use stereoscope_proto::messages::now_ns;
-use stereoscope_transport::context::parse_rig;
+use stereoscope_rig::Rig;
 use stereoscope_transport::iox::{FramePublisher, FrameStamp, FrameSubscriber, node};
 use stereoscope_transport::net::{self, ZenohMode, ZenohSpec};
 use stereoscope_transport::{Shutdown, init_logging};
@@ -145,8 +145,9 @@ fn rig_at(w: u32, h: u32, fps: f64, loop_frames: Option<u32>, four: bool) -> Str
 /// Frames per second one moment worker sustains on `frames` pre-rendered frames.
 fn worker_fps(w: u32, h: u32, frames_dir: Option<&std::path::Path>, quick: bool) -> (f64, usize) {
     let text = rig_at(w, h, 120.0, None, true);
-    let (file, rig) = parse_rig(&text).unwrap();
-    let mut src = SyntheticSource::new(&file, rig.cameras[0].camera, 0, 120.0, None, None).unwrap();
+    let rig = Rig::from_toml(&text).unwrap();
+    let mut src =
+        SyntheticSource::new(&rig.spec, rig.cameras[0].camera, 0, 120.0, None, None).unwrap();
     let n = 60;
     let mut frames = Vec::new();
     for k in 0..n {
@@ -163,12 +164,7 @@ fn worker_fps(w: u32, h: u32, frames_dir: Option<&std::path::Path>, quick: bool)
         )
         .unwrap();
     }
-    let s = settings(
-        file.cameras[0].moments.as_ref(),
-        rig.cameras[0].camera.intrinsics.par(),
-        "m",
-    )
-    .unwrap();
+    let s = rig.worker_settings(0).unwrap();
     let mut worker = Worker::new(s, "bench", "cam0").unwrap();
     let header = FrameHeader::new("cam0", PixelFormat::Gray8, w, h).unwrap();
     // Warm up: find the objects.

@@ -7,10 +7,10 @@ use std::io::Write;
 use std::path::PathBuf;
 use stereoscope_geometry::calibrate::{Calibration, DistortionModel, calibrate_camera};
 use stereoscope_geometry::dotgrid::{DotGrid, detect};
-use stereoscope_geometry::rig::{camera_spec, unit_scale};
 use stereoscope_geometry::{Camera, Distortion};
 use stereoscope_imageio::{AnyGray, read_gray};
 use stereoscope_proto::reports::{CalibrationReport, ViewReport};
+use stereoscope_rig::{Units, camera_spec};
 
 /// Where the correspondences come from.
 #[derive(Debug, Clone)]
@@ -32,7 +32,7 @@ pub struct CalibrateOptions {
     /// Required with `Points`; read from the images otherwise (and checked if given).
     pub image_size: Option<(u32, u32)>,
     /// Unit of the target coordinates: "m", "cm" or "mm".
-    pub units: String,
+    pub units: Units,
     pub distortion: DistortionModel,
     /// The camera's id in the written table.
     pub id: String,
@@ -83,7 +83,7 @@ pub fn run(
     out: &mut impl Write,
     err: &mut impl Write,
 ) -> anyhow::Result<usize> {
-    let scale = unit_scale(&opts.units).map_err(|e| anyhow::anyhow!("--units {e}"))?;
+    let scale = opts.units.metres();
     let mut failed = 0;
     let (labels, views, size) = match &opts.source {
         Source::Points(path) => {
@@ -139,7 +139,7 @@ pub fn run(
     };
     let cal = calibrate_camera(size.0, size.1, &views, opts.distortion)
         .map_err(|e| anyhow::anyhow!("calibration failed: {e}"))?;
-    let report = report(&cal, &labels, size, &opts.units, scale, &opts.id)?;
+    let report = report(&cal, &labels, size, opts.units, scale, &opts.id)?;
     if let Some(path) = &opts.out {
         std::fs::write(path, &report.camera_toml)
             .map_err(|e| anyhow::anyhow!("{}: cannot write: {e}", path.display()))?;
@@ -156,7 +156,7 @@ fn report(
     cal: &Calibration,
     labels: &[String],
     size: (u32, u32),
-    units: &str,
+    units: Units,
     scale: f64,
     id: &str,
 ) -> anyhow::Result<CalibrationReport> {
@@ -172,7 +172,7 @@ fn report(
         distortion: Distortion { ..d },
         cam_from_world: world_from,
     };
-    let spec = camera_spec(id, &camera, units).map_err(|e| anyhow::anyhow!("{e}"))?;
+    let spec = camera_spec(id, &camera, units);
     let camera_toml = spec.to_toml_table()?;
     let views = cal
         .cam0_from_target

@@ -5,9 +5,8 @@
 //! above at about 2.5 m), a single ball, and a flat oblong marker, with Gaussian noise σ = 2.
 //! Regenerate it with `STEREOSCOPE_REGENERATE_EXAMPLE=1 cargo test -p stereoscope example`.
 
-use stereoscope_vision::raster::{
-    Ellipse, SplitMix64, add_gaussian_noise, draw_ellipse, fill_background,
-};
+use stereoscope_numeric::SplitMix64;
+use stereoscope_vision::raster::{Ellipse, add_gaussian_noise, draw_ellipse, fill_background};
 use stereoscope_vision::{GrayImage, VisionError};
 
 /// Where the shipped example lives, relative to the repository root.

@@ -5,7 +5,8 @@ use anyhow::Context as _;
 use std::path::PathBuf;
 use stereoscope_launcher::demo::{DemoConfig, DemoSummary};
 use stereoscope_launcher::{LaunchConfig, run};
-use stereoscope_transport::{CommonArgs, Shutdown, init_logging};
+use stereoscope_rig::CommonArgs;
+use stereoscope_transport::{Shutdown, init_logging};
 
 /// Runs this host's services of `rig` until Ctrl-C.
 pub fn run_rig(
@@ -139,17 +140,18 @@ pub fn status(
     stall_ms: u64,
 ) -> anyhow::Result<usize> {
     use stereoscope_launcher::status::{Monitor, StatusConfig, to_json, to_text};
-    use stereoscope_transport::context::{load_rig, local_endpoint};
+    use stereoscope_rig::context::local_endpoint;
     use stereoscope_transport::net::ZenohSpec;
     let (name, endpoint) = match &rig {
         Some(p) => {
-            let (file, _) = load_rig(p)?;
-            let ep = file
+            let rig = stereoscope_rig::Rig::load(p)?;
+            let ep = rig
+                .spec
                 .hosts
                 .first()
                 .and_then(|h| h.zenoh_listen.first())
                 .map(|e| local_endpoint(e));
-            (file.name, ep)
+            (rig.name, ep)
         }
         None => (
             rig_name.ok_or_else(|| anyhow::anyhow!("give a rig file or --rig-name"))?,
@@ -280,7 +282,7 @@ pub fn replay_frames(
     use stereoscope_proto::messages::{Message, PoseFrame};
     use stereoscope_recorder::replay::{compare_frames, frames_rig};
     use stereoscope_recorder::session::Session;
-    use stereoscope_transport::context::{Context, parse_rig};
+    use stereoscope_rig::{Context, Rig};
     use stereoscope_transport::net::{self, ZenohSpec};
     let s = Session::read(&session)?;
     for w in &s.warnings {
@@ -295,16 +297,15 @@ pub fn replay_frames(
     let start_wall_ns = stereoscope_proto::messages::now_ns() + 3_000_000_000;
     let text = frames_rig(&s, &session, start_wall_ns, speed, &listen, &prefix)
         .map_err(|e| anyhow::anyhow!("{}: {e}", session.display()))?;
-    let (rig_file, rig) = parse_rig(&text).map_err(|e| anyhow::anyhow!("the replay rig: {e}"))?;
     let work = std::env::temp_dir().join(format!("stereoscope-replay-{}", std::process::id()));
     std::fs::create_dir_all(&work).with_context(|| work.display().to_string())?;
     let rig_path = work.join("replay-rig.toml");
     std::fs::write(&rig_path, &text).with_context(|| rig_path.display().to_string())?;
-    let client = ZenohSpec::client_of(&stereoscope_transport::context::local_endpoint(&listen));
+    let rig = Rig::load(&rig_path).map_err(|e| anyhow::anyhow!("the replay rig: {e}"))?;
+    let client = ZenohSpec::client_of(&stereoscope_rig::context::local_endpoint(&listen));
     let ctx = Context {
         rig_path,
-        rig_file: rig_file.clone(),
-        rig,
+        rig: rig.clone(),
         host: "replay".into(),
         iox_prefix: prefix,
         zenoh: client.clone(),
@@ -341,7 +342,7 @@ pub fn replay_frames(
             let sink = replayed.clone();
             Some(net::subscribe(
                 z,
-                &stereoscope_proto::names::zenoh::poses(&rig_file.name),
+                &stereoscope_proto::names::zenoh::poses(&rig.name),
                 move |_, b| {
                     if let Ok(p) = PoseFrame::from_json(b)
                         && let Ok(mut v) = sink.lock()

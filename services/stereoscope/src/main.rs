@@ -62,7 +62,7 @@ enum Command {
         images: Vec<PathBuf>,
         /// Unit of target coordinates and of the output translations: m, cm or mm.
         #[arg(long, default_value = "m")]
-        units: String,
+        units: stereoscope_rig::Units,
         /// Distortion terms to estimate: none, radial (k1 k2) or full (k1 k2 p1 p2 k3).
         #[arg(long, default_value = "full", value_parser = parse_distortion)]
         distortion: DistortionModel,

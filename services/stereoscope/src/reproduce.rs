@@ -29,11 +29,12 @@ use stereoscope_geometry::depth::{
     DepthFit, fit_three_parameter, fit_two_parameter, on_axis_area, point_from_depth,
 };
 use stereoscope_geometry::dotgrid::{DotGrid, detect, render as render_grid};
-use stereoscope_geometry::rig::Rig;
 use stereoscope_geometry::triangulate::{Observation, triangulate};
 use stereoscope_geometry::world_heading::{AxisView, fuse};
+use stereoscope_numeric::SplitMix64;
 use stereoscope_render::{Background, RenderOptions, Scene, Shape, State, Target, render_u8};
-use stereoscope_vision::raster::{SplitMix64, add_gaussian_noise};
+use stereoscope_rig::Rig;
+use stereoscope_vision::raster::add_gaussian_noise;
 use stereoscope_vision::{
     ExtractConfig, Extractor, GrayImage, Histogram, ThresholdMethod, Weighting,
 };
@@ -670,8 +671,7 @@ pub fn run(opts: &ReproduceOptions) -> anyhow::Result<Report> {
             let p = triangulate(&lab.calibrated, &point_obs)?.point_world;
             let fused = fuse(&lab.calibrated, &views, &p)
                 .ok_or_else(|| anyhow!("no heading at {:.0} cm", h * 100.0))?;
-            let err =
-                stereoscope_vision::heading::wrap_half_turn_deg(fused.heading_deg - truth_deg);
+            let err = stereoscope_numeric::angle::wrap_half_turn_deg(fused.heading_deg - truth_deg);
             heading.push((h * 100.0, truth_deg, fused.heading_deg, err));
         }
     }

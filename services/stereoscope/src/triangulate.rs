@@ -5,10 +5,9 @@
 use crate::csvin;
 use std::io::Write;
 use std::path::PathBuf;
-use stereoscope_geometry::rig::{Rig, unit_scale};
 use stereoscope_geometry::triangulate::{Observation, triangulate};
 use stereoscope_proto::reports::TriangulatedPoint;
-use stereoscope_proto::rig::RigFile;
+use stereoscope_rig::Rig;
 
 #[derive(Debug, Clone)]
 pub struct TriangulateOptions {
@@ -25,12 +24,8 @@ pub fn run(
     err: &mut impl Write,
 ) -> anyhow::Result<usize> {
     let rig_name = opts.rig.display();
-    let text = std::fs::read_to_string(&opts.rig)
-        .map_err(|e| anyhow::anyhow!("{rig_name}: cannot read: {e}"))?;
-    let file = RigFile::from_toml(&text)
-        .map_err(|e| anyhow::anyhow!("{rig_name}: {}", e.to_string().trim()))?;
-    let rig = Rig::from_file(&file).map_err(|e| anyhow::anyhow!("{rig_name}: {e}"))?;
-    let scale = unit_scale(&file.units).map_err(|e| anyhow::anyhow!("{rig_name}: {e}"))?;
+    let rig = Rig::load(&opts.rig)?;
+    let scale = rig.metres_per_unit();
     let cams = rig.cameras();
     let rows = csvin::read(&opts.points, &["point", "camera", "u", "v"])?;
     let pfile = opts.points.display();
@@ -74,7 +69,7 @@ pub fn run(
         writeln!(
             out,
             "{:<10} {:>12} {:>12} {:>12} {:>9}  cameras ({})",
-            "point", "X", "Y", "Z", "rms_px", file.units
+            "point", "X", "Y", "Z", "rms_px", rig.spec.units
         )?;
     }
     for (label, group) in labels.iter().zip(&groups) {

@@ -1,0 +1,425 @@
+//! The checks of a rig file that its types cannot express: names that become network keys,
+//! hosts that exist, sources whose files are there, and bounds on every number that sizes
+//! memory or time (image sizes, frames held in memory, rates, waits, grey levels, counts).
+//! Everything a service would refuse later is refused here, at load, so a mistake in the file
+//! stops `stereoscope run` at once instead of failing a service on every restart.
+
+use crate::error::{RigError, err};
+use crate::schema::{MotionSpec, RigFile, SourceSpec, SyntheticSpec};
+use std::collections::HashSet;
+use std::path::Path;
+use stereoscope_proto::names::valid_segment;
+
+/// Longest side of a camera image, pixels (the moment engine's limit).
+pub const MAX_SIDE_PX: u32 = stereoscope_vision::image::MAX_SIDE_PX;
+/// Most pixels of one camera image (32 MP: 64 MB a 16-bit frame in shared memory).
+pub const MAX_PIXELS: u64 = 32 * 1024 * 1024;
+/// Most bytes a synthetic camera's `loop_frames` may hold in memory.
+pub const MAX_LOOP_BYTES: u64 = 1 << 30;
+/// Frame rates a source may ask for, frames per second.
+pub const FPS_RANGE: (f64, f64) = (0.01, 10_000.0);
+/// Longest wait or timeout in `[fusion]`, milliseconds (one minute).
+pub const MAX_WAIT_MS: f64 = 60_000.0;
+/// Longest time fusion keeps an unseen object, seconds (one hour).
+pub const MAX_DROP_AFTER_S: f64 = 3_600.0;
+/// Largest pixel tolerance in `[fusion]`.
+pub const MAX_TOLERANCE_PX: f64 = 10_000.0;
+/// Fastest serial line, baud.
+pub const MAX_BAUD: u32 = 4_000_000;
+/// Fastest replay, times the recorded pace.
+pub const MAX_REPLAY_SPEED: f64 = 1_000.0;
+
+fn in_range(key: &str, v: f64, lo: f64, hi: f64, what: &str) -> Result<(), RigError> {
+    if v.is_finite() && v >= lo && v <= hi {
+        Ok(())
+    } else {
+        Err(err(
+            key,
+            format!("{v} {what} must be between {lo} and {hi}"),
+        ))
+    }
+}
+
+fn positive_at_most(key: &str, v: f64, hi: f64, what: &str) -> Result<(), RigError> {
+    if v.is_finite() && v > 0.0 && v <= hi {
+        Ok(())
+    } else {
+        Err(err(
+            key,
+            format!("{v} {what} must be above 0 and at most {hi}"),
+        ))
+    }
+}
+
+fn finite(key: &str, v: &[f64]) -> Result<(), RigError> {
+    if v.iter().all(|x| x.is_finite()) {
+        Ok(())
+    } else {
+        Err(err(key, format!("{v:?} must be finite numbers")))
+    }
+}
+
+fn segment(key: &str, v: &str, what: &str) -> Result<(), RigError> {
+    if valid_segment(v) {
+        Ok(())
+    } else {
+        Err(err(
+            key,
+            format!("{v:?} must be 1–32 characters of letters, digits, '_' or '-' ({what})"),
+        ))
+    }
+}
+
+/// A source file relative to the rig file's folder (`base`), or as given when absolute.
+pub fn resolve(base: Option<&Path>, p: &str) -> std::path::PathBuf {
+    let path = Path::new(p);
+    match base {
+        Some(b) if !path.is_absolute() && p != "-" => b.join(path),
+        _ => path.to_path_buf(),
+    }
+}
+
+fn readable_source(key: &str, path: &Path, folder_ok: bool) -> Result<(), RigError> {
+    let meta = std::fs::metadata(path).map_err(|e| err(key, format!("{}: {e}", path.display())))?;
+    if meta.is_dir() {
+        if !folder_ok {
+            return Err(err(
+                key,
+                format!("{} is a folder, not a file", path.display()),
+            ));
+        }
+        let images = std::fs::read_dir(path)
+            .map_err(|e| err(key, format!("{}: {e}", path.display())))?
+            .filter_map(|e| e.ok())
+            .any(|e| {
+                let p = e.path();
+                let ext = p
+                    .extension()
+                    .and_then(|x| x.to_str())
+                    .map(str::to_ascii_lowercase);
+                matches!(ext.as_deref(), Some("pgm" | "png"))
+            });
+        if !images {
+            return Err(err(
+                key,
+                format!("{} holds no .pgm or .png file", path.display()),
+            ));
+        }
+    } else if meta.is_file() {
+        // A FIFO (ffmpeg's pipe) is not opened here: that would block until its writer starts.
+        std::fs::File::open(path).map_err(|e| err(key, format!("{}: {e}", path.display())))?;
+    }
+    Ok(())
+}
+
+/// The brightest grey level a camera's source delivers: 255 for sources known to be 8-bit,
+/// 65535 for the others (PGM, PNG and Y4M files may hold either).
+pub(crate) fn max_level(source: Option<&SourceSpec>) -> u32 {
+    match bits_of(source) {
+        Some(8) => 255,
+        _ => 65535,
+    }
+}
+
+fn bits_of(source: Option<&SourceSpec>) -> Option<u32> {
+    match source {
+        Some(SourceSpec::Synthetic { bit_depth, .. }) => Some(bit_depth.unwrap_or(8)),
+        Some(SourceSpec::V4l {
+            format: Some(f), ..
+        }) => Some(f.bits()),
+        _ => None,
+    }
+}
+
+/// Checks everything of `file` but its cameras' optics (`cameras.rs`); `base` is the rig
+/// file's folder, where relative source paths start.
+pub(crate) fn check(file: &RigFile, base: Option<&Path>, sources: bool) -> Result<(), RigError> {
+    segment("name", &file.name, "it is part of network keys")?;
+    let mut seen = HashSet::new();
+    for (i, h) in file.hosts.iter().enumerate() {
+        segment(
+            &format!("host[{i}].name"),
+            &h.name,
+            "it is part of network keys",
+        )?;
+        if !seen.insert(h.name.as_str()) {
+            return Err(err(
+                format!("host[{i}].name"),
+                format!("{:?} appears twice", h.name),
+            ));
+        }
+        for (j, e) in h.zenoh_listen.iter().chain(&h.zenoh_connect).enumerate() {
+            if !e.contains('/') {
+                return Err(err(
+                    format!("host[{i}] zenoh endpoint {j}"),
+                    format!("{e:?} is not of the form tcp/ADDRESS:PORT"),
+                ));
+            }
+        }
+        if let Some(p) = &h.iceoryx2_prefix
+            && (p.is_empty()
+                || p.len() > 32
+                || !p
+                    .bytes()
+                    .all(|b| b.is_ascii_alphanumeric() || b == b'_' || b == b'-'))
+        {
+            return Err(err(
+                format!("host[{i}].iceoryx2_prefix"),
+                format!("{p:?} must be 1–32 characters of letters, digits, '_' or '-'"),
+            ));
+        }
+    }
+    let known_host = |key: String, h: &Option<String>| -> Result<(), RigError> {
+        match h {
+            Some(h) if !file.hosts.iter().any(|x| &x.name == h) => Err(err(
+                key,
+                format!(
+                    "{h:?} is not a [[host]] of this rig (hosts: {:?})",
+                    file.hosts.iter().map(|h| &h.name).collect::<Vec<_>>()
+                ),
+            )),
+            None if file.hosts.len() > 1 => Err(err(
+                key,
+                "missing; with several [[host]] sections every camera, [fusion] and [[serial]] must name its host",
+            )),
+            _ => Ok(()),
+        }
+    };
+    let mut ids = HashSet::new();
+    let mut devices = HashSet::new();
+    for (i, c) in file.cameras.iter().enumerate() {
+        let key = format!("camera[{i}]");
+        segment(&format!("{key}.id"), &c.id, "it is part of network keys")?;
+        if !ids.insert(c.id.as_str()) {
+            return Err(err(
+                format!("{key}.id"),
+                format!("{:?} appears twice", c.id),
+            ));
+        }
+        known_host(format!("{key}.host"), &c.host)?;
+        let [w, h] = c.image_size;
+        if w == 0
+            || h == 0
+            || w > MAX_SIDE_PX
+            || h > MAX_SIDE_PX
+            || w as u64 * h as u64 > MAX_PIXELS
+        {
+            return Err(err(
+                format!("{key}.image_size"),
+                format!(
+                    "[{w}, {h}]: each side must be 1 to {MAX_SIDE_PX} pixels and the image at most {MAX_PIXELS} pixels"
+                ),
+            ));
+        }
+        let fps_key = format!("{key}.source.fps");
+        match &c.source {
+            Some(SourceSpec::Synthetic {
+                fps,
+                loop_frames,
+                bit_depth,
+            }) => {
+                in_range(
+                    &fps_key,
+                    *fps,
+                    FPS_RANGE.0,
+                    FPS_RANGE.1,
+                    "frames per second",
+                )?;
+                if file.synthetic.is_none() {
+                    return Err(err(
+                        format!("{key}.source"),
+                        "a synthetic camera needs a [synthetic] scene",
+                    ));
+                }
+                if let Some(b) = bit_depth
+                    && *b != 8
+                    && *b != 16
+                {
+                    return Err(err(
+                        format!("{key}.source.bit_depth"),
+                        format!("{b} is not 8 or 16"),
+                    ));
+                }
+                if let Some(n) = loop_frames {
+                    let bytes =
+                        *n as u64 * w as u64 * h as u64 * (bit_depth.unwrap_or(8) / 8) as u64;
+                    if *n == 0 || bytes > MAX_LOOP_BYTES {
+                        return Err(err(
+                            format!("{key}.source.loop_frames"),
+                            format!(
+                                "{n} must be at least 1, and hold at most {} MiB of frames ({} MiB asked)",
+                                MAX_LOOP_BYTES >> 20,
+                                bytes >> 20
+                            ),
+                        ));
+                    }
+                }
+            }
+            Some(SourceSpec::Images { fps, path, .. }) => {
+                in_range(
+                    &fps_key,
+                    *fps,
+                    FPS_RANGE.0,
+                    FPS_RANGE.1,
+                    "frames per second",
+                )?;
+                if sources {
+                    readable_source(&format!("{key}.source.path"), &resolve(base, path), true)?;
+                }
+            }
+            Some(SourceSpec::Y4m {
+                path, replay_clock, ..
+            }) => {
+                if sources && path != "-" {
+                    readable_source(&format!("{key}.source.path"), &resolve(base, path), false)?;
+                }
+                if let Some(c) = replay_clock {
+                    positive_at_most(
+                        &format!("{key}.source.replay_clock.speed"),
+                        c.speed,
+                        MAX_REPLAY_SPEED,
+                        "times the recorded pace",
+                    )?;
+                }
+            }
+            Some(SourceSpec::V4l { fps, device, .. }) => {
+                if let Some(f) = fps {
+                    in_range(&fps_key, *f, FPS_RANGE.0, FPS_RANGE.1, "frames per second")?;
+                }
+                if !devices.insert((c.host.as_deref(), device.as_str())) {
+                    return Err(err(
+                        format!("{key}.source.device"),
+                        format!("{device:?} is already another camera's on this host"),
+                    ));
+                }
+            }
+            None => {}
+        }
+    }
+    if let Some(f) = &file.fusion {
+        known_host("fusion.host".into(), &f.host)?;
+        for (k, v, hi, what) in [
+            ("max_skew_ms", f.max_skew_ms, MAX_WAIT_MS, "ms"),
+            ("max_wait_ms", f.max_wait_ms, MAX_WAIT_MS, "ms"),
+            ("camera_timeout_ms", f.camera_timeout_ms, MAX_WAIT_MS, "ms"),
+            (
+                "max_epipolar_px",
+                f.max_epipolar_px,
+                MAX_TOLERANCE_PX,
+                "pixels",
+            ),
+            (
+                "max_residual_px",
+                f.max_residual_px,
+                MAX_TOLERANCE_PX,
+                "pixels",
+            ),
+            ("drop_after_s", f.drop_after_s, MAX_DROP_AFTER_S, "s"),
+            // 1 km in metres, in the file's unit.
+            (
+                "association_gate",
+                f.association_gate,
+                1000.0 / file.units.metres(),
+                file.units.symbol(),
+            ),
+        ] {
+            if let Some(v) = v {
+                positive_at_most(&format!("fusion.{k}"), v, hi, what)?;
+            }
+        }
+    }
+    let mut ports = HashSet::new();
+    for (i, s) in file.serial.iter().enumerate() {
+        known_host(format!("serial[{i}].host"), &s.host)?;
+        if let Some(b) = s.baud
+            && !(1..=MAX_BAUD).contains(&b)
+        {
+            return Err(err(
+                format!("serial[{i}].baud"),
+                format!("{b} is not between 1 and {MAX_BAUD}"),
+            ));
+        }
+        if !ports.insert((s.host.as_deref(), s.port.as_str())) {
+            return Err(err(
+                format!("serial[{i}].port"),
+                format!(
+                    "{:?} is already another [[serial]] output's on this host",
+                    s.port
+                ),
+            ));
+        }
+    }
+    if let Some(s) = &file.synthetic {
+        check_synthetic(s)?;
+    }
+    Ok(())
+}
+
+fn check_synthetic(s: &SyntheticSpec) -> Result<(), RigError> {
+    for (k, v, hi) in [
+        ("noise_sigma", s.noise_sigma, 1000.0),
+        ("blur_sigma_px", s.blur_sigma_px, 100.0),
+        ("background", s.background, 65535.0),
+    ] {
+        if let Some(v) = v {
+            in_range(&format!("synthetic.{k}"), v, 0.0, hi, "")?;
+        }
+    }
+    if let Some(n) = s.samples
+        && !(1..=16).contains(&n)
+    {
+        return Err(err(
+            "synthetic.samples",
+            format!("{n} is not between 1 and 16"),
+        ));
+    }
+    for (i, t) in s.targets.iter().enumerate() {
+        let key = format!("synthetic.target[{i}]");
+        positive_at_most(&format!("{key}.radius"), t.radius, 1e6, "")?;
+        if let Some(c) = t.contrast {
+            in_range(
+                &format!("{key}.contrast"),
+                c,
+                -65535.0,
+                65535.0,
+                "grey levels",
+            )?;
+        }
+        let mkey = format!("{key}.motion");
+        match &t.motion {
+            MotionSpec::Static {
+                position,
+                heading_deg,
+            } => {
+                finite(&format!("{mkey}.position"), position)?;
+                finite(&format!("{mkey}.heading_deg"), &[*heading_deg])?;
+            }
+            MotionSpec::Line { from, to, period_s } => {
+                finite(&format!("{mkey}.from"), from)?;
+                finite(&format!("{mkey}.to"), to)?;
+                positive_at_most(&format!("{mkey}.period_s"), *period_s, 1e6, "s")?;
+            }
+            MotionSpec::Circle {
+                centre,
+                radius,
+                period_s,
+            } => {
+                finite(&format!("{mkey}.centre"), centre)?;
+                finite(&format!("{mkey}.radius"), &[*radius])?;
+                positive_at_most(&format!("{mkey}.period_s"), *period_s, 1e6, "s")?;
+            }
+            MotionSpec::Spin {
+                position,
+                deg_per_s,
+            } => {
+                finite(&format!("{mkey}.position"), position)?;
+                finite(&format!("{mkey}.deg_per_s"), &[*deg_per_s])?;
+            }
+            MotionSpec::Wander { centre, extent, .. } => {
+                finite(&format!("{mkey}.centre"), centre)?;
+                finite(&format!("{mkey}.extent"), extent)?;
+            }
+        }
+    }
+    Ok(())
+}

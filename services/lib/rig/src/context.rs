@@ -1,0 +1,211 @@
+//! What every service is started with: the rig, which PC it is on, its iceoryx2 prefix and how
+//! it joins Zenoh — the same flags for every service binary, checked the same way.
+
+use crate::schema::HostSpec;
+use crate::{Rig, RigError, RigErrorKind};
+use std::path::PathBuf;
+use stereoscope_transport::net::{ZenohMode, ZenohSpec};
+
+/// Default iceoryx2 file prefix.
+pub const DEFAULT_IOX_PREFIX: &str = "stsc_";
+
+/// The flags every service binary takes.
+#[derive(Debug, Clone, clap::Args)]
+pub struct CommonArgs {
+    /// The rig file.
+    #[arg(long)]
+    pub rig: PathBuf,
+    /// This PC's name in the rig file's `[[host]]` list (the only one if omitted).
+    #[arg(long)]
+    pub host: Option<String>,
+    /// Prefix of iceoryx2's files (default: the host's `iceoryx2_prefix`, else "stsc_").
+    #[arg(long)]
+    pub iox_prefix: Option<String>,
+    /// client, peer or router (default: client of this host's router, or a peer with no
+    /// endpoints when the rig lists no hosts).
+    #[arg(long)]
+    pub zenoh_mode: Option<String>,
+    #[arg(long)]
+    pub zenoh_connect: Vec<String>,
+    #[arg(long)]
+    pub zenoh_listen: Vec<String>,
+}
+
+/// A service's resolved start-up context.
+#[derive(Debug, Clone)]
+pub struct Context {
+    pub rig_path: PathBuf,
+    pub rig: Rig,
+    pub host: String,
+    pub iox_prefix: String,
+    pub zenoh: ZenohSpec,
+}
+
+impl CommonArgs {
+    /// Loads the rig and resolves host, prefix and Zenoh endpoints.
+    pub fn resolve(&self) -> Result<Context, RigError> {
+        let rig = Rig::load(&self.rig)?;
+        let args = |key: &str, message: String| RigError {
+            kind: RigErrorKind::Arguments,
+            file: Some(self.rig.clone()),
+            key: key.to_string(),
+            message,
+        };
+        let host = match (&self.host, rig.spec.hosts.as_slice()) {
+            (Some(h), []) if h == "local" => h.clone(),
+            (Some(h), []) => {
+                return Err(args(
+                    "--host",
+                    format!(
+                        "{h:?}: the rig has no [[host]] sections, so every service is this PC's (omit --host)"
+                    ),
+                ));
+            }
+            (Some(h), hosts) if hosts.iter().any(|x| &x.name == h) => h.clone(),
+            (Some(h), hosts) => {
+                return Err(args(
+                    "--host",
+                    format!(
+                        "{h:?} is not a [[host]] of the rig (hosts: {:?})",
+                        hosts.iter().map(|h| &h.name).collect::<Vec<_>>()
+                    ),
+                ));
+            }
+            (None, [one]) => one.name.clone(),
+            (None, []) => "local".to_string(),
+            (None, _) => {
+                return Err(args(
+                    "--host",
+                    "missing: the rig has several [[host]] sections; say which this PC is".into(),
+                ));
+            }
+        };
+        let host_spec = rig.spec.hosts.iter().find(|h| h.name == host).cloned();
+        let iox_prefix = self
+            .iox_prefix
+            .clone()
+            .or_else(|| host_spec.as_ref().and_then(|h| h.iceoryx2_prefix.clone()))
+            .unwrap_or_else(|| DEFAULT_IOX_PREFIX.to_string());
+        let zenoh = match &self.zenoh_mode {
+            Some(m) => ZenohSpec {
+                mode: ZenohMode::parse(m).map_err(|e| args("--zenoh-mode", e.to_string()))?,
+                connect: self.zenoh_connect.clone(),
+                listen: self.zenoh_listen.clone(),
+            },
+            None if !self.zenoh_connect.is_empty() || !self.zenoh_listen.is_empty() => ZenohSpec {
+                mode: ZenohMode::Peer,
+                connect: self.zenoh_connect.clone(),
+                listen: self.zenoh_listen.clone(),
+            },
+            None => default_zenoh(host_spec.as_ref()),
+        };
+        Ok(Context {
+            rig_path: self.rig.clone(),
+            rig,
+            host,
+            iox_prefix,
+            zenoh,
+        })
+    }
+}
+
+/// A client of the host's router (its first listen endpoint, seen from this PC), or a lone
+/// peer when the rig says nothing.
+pub fn default_zenoh(host: Option<&HostSpec>) -> ZenohSpec {
+    match host.and_then(|h| h.zenoh_listen.first()) {
+        Some(e) => ZenohSpec::client_of(&local_endpoint(e)),
+        None => ZenohSpec {
+            mode: ZenohMode::Peer,
+            connect: Vec::new(),
+            listen: Vec::new(),
+        },
+    }
+}
+
+/// A listen endpoint as a client on the same PC reaches it: any-address becomes loopback.
+pub fn local_endpoint(listen: &str) -> String {
+    listen
+        .replace("/0.0.0.0:", "/127.0.0.1:")
+        .replace("/[::]:", "/[::1]:")
+}
+
+impl Context {
+    /// The camera ids whose services run on this host.
+    pub fn cameras_here(&self) -> Vec<String> {
+        self.rig
+            .spec
+            .cameras
+            .iter()
+            .filter(|c| c.host.as_deref().is_none_or(|h| h == self.host))
+            .map(|c| c.id.clone())
+            .collect()
+    }
+
+    pub fn fusion_here(&self) -> bool {
+        self.rig
+            .spec
+            .fusion
+            .as_ref()
+            .and_then(|f| f.host.as_deref())
+            .is_none_or(|h| h == self.host)
+    }
+
+    /// The common flags that reproduce this context for a child service joining Zenoh as
+    /// `zenoh` says.
+    pub fn to_args(&self, zenoh: &ZenohSpec) -> Vec<String> {
+        let mut a = vec![
+            "--rig".to_string(),
+            self.rig_path.display().to_string(),
+            "--host".into(),
+            self.host.clone(),
+            "--iox-prefix".into(),
+            self.iox_prefix.clone(),
+        ];
+        a.extend(zenoh.to_args());
+        a
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const RIG: &str = include_str!("../../../../deploy/rigs/thesis-lab.toml");
+
+    fn key_of(text: &str) -> String {
+        Rig::from_toml(text).unwrap_err().key
+    }
+
+    #[test]
+    fn thesis_lab_passes_and_bad_deployments_are_named() {
+        Rig::from_toml(RIG).unwrap();
+        let with_host =
+            format!("{RIG}\n[[host]]\nname = \"pc1\"\nzenoh_listen = [\"tcp/0.0.0.0:7447\"]\n");
+        let rig = Rig::from_toml(&with_host).unwrap();
+        assert_eq!(
+            default_zenoh(rig.spec.hosts.first()).connect,
+            vec!["tcp/127.0.0.1:7447".to_string()]
+        );
+        let bad = format!("{RIG}\n[fusion]\nhost = \"pc9\"\n");
+        let e = Rig::from_toml(&bad).unwrap_err();
+        assert!(e.key == "fusion.host" && e.message.contains("pc9"), "{e}");
+        let bad = RIG.replacen("id = \"cam1\"", "id = \"cam/1\"", 1);
+        assert_eq!(key_of(&bad), "camera[1].id");
+        let bad = RIG.replacen(
+            "id = \"cam1\"",
+            "id = \"cam1\"\nsource = { kind = \"synthetic\", fps = 0.0 }",
+            1,
+        );
+        assert_eq!(key_of(&bad), "camera[1].source.fps");
+        let bad = RIG.replacen(
+            "id = \"cam1\"",
+            "id = \"cam1\"\nsource = { kind = \"webcam\" }",
+            1,
+        );
+        let e = Rig::from_toml(&bad).unwrap_err();
+        assert!(
+            e.kind == RigErrorKind::Syntax && e.message.contains("webcam"),
+            "{e}"
+        );
+    }
+}

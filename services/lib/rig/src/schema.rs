@@ -1,0 +1,622 @@
+//! The rig file's schema: one TOML file describing a rig's cameras, PCs and services, read once
+//! by [`crate::Rig::load`]. Unknown keys are rejected and every closed set of words is an enum,
+//! so a misspelt value is named by serde with the words it accepts. The checks of values that
+//! the types cannot express are in `check.rs`. Every key is documented in `docs/rig.md`, with
+//! the thesis's lab as a worked example.
+
+use serde::{Deserialize, Serialize};
+pub use stereoscope_proto::serial::SerialMode;
+
+/// The length unit of every position, translation and depth in a rig file.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub enum Units {
+    #[serde(rename = "m")]
+    Metres,
+    #[serde(rename = "cm")]
+    Centimetres,
+    #[serde(rename = "mm")]
+    Millimetres,
+}
+
+impl Units {
+    /// Metres per unit.
+    pub fn metres(self) -> f64 {
+        match self {
+            Units::Metres => 1.0,
+            Units::Centimetres => 0.01,
+            Units::Millimetres => 0.001,
+        }
+    }
+
+    /// The unit's symbol, as the file spells it.
+    pub fn symbol(self) -> &'static str {
+        match self {
+            Units::Metres => "m",
+            Units::Centimetres => "cm",
+            Units::Millimetres => "mm",
+        }
+    }
+}
+
+impl std::fmt::Display for Units {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.symbol())
+    }
+}
+
+/// A word that is not one of [`Units`].
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("{0:?} is not a unit: use m, cm or mm")]
+pub struct UnknownUnit(pub String);
+
+impl std::str::FromStr for Units {
+    type Err = UnknownUnit;
+    fn from_str(s: &str) -> Result<Self, UnknownUnit> {
+        match s {
+            "m" => Ok(Units::Metres),
+            "cm" => Ok(Units::Centimetres),
+            "mm" => Ok(Units::Millimetres),
+            o => Err(UnknownUnit(o.to_string())),
+        }
+    }
+}
+
+/// A V4L2 pixel format the capture service reads.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "UPPERCASE")]
+pub enum V4lFormat {
+    /// 8-bit grey.
+    Grey,
+    /// 16-bit grey.
+    Y16,
+    /// 4:2:2 colour, the luma read.
+    Yuyv,
+    /// Motion JPEG, decoded to grey.
+    Mjpg,
+}
+
+impl V4lFormat {
+    /// The four-character code.
+    pub fn fourcc(self) -> &'static str {
+        match self {
+            V4lFormat::Grey => "GREY",
+            V4lFormat::Y16 => "Y16 ",
+            V4lFormat::Yuyv => "YUYV",
+            V4lFormat::Mjpg => "MJPG",
+        }
+    }
+
+    pub fn bits(self) -> u32 {
+        if self == V4lFormat::Y16 { 16 } else { 8 }
+    }
+}
+
+/// An automatic threshold method.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ThresholdMethodSpec {
+    /// Halfway from the histogram's background knee to the targets.
+    Auto,
+    Otsu,
+    Triangle,
+}
+
+/// How a blob's centroid is weighted.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum WeightingSpec {
+    /// Every foreground pixel counts 1 (the thesis's binary moments).
+    Binary,
+    /// Each pixel by its grey level above the background.
+    Intensity,
+    /// Each pixel by its estimated coverage of the target (the default).
+    #[default]
+    Coverage,
+}
+
+/// How fusion receives a camera's observations.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ObservationRoute {
+    /// iceoryx2 for cameras on fusion's host, Zenoh for the others.
+    #[default]
+    Auto,
+    /// Every camera over the network.
+    Zenoh,
+}
+
+/// A synthetic target's shape.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum TargetShape {
+    Sphere,
+    /// The thesis's two glued ping-pong balls.
+    DoubleSphere,
+    /// A flat disc facing up.
+    Disc,
+}
+
+/// The form of a single-camera depth-from-area model (thesis Eq. 4.15–4.27).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum AreaModelKind {
+    /// `AREA = a / (D + b)²`.
+    TwoParameter,
+    /// `AREA = a / (D² + b·D + c)`.
+    ThreeParameter,
+}
+
+/// A whole rig file.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RigFile {
+    /// A name for the rig (used in network keys later).
+    pub name: String,
+    /// The length unit of every position, translation and depth in the file: "m", "cm" or "mm".
+    pub units: Units,
+    #[serde(rename = "camera", default)]
+    pub cameras: Vec<CameraSpec>,
+    /// The PCs of the rig and how their services reach each other (`docs/deploy.md`).
+    #[serde(rename = "host", default, skip_serializing_if = "Vec::is_empty")]
+    pub hosts: Vec<HostSpec>,
+    /// The fusion service's settings and host.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub fusion: Option<FusionSpec>,
+    /// The scene synthetic cameras render.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub synthetic: Option<SyntheticSpec>,
+    /// Serial-link outputs.
+    #[serde(rename = "serial", default, skip_serializing_if = "Vec::is_empty")]
+    pub serial: Vec<SerialSpec>,
+}
+
+/// A serial-link output (`docs/services.md`, "serial").
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SerialSpec {
+    /// The PC the port is on.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub host: Option<String>,
+    /// The device, e.g. "/dev/ttyUSB0".
+    pub port: String,
+    /// Line speed, 8N1 (default 9600, the thesis's).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub baud: Option<u32>,
+    /// "legacy" (the thesis's packet, one object) or "framed" (default).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub mode: Option<SerialMode>,
+    /// Object ids to send; every object if absent (legacy: the lowest id).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub objects: Vec<u32>,
+}
+
+/// One PC of a rig.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct HostSpec {
+    pub name: String,
+    /// Zenoh endpoints the launcher's router on this PC listens on (`tcp/192.168.1.10:7447`).
+    #[serde(default)]
+    pub zenoh_listen: Vec<String>,
+    /// Zenoh endpoints of other PCs' routers this PC connects to.
+    #[serde(default)]
+    pub zenoh_connect: Vec<String>,
+    /// Prefix of this PC's iceoryx2 files (two rigs on one PC need different prefixes).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub iceoryx2_prefix: Option<String>,
+}
+
+/// Where a camera's frames come from.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
+pub enum SourceSpec {
+    /// The rig's `[synthetic]` scene rendered through this camera.
+    Synthetic {
+        fps: f64,
+        /// Render this many frames once and repeat them (for benchmarks at rates the renderer
+        /// cannot reach live); absent renders every frame.
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        loop_frames: Option<u32>,
+        /// 8 (default) or 16.
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        bit_depth: Option<u32>,
+    },
+    /// A V4L2 camera (`--features v4l`).
+    V4l {
+        device: String,
+        /// "GREY", "Y16", "YUYV" or "MJPG"; the first the camera offers if absent.
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        format: Option<V4lFormat>,
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        fps: Option<f64>,
+        /// Exposure time, 100 µs units (V4L2's `exposure_time_absolute`).
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        exposure: Option<i64>,
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        gain: Option<i64>,
+    },
+    /// A YUV4MPEG2 file or pipe (a FIFO that `ffmpeg … -f yuv4mpegpipe` writes).
+    Y4m {
+        path: String,
+        /// Pace frames at the file's frame rate (default) or read as fast as the worker takes
+        /// them.
+        #[serde(default = "yes")]
+        realtime: bool,
+        /// Start again at the end (files only).
+        #[serde(default)]
+        repeat: bool,
+        /// Replay recorded frames (their `Xts` times) at their recorded pace, every camera on
+        /// one clock (what `stereoscope replay --frames` writes; `realtime` is then ignored).
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        replay_clock: Option<ReplayClock>,
+    },
+    /// A sequence of PGM or PNG files, in name order.
+    Images {
+        /// A folder (every `.pgm`/`.png` in it) or one file.
+        path: String,
+        fps: f64,
+        #[serde(default = "yes")]
+        realtime: bool,
+        #[serde(default)]
+        repeat: bool,
+    },
+}
+
+/// A frame recorded at `recorded_ns + d` is published at wall-clock time `wall_ns + d / speed`.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ReplayClock {
+    pub recorded_ns: u64,
+    pub wall_ns: u64,
+    /// 1 = the recorded pace (default); 2 = twice as fast.
+    #[serde(default = "one", skip_serializing_if = "is_one")]
+    pub speed: f64,
+}
+
+fn one() -> f64 {
+    1.0
+}
+
+fn is_one(v: &f64) -> bool {
+    *v == 1.0
+}
+
+fn yes() -> bool {
+    true
+}
+
+/// A camera's moment worker.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Default)]
+#[serde(deny_unknown_fields)]
+pub struct MomentsSpec {
+    /// "auto" (default), "otsu", "triangle", or a grey level.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub threshold: Option<ThresholdSpec>,
+    /// Threshold each tracking window from its own histogram with this method.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub window_threshold: Option<ThresholdMethodSpec>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub max_objects: Option<usize>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub min_area_px: Option<u64>,
+    /// 4 or 8 (default).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub connectivity: Option<u8>,
+    /// "binary", "intensity" or "coverage" (default): how centroids are weighted.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub weighting: Option<WeightingSpec>,
+    /// Grey level of a fully covered target pixel for "coverage" (default: the threshold's
+    /// distance above the background, doubled).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub full_level: Option<u32>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub search_every_frames: Option<u32>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub min_half_width_px: Option<u32>,
+    /// Frames between fresh automatic thresholds (default 30).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub threshold_every_frames: Option<u32>,
+}
+
+/// A threshold: a method name or a grey level.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+#[serde(untagged)]
+pub enum ThresholdSpec {
+    Level(u32),
+    Method(ThresholdMethodSpec),
+}
+
+impl<'de> Deserialize<'de> for ThresholdSpec {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        struct V;
+        impl serde::de::Visitor<'_> for V {
+            type Value = ThresholdSpec;
+            fn expecting(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+                f.write_str("\"auto\", \"otsu\", \"triangle\" or a grey level")
+            }
+            fn visit_i64<E: serde::de::Error>(self, v: i64) -> Result<ThresholdSpec, E> {
+                u32::try_from(v)
+                    .map(ThresholdSpec::Level)
+                    .map_err(|_| E::custom(format!("{v} is not a grey level (0 to 65535)")))
+            }
+            fn visit_u64<E: serde::de::Error>(self, v: u64) -> Result<ThresholdSpec, E> {
+                u32::try_from(v)
+                    .map(ThresholdSpec::Level)
+                    .map_err(|_| E::custom(format!("{v} is not a grey level (0 to 65535)")))
+            }
+            fn visit_str<E: serde::de::Error>(self, v: &str) -> Result<ThresholdSpec, E> {
+                match v {
+                    "auto" => Ok(ThresholdSpec::Method(ThresholdMethodSpec::Auto)),
+                    "otsu" => Ok(ThresholdSpec::Method(ThresholdMethodSpec::Otsu)),
+                    "triangle" => Ok(ThresholdSpec::Method(ThresholdMethodSpec::Triangle)),
+                    o => Err(E::custom(format!(
+                        "{o:?} is not auto, otsu, triangle or a grey level"
+                    ))),
+                }
+            }
+        }
+        d.deserialize_any(V)
+    }
+}
+
+/// Fusion's settings.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Default)]
+#[serde(deny_unknown_fields)]
+pub struct FusionSpec {
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub host: Option<String>,
+    /// Frames of different cameras within this of each other form one set (default 5 ms).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub max_skew_ms: Option<f64>,
+    /// How long to wait for a live camera's frame before fusing without it (default 20 ms).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub max_wait_ms: Option<f64>,
+    /// A camera silent this long counts as gone until it is heard again (default 500 ms).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub camera_timeout_ms: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub max_epipolar_px: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub max_residual_px: Option<f64>,
+    /// Largest distance from an object's prediction for a point to continue it, file unit
+    /// (default 0.1 m).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub association_gate: Option<f64>,
+    /// An object unseen this long is dropped (default 1 s).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub drop_after_s: Option<f64>,
+    /// "auto" (default: iceoryx2 for cameras on fusion's host, Zenoh for the others),
+    /// "zenoh" (every camera over the network).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub observations: Option<ObservationRoute>,
+}
+
+/// The scene synthetic cameras render (lengths in the file's unit).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Default)]
+#[serde(deny_unknown_fields)]
+pub struct SyntheticSpec {
+    #[serde(default)]
+    pub seed: u64,
+    /// Read noise, grey levels (default 2).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub noise_sigma: Option<f64>,
+    /// Defocus blur, pixels (default 0.6).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub blur_sigma_px: Option<f64>,
+    /// Background grey level (default 20).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub background: Option<f64>,
+    /// Supersampling per axis near targets (default 3).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub samples: Option<u32>,
+    #[serde(rename = "target", default)]
+    pub targets: Vec<SyntheticTarget>,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SyntheticTarget {
+    /// "sphere", "double_sphere" (the thesis's two glued balls) or "disc".
+    pub shape: TargetShape,
+    pub radius: f64,
+    /// Brightness above the background, grey levels (default 180).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub contrast: Option<f64>,
+    pub motion: MotionSpec,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
+pub enum MotionSpec {
+    Static {
+        position: [f64; 3],
+        #[serde(default)]
+        heading_deg: f64,
+    },
+    Line {
+        from: [f64; 3],
+        to: [f64; 3],
+        period_s: f64,
+    },
+    Circle {
+        centre: [f64; 3],
+        radius: f64,
+        period_s: f64,
+    },
+    Spin {
+        position: [f64; 3],
+        deg_per_s: f64,
+    },
+    Wander {
+        centre: [f64; 3],
+        extent: [f64; 3],
+        #[serde(default)]
+        seed: u64,
+    },
+}
+
+/// One camera.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CameraSpec {
+    /// Unique name of the camera.
+    pub id: String,
+    /// `[width, height]` in pixels.
+    pub image_size: [u32; 2],
+    /// Focal length in pixels along x (give `fx` and `fy`, or `focal_length_mm` and
+    /// `pixel_pitch_um`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub fx: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub fy: Option<f64>,
+    /// Lens focal length, millimetres.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub focal_length_mm: Option<f64>,
+    /// Pixel pitch `[width, height]`, micrometres (their ratio is the pixel aspect ratio).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub pixel_pitch_um: Option<[f64; 2]>,
+    /// Principal point `[cx, cy]` in pixels; the image centre if absent.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub principal_point: Option<[f64; 2]>,
+    /// Lens distortion; none if absent.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub distortion: Option<DistortionSpec>,
+    pub pose: PoseSpec,
+    /// Single-camera depth from blob area, if calibrated.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub depth_from_area: Option<DepthFromAreaSpec>,
+    /// The PC the camera is attached to (a `[[host]]` name); the only host if absent.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub host: Option<String>,
+    /// Where its frames come from; needed to run the rig.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub source: Option<SourceSpec>,
+    /// Its moment worker's settings.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub moments: Option<MomentsSpec>,
+}
+
+/// Brown–Conrady coefficients (OpenCV's k1 k2 p1 p2 k3); absent ones are zero.
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DistortionSpec {
+    #[serde(default)]
+    pub k1: f64,
+    #[serde(default)]
+    pub k2: f64,
+    #[serde(default)]
+    pub k3: f64,
+    #[serde(default)]
+    pub p1: f64,
+    #[serde(default)]
+    pub p2: f64,
+}
+
+/// Where the camera is: either `position`, `look_at` and `up` (the thesis's construction,
+/// §2.3.1), or `cam_from_world_rotation` and `cam_from_world_translation`. World coordinates
+/// in the file's unit.
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PoseSpec {
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub position: Option<[f64; 3]>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub look_at: Option<[f64; 3]>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub up: Option<[f64; 3]>,
+    /// Rows of the rotation taking world coordinates into camera coordinates.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub cam_from_world_rotation: Option<[[f64; 3]; 3]>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub cam_from_world_translation: Option<[f64; 3]>,
+}
+
+/// `AREA = a / (D² + b·D + c)` ("three_parameter") or `AREA = a / (D + b)²`
+/// ("two_parameter"), D the distance along the optical axis in the file's unit, AREA in pixels.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DepthFromAreaSpec {
+    pub model: AreaModelKind,
+    pub a: f64,
+    pub b: f64,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub c: Option<f64>,
+    /// The calibrated distance range `[near, far]`, file unit.
+    pub range: [f64; 2],
+}
+
+impl RigFile {
+    /// Parses a rig file's text, without the checks of [`crate::Rig`]. The error names the key
+    /// and line of the problem.
+    pub fn from_toml(text: &str) -> Result<Self, toml::de::Error> {
+        toml::from_str(text)
+    }
+
+    pub fn to_toml(&self) -> Result<String, toml::ser::Error> {
+        toml::to_string(self)
+    }
+}
+
+impl CameraSpec {
+    /// One camera as TOML (a `[[camera]]` table), e.g. for a calibration's output.
+    pub fn to_toml_table(&self) -> Result<String, toml::ser::Error> {
+        #[derive(Serialize)]
+        struct One<'a> {
+            camera: [&'a CameraSpec; 1],
+        }
+        toml::to_string(&One { camera: [self] })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const LAB: &str = r#"
+name = "lab"
+units = "cm"
+
+[[camera]]
+id = "cam0"
+image_size = [320, 240]
+focal_length_mm = 12.5
+pixel_pitch_um = [21.5, 25.0]
+pose = { position = [0.0, 0.0, 277.5], look_at = [0.0, 0.0, 0.0], up = [0.0, 1.0, 0.0] }
+
+[[camera]]
+id = "cam1"
+image_size = [320, 240]
+fx = 600.0
+fy = 520.0
+distortion = { k1 = -0.1 }
+pose = { cam_from_world_rotation = [[1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, -1.0]], cam_from_world_translation = [-20.0, 0.0, 280.0] }
+depth_from_area = { model = "three_parameter", a = 1.0e6, b = 0.0, c = -4.0, range = [75.0, 275.0] }
+"#;
+
+    #[test]
+    fn parses_and_round_trips() {
+        let rig = RigFile::from_toml(LAB).unwrap();
+        assert_eq!(rig.cameras.len(), 2);
+        assert_eq!(rig.cameras[1].distortion.unwrap().k1, -0.1);
+        let back = RigFile::from_toml(&rig.to_toml().unwrap()).unwrap();
+        assert_eq!(back, rig);
+        let one = rig.cameras[0].to_toml_table().unwrap();
+        assert!(one.contains("[[camera]]"), "{one}");
+    }
+
+    #[test]
+    fn unknown_and_missing_keys_are_named() {
+        let err = RigFile::from_toml(&LAB.replace("focal_length_mm", "focal_lenght_mm"))
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("focal_lenght_mm"), "{err}");
+        let err = RigFile::from_toml(&LAB.replace("units = \"cm\"\n", ""))
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("units"), "{err}");
+        let err = RigFile::from_toml(&LAB.replace("image_size = [320, 240]\nfx", "fx"))
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("image_size"), "{err}");
+    }
+}

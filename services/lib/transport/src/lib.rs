@@ -1,0 +1,94 @@
+//! How Stereoscope's services reach each other, in one place: iceoryx2 nodes and services under
+//! a per-PC prefix (with event-driven waiting), Zenoh sessions on chosen endpoints, health
+//! reports with liveliness, shutdown on SIGINT/SIGTERM, and logging.
+//!
+//! Names and sizes come from `stereoscope_proto::names`; nothing here knows what a frame or a
+//! pose means.
+
+pub mod health;
+pub mod iox;
+pub mod net;
+
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+
+pub use health::{Counters, HealthReporter};
+pub use net::{ZenohMode, ZenohSpec};
+
+/// A shared "please stop" flag: set by SIGINT/SIGTERM ([`Shutdown::on_signals`]) or by a
+/// caller ([`Shutdown::request`]); services poll it between bounded waits.
+#[derive(Debug, Clone, Default)]
+pub struct Shutdown(Arc<AtomicBool>);
+
+impl Shutdown {
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// A flag that SIGINT and SIGTERM set.
+    pub fn on_signals() -> std::io::Result<Self> {
+        let s = Self::new();
+        signal_hook::flag::register(signal_hook::consts::SIGINT, s.0.clone())?;
+        signal_hook::flag::register(signal_hook::consts::SIGTERM, s.0.clone())?;
+        Ok(s)
+    }
+
+    pub fn request(&self) {
+        self.0.store(true, Ordering::SeqCst);
+    }
+
+    pub fn requested(&self) -> bool {
+        self.0.load(Ordering::SeqCst)
+    }
+
+    /// Sleeps up to `d`, waking early (every 20 ms at most) when shutdown is requested; returns
+    /// whether it was.
+    pub fn sleep(&self, d: std::time::Duration) -> bool {
+        let end = std::time::Instant::now() + d;
+        loop {
+            if self.requested() {
+                return true;
+            }
+            let now = std::time::Instant::now();
+            if now >= end {
+                return false;
+            }
+            std::thread::sleep((end - now).min(std::time::Duration::from_millis(20)));
+        }
+    }
+}
+
+/// Logs to standard error through `tracing`, filtered by `RUST_LOG` (default `info`), every
+/// line tagged with the service name.
+pub fn init_logging(service: &str) {
+    use tracing_subscriber::EnvFilter;
+    // Our crates at info; the libraries (Zenoh's many crates, iceoryx2) only when they fail.
+    let ours = "stereoscope=info,stereoscope_capture=info,stereoscope_moments=info,\
+                stereoscope_fusion=info,stereoscope_launcher=info,stereoscope_transport=info";
+    let filter = EnvFilter::try_from_default_env()
+        .unwrap_or_else(|_| EnvFilter::new(format!("error,{ours}")));
+    let _ = tracing_subscriber::fmt()
+        .with_env_filter(filter)
+        .with_writer(std::io::stderr)
+        .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
+        .with_target(false)
+        .try_init();
+    // iceoryx2 prints its own warnings (e.g. "no config file was loaded") to stdout.
+    iceoryx2::prelude::set_log_level(iceoryx2::prelude::LogLevel::Error);
+    tracing::debug!(service, "logging started");
+}
+
+/// Errors of the transport layer, naming the service or endpoint concerned.
+#[derive(Debug, thiserror::Error)]
+pub enum TransportError {
+    #[error("iceoryx2 {what} {name:?}: {message}")]
+    Iox {
+        what: &'static str,
+        name: String,
+        message: String,
+    },
+    #[error("zenoh {what}: {message}")]
+    Zenoh { what: String, message: String },
+    #[error("{0}")]
+    Config(String),
+}

@@ -1,0 +1,1933 @@
+//! Blob extraction: every connected bright region of a frame, or of a set of windows, with its
+//! exact moments, in one pass over the pixels.
+//!
+//! Thesis: Eq. 3.33–3.40 / 4.1–4.9 (binary moments of a region of interest), extended from the
+//! thesis's one-object-per-window to every connected region (the thesis's code summed every
+//! bright pixel of a window into one object), and Eq. 3.1 for the optional grey-level weights.
+//!
+//! Method: each row is scanned for runs of foreground pixels (`pixel >= threshold`) 64 pixels
+//! at a time (SSE2 compares on `u8`), runs are joined to the touching runs of the row above
+//! through a union-find over provisional labels (no label image), and each run adds its moments
+//! in closed form (`RawMoments::add_run`) to its label's accumulator, so a blob's moments are
+//! complete when the scan ends — no second pass per blob.
+//!
+//! Windows: the union of the windows is scanned as one region, so a pixel covered by two
+//! overlapping windows is counted once and a blob spanning them is one blob. Where windows
+//! with different thresholds overlap, the lower threshold applies (the more inclusive one).
+//! A blob touching a window edge that is not the frame edge is flagged `CLIPPED`: it may
+//! continue outside the window.
+//!
+//! Parallel: with `threads > 1` the rows are cut into bands scanned on the rayon pool, and
+//! the blobs touching each cut are joined afterwards (moments are additive).
+//!
+//! Pixel conventions: `docs/conventions.md`.
+
+use crate::error::VisionError;
+use crate::image::{GrayView, Pixel, PixelRect};
+use crate::moments::{RawMoments, RunBlock, WeightedMoments};
+
+/// Which neighbours join two foreground pixels into one blob.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Connectivity {
+    /// Left, right, up, down.
+    Four,
+    /// The four plus the diagonals (default).
+    #[default]
+    Eight,
+}
+
+/// A region of interest with its own optional threshold (the thesis's `struct region`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Window {
+    pub rect: PixelRect,
+    /// `None`: the frame threshold passed to [`Extractor::extract`].
+    pub threshold: Option<u32>,
+}
+
+impl Window {
+    pub fn new(rect: PixelRect) -> Self {
+        Window {
+            rect,
+            threshold: None,
+        }
+    }
+}
+
+/// Blob flags (a bit set).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Hash)]
+pub struct BlobFlags(pub u8);
+
+impl BlobFlags {
+    /// The blob touches the frame border: part of the object may be outside the image.
+    pub const TOUCHES_BORDER: BlobFlags = BlobFlags(1);
+    /// The blob touches a window edge inside the frame: it may continue outside the window.
+    pub const CLIPPED: BlobFlags = BlobFlags(2);
+
+    pub fn contains(self, f: BlobFlags) -> bool {
+        self.0 & f.0 == f.0
+    }
+
+    pub fn insert(&mut self, f: BlobFlags) {
+        self.0 |= f.0;
+    }
+
+    /// Flag names, for output.
+    pub fn names(self) -> Vec<&'static str> {
+        let mut v = Vec::new();
+        if self.contains(Self::TOUCHES_BORDER) {
+            v.push("touches_border");
+        }
+        if self.contains(Self::CLIPPED) {
+            v.push("clipped");
+        }
+        v
+    }
+}
+
+/// One connected bright region.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Blob {
+    /// Exact binary moments in frame coordinates.
+    pub moments: RawMoments,
+    /// Bounding box, inclusive.
+    pub bbox: PixelRect,
+    pub flags: BlobFlags,
+    /// Grey-level moments (pixel − background), when enabled in [`ExtractConfig::weighting`].
+    pub weighted: Option<WeightedMoments>,
+    /// The blob's first pixel in raster order, `(y, x)`: blobs are listed in this order.
+    pub first_pixel: (u32, u32),
+}
+
+impl Blob {
+    pub fn area_px(&self) -> u64 {
+        self.moments.m00
+    }
+
+    /// Binary centroid (Eq. 3.36–3.37).
+    pub fn centroid_px(&self) -> (f64, f64) {
+        self.moments.centroid_px().unwrap_or((f64::NAN, f64::NAN))
+    }
+
+    /// Intensity-weighted centroid when weights were computed, else the binary one.
+    pub fn best_centroid_px(&self) -> (f64, f64) {
+        self.weighted
+            .and_then(|w| w.centroid_px())
+            .unwrap_or_else(|| self.centroid_px())
+    }
+
+    pub fn central(&self) -> crate::moments::CentralMoments {
+        self.moments.central()
+    }
+
+    /// Intensity-weighted central moments when weights were computed (sub-pixel edges), else
+    /// the binary ones.
+    pub fn best_central(&self) -> crate::moments::CentralMoments {
+        match self.weighted {
+            Some(w) if w.w00 > 0 => w.central(self.moments.m00),
+            _ => self.moments.central(),
+        }
+    }
+
+    /// Major-axis angle, degrees CCW on screen from the x axis, (−90, 90] (Eq. 3.44 corrected).
+    pub fn orientation_deg(&self, par: f64) -> f64 {
+        self.moments.central().orientation_deg(par)
+    }
+}
+
+/// Grey-level weighting of the moments.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Weighting {
+    /// Binary moments only (the thesis's choice).
+    #[default]
+    Binary,
+    /// Also grey-level moments with weight `pixel − background` over each blob's pixels.
+    /// `background` must be below every threshold used.
+    Intensity { background: u32 },
+    /// Also coverage moments: weight `min(pixel − background, full − background)`, i.e. each
+    /// pixel's estimated coverage by the target times `full − background`. Pixels at or above
+    /// `full` count as fully covered whatever their shading, edge pixels in proportion, so the
+    /// weighted centroid is the silhouette's with sub-pixel edges (no pull towards the lit side
+    /// of a ball) and `w00 / (full − background)` its area in pixels.
+    Coverage { background: u32, full: u32 },
+}
+
+impl Weighting {
+    /// `(background, largest weight)` when grey-level moments are computed.
+    fn levels(self) -> Option<(u32, u32)> {
+        match self {
+            Weighting::Binary => None,
+            Weighting::Intensity { background } => Some((background, u32::MAX)),
+            Weighting::Coverage { background, full } => {
+                Some((background, full.saturating_sub(background)))
+            }
+        }
+    }
+}
+
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ExtractConfig {
+    pub connectivity: Connectivity,
+    /// Blobs smaller than this are not reported (counted in `below_min_area`).
+    pub min_area_px: u64,
+    /// Output capacity. When more blobs qualify, the largest are kept and the rest counted in
+    /// `dropped_over_capacity`.
+    pub max_blobs: usize,
+    pub weighting: Weighting,
+    /// Threads to cut a frame over: 1 scans on the caller's thread; 0 uses every core.
+    pub threads: usize,
+}
+
+impl Default for ExtractConfig {
+    fn default() -> Self {
+        ExtractConfig {
+            connectivity: Connectivity::Eight,
+            min_area_px: 1,
+            max_blobs: 1024,
+            weighting: Weighting::Binary,
+            threads: 1,
+        }
+    }
+}
+
+/// What one extraction saw besides its blobs.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct ExtractStats {
+    /// Connected regions found, before the area filter and the capacity.
+    pub regions: usize,
+    pub below_min_area: usize,
+    pub dropped_over_capacity: usize,
+    /// Foreground runs.
+    pub runs: usize,
+    /// Pixels inside the scanned region.
+    pub pixels_scanned: u64,
+}
+
+// ---------------------------------------------------------------------------------------------
+// The region to scan: rows grouped into bands of identical horizontal segments.
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+struct Seg {
+    x0: u32,
+    x1: u32,
+    threshold: u32,
+    /// The pixel left of `x0` is inside the frame but outside the region.
+    open_left: bool,
+    /// The pixel right of `x1` is inside the frame but outside the region.
+    open_right: bool,
+}
+
+#[derive(Debug, Clone, Copy)]
+struct Band {
+    y0: u32,
+    /// Exclusive.
+    y1: u32,
+    segs: (usize, usize),
+    /// Row y0 − 1 is not fully covered where this band is (runs on row y0 need a check).
+    check_top: bool,
+    check_bottom: bool,
+}
+
+#[derive(Debug, Default, Clone)]
+struct Region {
+    bands: Vec<Band>,
+    segs: Vec<Seg>,
+    width: u32,
+    height: u32,
+    // Scratch for building.
+    ys: Vec<u32>,
+    xs: Vec<u32>,
+}
+
+fn covers(segs: &[Seg], x0: u32, x1: u32) -> bool {
+    let mut need = x0;
+    for s in segs {
+        if s.x1 < need {
+            continue;
+        }
+        if s.x0 > need {
+            return false;
+        }
+        need = s.x1 + 1;
+        if need > x1 {
+            return true;
+        }
+    }
+    false
+}
+
+fn check_threshold<P: Pixel>(threshold: u32) -> Result<u32, VisionError> {
+    if threshold > P::MAX_VALUE {
+        return Err(VisionError::ThresholdOutOfRange {
+            threshold,
+            bits: P::BITS,
+            max: P::MAX_VALUE,
+        });
+    }
+    Ok(threshold)
+}
+
+impl Region {
+    fn full(&mut self, width: u32, height: u32, threshold: u32) {
+        self.bands.clear();
+        self.segs.clear();
+        self.width = width;
+        self.height = height;
+        self.segs.push(Seg {
+            x0: 0,
+            x1: width - 1,
+            threshold,
+            open_left: false,
+            open_right: false,
+        });
+        self.bands.push(Band {
+            y0: 0,
+            y1: height,
+            segs: (0, 1),
+            check_top: false,
+            check_bottom: false,
+        });
+    }
+
+    /// The union of `windows`, clipped to the frame, as bands of segments.
+    fn set_windows<P: Pixel>(
+        &mut self,
+        windows: &[Window],
+        width: u32,
+        height: u32,
+        threshold: u32,
+    ) -> Result<(), VisionError> {
+        self.bands.clear();
+        self.segs.clear();
+        self.width = width;
+        self.height = height;
+        self.ys.clear();
+        for (index, w) in windows.iter().enumerate() {
+            let r = w.rect;
+            if r.x1 < r.x0 || r.y1 < r.y0 {
+                return Err(VisionError::EmptyWindow {
+                    index,
+                    x0: r.x0,
+                    y0: r.y0,
+                    x1: r.x1,
+                    y1: r.y1,
+                });
+            }
+            if r.x0 >= width || r.y0 >= height {
+                return Err(VisionError::WindowOutsideFrame {
+                    index,
+                    x0: r.x0,
+                    y0: r.y0,
+                    x1: r.x1,
+                    y1: r.y1,
+                    width,
+                    height,
+                });
+            }
+            if let Some(t) = w.threshold {
+                check_threshold::<P>(t)?;
+            }
+            self.ys.push(r.y0);
+            self.ys.push(r.y1.min(height - 1) + 1);
+        }
+        self.ys.sort_unstable();
+        self.ys.dedup();
+        for yi in 0..self.ys.len().saturating_sub(1) {
+            let (ya, yb) = (self.ys[yi], self.ys[yi + 1]);
+            // Elementary x intervals of the windows covering row ya.
+            self.xs.clear();
+            for w in windows {
+                let r = w.rect;
+                if r.y0 <= ya && r.y1 >= ya {
+                    self.xs.push(r.x0);
+                    self.xs.push(r.x1.min(width - 1) + 1);
+                }
+            }
+            if self.xs.is_empty() {
+                continue;
+            }
+            self.xs.sort_unstable();
+            self.xs.dedup();
+            let start = self.segs.len();
+            for xi in 0..self.xs.len() - 1 {
+                let (xa, xb) = (self.xs[xi], self.xs[xi + 1]);
+                let mut thr: Option<u32> = None;
+                for w in windows {
+                    let r = w.rect;
+                    if r.y0 <= ya && r.y1 >= ya && r.x0 <= xa && r.x1.min(width - 1) + 1 >= xb {
+                        let t = w.threshold.unwrap_or(threshold);
+                        thr = Some(thr.map_or(t, |u| u.min(t)));
+                    }
+                }
+                let Some(thr) = thr else { continue };
+                let in_band = self.segs.len() > start;
+                match self.segs.last_mut() {
+                    Some(last) if in_band && last.x1 + 1 == xa && last.threshold == thr => {
+                        last.x1 = xb - 1;
+                    }
+                    _ => self.segs.push(Seg {
+                        x0: xa,
+                        x1: xb - 1,
+                        threshold: thr,
+                        open_left: false,
+                        open_right: false,
+                    }),
+                }
+            }
+            let end = self.segs.len();
+            for i in start..end {
+                let contiguous_left = i > start && self.segs[i - 1].x1 + 1 == self.segs[i].x0;
+                let contiguous_right = i + 1 < end && self.segs[i].x1 + 1 == self.segs[i + 1].x0;
+                let s = &mut self.segs[i];
+                s.open_left = s.x0 > 0 && !contiguous_left;
+                s.open_right = s.x1 + 1 < width && !contiguous_right;
+            }
+            self.bands.push(Band {
+                y0: ya,
+                y1: yb,
+                segs: (start, end),
+                check_top: false,
+                check_bottom: false,
+            });
+        }
+        // A band's top row needs a per-run coverage check unless the band above ends right
+        // there and covers everything this band covers; likewise at the bottom.
+        for b in 0..self.bands.len() {
+            let band = self.bands[b];
+            let own = &self.segs[band.segs.0..band.segs.1];
+            let above_covers = b > 0 && {
+                let up = self.bands[b - 1];
+                up.y1 == band.y0
+                    && own
+                        .iter()
+                        .all(|s| covers(&self.segs[up.segs.0..up.segs.1], s.x0, s.x1))
+            };
+            let below_covers = b + 1 < self.bands.len() && {
+                let down = self.bands[b + 1];
+                down.y0 == band.y1
+                    && own
+                        .iter()
+                        .all(|s| covers(&self.segs[down.segs.0..down.segs.1], s.x0, s.x1))
+            };
+            self.bands[b].check_top = band.y0 > 0 && !above_covers;
+            self.bands[b].check_bottom = band.y1 < height && !below_covers;
+        }
+        Ok(())
+    }
+
+    fn rows(&self) -> (u32, u32) {
+        match (self.bands.first(), self.bands.last()) {
+            (Some(f), Some(l)) => (f.y0, l.y1),
+            _ => (0, 0),
+        }
+    }
+
+    fn pixel_count(&self) -> u64 {
+        self.bands
+            .iter()
+            .map(|b| {
+                let w: u64 = self.segs[b.segs.0..b.segs.1]
+                    .iter()
+                    .map(|s| (s.x1 - s.x0 + 1) as u64)
+                    .sum();
+                w * (b.y1 - b.y0) as u64
+            })
+            .sum()
+    }
+
+    /// Whether a run on row `y` of band `bi` may continue above or below the region.
+    fn vertically_clipped(&self, bi: usize, y: u32, x0: u32, x1: u32) -> bool {
+        let band = &self.bands[bi];
+        if band.check_top && y == band.y0 {
+            let covered = bi > 0 && {
+                let up = &self.bands[bi - 1];
+                up.y1 == y && covers(&self.segs[up.segs.0..up.segs.1], x0, x1)
+            };
+            if !covered {
+                return true;
+            }
+        }
+        if band.check_bottom && y + 1 == band.y1 {
+            let covered = bi + 1 < self.bands.len() && {
+                let down = &self.bands[bi + 1];
+                down.y0 == band.y1 && covers(&self.segs[down.segs.0..down.segs.1], x0, x1)
+            };
+            if !covered {
+                return true;
+            }
+        }
+        false
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
+// Scanning one band of rows.
+
+#[derive(Debug, Clone, Copy)]
+struct RunRef {
+    x0: u32,
+    x1: u32,
+    label: u32,
+}
+
+#[derive(Debug, Clone, Copy)]
+struct Acc {
+    m: RawMoments,
+    bbox: PixelRect,
+    first: (u32, u32),
+    flags: BlobFlags,
+}
+
+#[derive(Debug, Default)]
+struct Scratch {
+    prev: Vec<RunRef>,
+    cur: Vec<RunRef>,
+    parent: Vec<u32>,
+    acc: Vec<Acc>,
+    wacc: Vec<WeightedMoments>,
+    row_runs: Vec<(u32, u32, bool)>,
+    first_row: Vec<RunRef>,
+    first_row_y: Option<u32>,
+    last_row: Vec<RunRef>,
+    last_row_y: Option<u32>,
+    runs: usize,
+}
+
+#[inline]
+fn find(parent: &mut [u32], mut a: u32) -> u32 {
+    while parent[a as usize] != a {
+        let p = parent[a as usize];
+        parent[a as usize] = parent[p as usize];
+        a = p;
+    }
+    a
+}
+
+fn merge_acc(into: &mut Acc, from: &Acc) {
+    into.m.merge(&from.m);
+    into.bbox.x0 = into.bbox.x0.min(from.bbox.x0);
+    into.bbox.y0 = into.bbox.y0.min(from.bbox.y0);
+    into.bbox.x1 = into.bbox.x1.max(from.bbox.x1);
+    into.bbox.y1 = into.bbox.y1.max(from.bbox.y1);
+    into.first = into.first.min(from.first);
+    into.flags.0 |= from.flags.0;
+}
+
+// The narrow-window pixel tests (a tracking window's row is one 64-pixel chunk), in SSE2 (the
+// x86-64 baseline) or, when `AVX2` is set, with 256-bit vectors: two loads per row instead of
+// four. `AVX2 = true` is instantiated only inside `Scratch::scan_avx2`, which runs only after
+// the CPU was found to support AVX2 (`Extractor::new`) and is compiled with it enabled. Whole
+// rows (the full-frame pass) keep the 16-byte tests: with 256-bit ones the full pass measured
+// 20 % slower (docs/performance.md), every other 32-byte load of a row straddling a cache line.
+
+#[inline(always)]
+fn mask64<P: Pixel, const AVX2: bool>(chunk: &[P], threshold: u32) -> u64 {
+    if AVX2 {
+        // SAFETY: see above — AVX2 is present whenever this instantiation runs.
+        unsafe { P::foreground_mask64_avx2(chunk, threshold) }
+    } else {
+        P::foreground_mask64(chunk, threshold)
+    }
+}
+
+#[inline(always)]
+fn any64x4<P: Pixel, const AVX2: bool>(chunks: [&[P]; 4], threshold: u32) -> bool {
+    if AVX2 {
+        // SAFETY: as for `mask64`.
+        unsafe { P::any_foreground64x4_avx2(chunks, threshold) }
+    } else {
+        P::any_foreground64x4(chunks, threshold)
+    }
+}
+
+/// Whether any pixel of the row's segments is foreground: the quick test that lets empty rows
+/// (most rows of a tracking window) skip all bookkeeping.
+#[inline]
+fn row_has_foreground<P: Pixel>(row: &[P], segs: &[Seg]) -> bool {
+    for seg in segs {
+        let (mut x, end) = (seg.x0 as usize, seg.x1 as usize + 1);
+        while x + 64 <= end {
+            if P::any_foreground64(&row[x..x + 64], seg.threshold) {
+                return true;
+            }
+            x += 64;
+        }
+        if x < end {
+            let n = end - x;
+            let hit = if x + 64 <= row.len() {
+                let chunk = &row[x..x + 64];
+                P::any_foreground64(chunk, seg.threshold)
+                    && P::foreground_mask64(chunk, seg.threshold) & ((1u64 << n) - 1) != 0
+            } else {
+                row[x..end].iter().any(|p| p.value() >= seg.threshold)
+            };
+            if hit {
+                return true;
+            }
+        }
+    }
+    false
+}
+
+/// The first row in `y..y1` with a foreground pixel in `segs`, or `y1` (bands of whole rows
+/// or several segments; a narrow window's band is skipped four rows at a time in the scan).
+#[inline]
+fn next_nonempty_row<P: Pixel>(img: &GrayView<'_, P>, segs: &[Seg], mut y: u32, y1: u32) -> u32 {
+    while y < y1 && !row_has_foreground(img.row(y), segs) {
+        y += 1;
+    }
+    y
+}
+
+/// The runs of a segment read as one masked 64-pixel chunk (bit i = pixel `seg.x0 + i`).
+#[inline]
+fn runs_from_mask(mut mask: u64, seg: &Seg, out: &mut Vec<(u32, u32, bool)>) {
+    out.clear();
+    let n = seg.x1 - seg.x0 + 1;
+    while mask != 0 {
+        let start = mask.trailing_zeros();
+        let end = start + (!(mask >> start)).trailing_zeros(); // exclusive
+        let clipped = (start == 0 && seg.open_left) || (end == n && seg.open_right);
+        out.push((seg.x0 + start, seg.x0 + end - 1, clipped));
+        mask = if end >= 64 {
+            0
+        } else {
+            mask & (u64::MAX << end)
+        };
+    }
+}
+
+/// Finds the foreground runs of one row across the row's segments, joining runs that cross
+/// from one segment into a contiguous next one. Each run: `(x0, x1, clipped_horizontally)`.
+fn find_row_runs<P: Pixel>(row: &[P], segs: &[Seg], out: &mut Vec<(u32, u32, bool)>) {
+    out.clear();
+    // An open run: (start, clipped on the left).
+    let mut open: Option<(u32, bool)> = None;
+    for seg in segs {
+        if seg.open_left {
+            // Not contiguous with a previous segment: nothing can be open here.
+            if let Some((s, c)) = open.take() {
+                out.push((s, seg.x0 - 1, c));
+            }
+        }
+        let thr = seg.threshold;
+        let mut x = seg.x0;
+        let end = seg.x1 + 1;
+        // 64 pixels at a time; the last chunk of a segment is masked to the segment's end
+        // (read from the row when it has 64 pixels left, else from a padded copy).
+        while x < end {
+            if open.is_none() {
+                // The common case: 64 background pixels, one compare and skip.
+                while x + 64 <= end && !P::any_foreground64(&row[x as usize..x as usize + 64], thr)
+                {
+                    x += 64;
+                }
+                if x >= end {
+                    break;
+                }
+            }
+            let n = (end - x).min(64);
+            let limit = if n == 64 { u64::MAX } else { (1u64 << n) - 1 };
+            let mask = if x as usize + 64 <= row.len() {
+                P::foreground_mask64(&row[x as usize..x as usize + 64], thr) & limit
+            } else {
+                // The last pixels of the row: read through a padded copy.
+                let mut pad = [P::default(); 64];
+                pad[..n as usize].copy_from_slice(&row[x as usize..(x + n) as usize]);
+                P::foreground_mask64(&pad, thr) & limit
+            };
+            if open.is_none() && mask == 0 {
+                x += n;
+                continue;
+            }
+            if open.is_some() && mask == limit {
+                x += n;
+                continue;
+            }
+            let mut pos = 0u32;
+            while pos < n {
+                match open {
+                    Some((start, c)) => {
+                        let ones = (!mask >> pos).trailing_zeros();
+                        if pos + ones >= n {
+                            break;
+                        }
+                        out.push((start, x + pos + ones - 1, c));
+                        open = None;
+                        pos += ones;
+                    }
+                    None => {
+                        let zeros = (mask >> pos).trailing_zeros();
+                        if zeros >= n - pos {
+                            break;
+                        }
+                        let start = x + pos + zeros;
+                        open = Some((start, start == seg.x0 && seg.open_left));
+                        pos += zeros;
+                    }
+                }
+            }
+            x += n;
+        }
+        if seg.open_right
+            && let Some((s, _c)) = open.take()
+        {
+            out.push((s, seg.x1, true));
+        }
+    }
+    if let Some((s, c)) = open.take() {
+        // Ends at the last segment's end, which is then the frame's right edge or contiguous.
+        let last = segs.last().map_or(s, |g| g.x1);
+        out.push((s, last, c));
+    }
+}
+
+impl Scratch {
+    /// Adds the run `x0..=x1` of row `y` to blob `label`'s sums (and weighted sums).
+    #[inline(always)]
+    #[allow(clippy::too_many_arguments)]
+    fn add_run<P: Pixel>(
+        &mut self,
+        label: u32,
+        x0: u32,
+        x1: u32,
+        y: u32,
+        clipped: bool,
+        background: Option<(u32, u32)>,
+        img: &GrayView<'_, P>,
+    ) {
+        let a = &mut self.acc[label as usize];
+        a.m.add_run(x0, x1, y);
+        a.bbox.x0 = a.bbox.x0.min(x0);
+        a.bbox.x1 = a.bbox.x1.max(x1);
+        a.bbox.y1 = y;
+        if clipped {
+            a.flags.insert(BlobFlags::CLIPPED);
+        }
+        if let Some(levels) = background {
+            self.add_weighted_run(label, x0, x1, y, levels, img);
+        }
+    }
+
+    /// Adds the run's grey-level weights (Eq. 3.1, `pixel − background` capped) to blob
+    /// `label`'s weighted sums.
+    #[inline(always)]
+    fn add_weighted_run<P: Pixel>(
+        &mut self,
+        label: u32,
+        x0: u32,
+        x1: u32,
+        y: u32,
+        (bg, cap): (u32, u32),
+        img: &GrayView<'_, P>,
+    ) {
+        let row = img.row(y);
+        let (mut sw, mut swx, mut swxx) = (0u64, 0u64, 0u64);
+        for (x, p) in (x0..=x1).zip(&row[x0 as usize..=x1 as usize]) {
+            let w = p.value().saturating_sub(bg).min(cap) as u64;
+            let xf = x as u64;
+            sw += w;
+            swx += w * xf;
+            swxx += w * xf * xf;
+        }
+        self.wacc[label as usize].add_row_sums(sw, swx, swxx, y);
+    }
+
+    fn reset(&mut self) {
+        self.prev.clear();
+        self.cur.clear();
+        self.parent.clear();
+        self.acc.clear();
+        self.wacc.clear();
+        self.first_row.clear();
+        self.first_row_y = None;
+        self.last_row.clear();
+        self.last_row_y = None;
+        self.runs = 0;
+    }
+
+    /// Scans rows `ya..yb` of the region, with AVX2 pixel tests when `avx2` (the CPU has it).
+    fn scan<P: Pixel>(
+        &mut self,
+        img: &GrayView<'_, P>,
+        region: &Region,
+        (ya, yb): (u32, u32),
+        cfg: &ExtractConfig,
+        avx2: bool,
+    ) {
+        #[cfg(target_arch = "x86_64")]
+        if avx2 {
+            // SAFETY: `avx2` is set only when the CPU was found to support AVX2.
+            unsafe { self.scan_avx2(img, region, ya, yb, cfg) };
+            return;
+        }
+        let _ = avx2;
+        self.scan_with::<P, false>(img, region, ya, yb, cfg);
+    }
+
+    /// [`Scratch::scan_with`] compiled with AVX2, so its 256-bit pixel tests are inlined.
+    ///
+    /// # Safety
+    /// The CPU must support AVX2.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    unsafe fn scan_avx2<P: Pixel>(
+        &mut self,
+        img: &GrayView<'_, P>,
+        region: &Region,
+        ya: u32,
+        yb: u32,
+        cfg: &ExtractConfig,
+    ) {
+        self.scan_with::<P, true>(img, region, ya, yb, cfg);
+    }
+
+    #[inline(always)]
+    fn scan_with<P: Pixel, const AVX2: bool>(
+        &mut self,
+        img: &GrayView<'_, P>,
+        region: &Region,
+        ya: u32,
+        yb: u32,
+        cfg: &ExtractConfig,
+    ) {
+        self.reset();
+        let k = match cfg.connectivity {
+            Connectivity::Eight => 1u32,
+            Connectivity::Four => 0u32,
+        };
+        let background = cfg.weighting.levels();
+        let mut prev_y: Option<u32> = None;
+        for (bi, band) in region.bands.iter().enumerate() {
+            let (y0, y1) = (band.y0.max(ya), band.y1.min(yb));
+            if y0 >= y1 {
+                continue;
+            }
+            let segs = &region.segs[band.segs.0..band.segs.1];
+            // A band that is one segment of at most 64 pixels (a tracking window) is read as
+            // one 64-pixel chunk per row, its runs taken straight from the chunk's mask.
+            // With the mask of its `n` pixels in a 64-pixel chunk.
+            let narrow = match segs {
+                [seg] if seg.x1 - seg.x0 < 64 && seg.x0 + 64 <= img.width() => {
+                    let n = seg.x1 - seg.x0 + 1;
+                    Some((*seg, if n == 64 { u64::MAX } else { (1u64 << n) - 1 }))
+                }
+                _ => None,
+            };
+            let mut row_runs = std::mem::take(&mut self.row_runs);
+            let mut y = y0;
+            while y < y1 {
+                // Empty rows (most rows of a tracking window) are skipped in a tight loop: they
+                // join nothing, and an empty cut row needs no record for the band joins.
+                let skip_from = y;
+                let mut narrow_mask = 0u64;
+                let row = match narrow {
+                    Some((seg, limit)) => {
+                        let x0 = seg.x0 as usize;
+                        // SAFETY: a narrow band has `seg.x0 + 64 <= width` (checked above) and
+                        // its rows are below `y1 <= height`; every call below is for a row < y1.
+                        let chunk = |y: u32| unsafe { img.chunk64_unchecked(y, x0) };
+                        let mut mask = 0;
+                        // Right after a row with runs the next row is likely busy too: test it
+                        // alone before skipping in fours.
+                        let mut skip_fours =
+                            prev_y != Some(y.wrapping_sub(1)) || self.prev.is_empty();
+                        while y < y1 {
+                            if skip_fours
+                                && y + 4 <= y1
+                                && !any64x4::<P, AVX2>(
+                                    [chunk(y), chunk(y + 1), chunk(y + 2), chunk(y + 3)],
+                                    seg.threshold,
+                                )
+                            {
+                                y += 4;
+                                continue;
+                            }
+                            mask = mask64::<P, AVX2>(chunk(y), seg.threshold) & limit;
+                            if mask != 0 {
+                                break;
+                            }
+                            skip_fours = true;
+                            y += 1;
+                        }
+                        narrow_mask = mask;
+                        None
+                    }
+                    None => {
+                        y = next_nonempty_row(img, segs, y, y1);
+                        if y < y1 { Some(img.row(y)) } else { None }
+                    }
+                };
+                if y > skip_from {
+                    self.prev.clear();
+                    prev_y = Some(y - 1);
+                }
+                if y >= y1 {
+                    break;
+                }
+                // The common row of a tracked blob: one run, continuing the one run of the row
+                // above — no labels to join, so it goes straight into that blob's sums.
+                if let Some((seg, limit)) = narrow
+                    && y != ya
+                    && y + 1 != yb
+                    && prev_y == Some(y - 1)
+                    && self.prev.len() == 1
+                {
+                    let start = narrow_mask.trailing_zeros();
+                    let ones = (!(narrow_mask >> start)).trailing_zeros();
+                    let (x0, x1) = (seg.x0 + start, seg.x0 + start + ones - 1);
+                    let p = self.prev[0];
+                    let single = start + ones >= 64 || narrow_mask >> (start + ones) == 0;
+                    if single && p.x0 <= x1 + k && p.x1 + k >= x0 {
+                        let n = seg.x1 - seg.x0 + 1;
+                        let hclip =
+                            (start == 0 && seg.open_left) || (start + ones == n && seg.open_right);
+                        let label = find(&mut self.parent, p.label);
+                        let edge_row = (band.check_top && y == band.y0)
+                            || (band.check_bottom && y + 1 == band.y1);
+                        let mut clipped =
+                            hclip || (edge_row && region.vertically_clipped(bi, y, x0, x1));
+                        // The blob's next rows, while each is again one run continuing the
+                        // one above: summed relative to this row in u64 and added once. The
+                        // loop stops before the part's last row (recorded for the joins) and
+                        // before a bottom row that needs the coverage check.
+                        let mut block = RunBlock::new(y);
+                        block.add_run(x0, x1, 0);
+                        if let Some(levels) = background {
+                            self.add_weighted_run(label, x0, x1, y, levels, img);
+                        }
+                        let (mut bx0, mut bx1) = (x0, x1);
+                        let mut run = (x0, x1);
+                        let mut stop = y1.min(yb - 1);
+                        if band.check_bottom {
+                            stop = stop.min(band.y1 - 1);
+                        }
+                        let edge_bits = seg.open_left as u64 | (seg.open_right as u64) << (n - 1);
+                        let cx0 = seg.x0 as usize;
+                        let mut yy = y + 1;
+                        while yy < stop {
+                            // SAFETY: as for the skipped rows: `yy < stop <= y1` and the
+                            // narrow band's `seg.x0 + 64 <= width`.
+                            let chunk = unsafe { img.chunk64_unchecked(yy, cx0) };
+                            let mask = mask64::<P, AVX2>(chunk, seg.threshold) & limit;
+                            if mask == 0 {
+                                break;
+                            }
+                            let start = mask.trailing_zeros();
+                            let ones = (!(mask >> start)).trailing_zeros();
+                            let single = start + ones >= 64 || mask >> (start + ones) == 0;
+                            let (r0, r1) = (seg.x0 + start, seg.x0 + start + ones - 1);
+                            if !(single && run.0 <= r1 + k && run.1 + k >= r0) {
+                                break;
+                            }
+                            clipped |= mask & edge_bits != 0;
+                            block.add_run(r0, r1, yy - y);
+                            if let Some(levels) = background {
+                                self.add_weighted_run(label, r0, r1, yy, levels, img);
+                            }
+                            bx0 = bx0.min(r0);
+                            bx1 = bx1.max(r1);
+                            run = (r0, r1);
+                            yy += 1;
+                        }
+                        let a = &mut self.acc[label as usize];
+                        block.add_to(&mut a.m);
+                        a.bbox.x0 = a.bbox.x0.min(bx0);
+                        a.bbox.x1 = a.bbox.x1.max(bx1);
+                        a.bbox.y1 = yy - 1;
+                        if clipped {
+                            a.flags.insert(BlobFlags::CLIPPED);
+                        }
+                        self.prev[0] = RunRef {
+                            x0: run.0,
+                            x1: run.1,
+                            label,
+                        };
+                        self.runs += (yy - y) as usize;
+                        prev_y = Some(yy - 1);
+                        y = yy;
+                        continue;
+                    }
+                }
+                match (row, narrow) {
+                    (Some(row), _) => find_row_runs(row, segs, &mut row_runs),
+                    (None, Some((seg, _))) => runs_from_mask(narrow_mask, &seg, &mut row_runs),
+                    (None, None) => row_runs.clear(),
+                }
+                if prev_y != Some(y.wrapping_sub(1)) || y == 0 {
+                    self.prev.clear();
+                }
+                self.cur.clear();
+                let mut j = 0usize;
+                for &(x0, x1, hclip) in &row_runs {
+                    while j < self.prev.len() && self.prev[j].x1 + k < x0 {
+                        j += 1;
+                    }
+                    let mut label = u32::MAX;
+                    let mut jj = j;
+                    while jj < self.prev.len() && self.prev[jj].x0 <= x1 + k {
+                        let r = find(&mut self.parent, self.prev[jj].label);
+                        if label == u32::MAX {
+                            label = r;
+                        } else if r != label {
+                            let (keep, gone) = if r < label { (r, label) } else { (label, r) };
+                            self.parent[gone as usize] = keep;
+                            let from = self.acc[gone as usize];
+                            merge_acc(&mut self.acc[keep as usize], &from);
+                            if background.is_some() {
+                                let w = self.wacc[gone as usize];
+                                self.wacc[keep as usize].merge(&w);
+                            }
+                            label = keep;
+                        }
+                        jj += 1;
+                    }
+                    let edge_row =
+                        (band.check_top && y == band.y0) || (band.check_bottom && y + 1 == band.y1);
+                    let clipped = hclip || (edge_row && region.vertically_clipped(bi, y, x0, x1));
+                    if label == u32::MAX {
+                        label = self.parent.len() as u32;
+                        self.parent.push(label);
+                        self.acc.push(Acc {
+                            m: RawMoments::default(),
+                            bbox: PixelRect {
+                                x0,
+                                y0: y,
+                                x1,
+                                y1: y,
+                            },
+                            first: (y, x0),
+                            flags: BlobFlags::default(),
+                        });
+                        if background.is_some() {
+                            self.wacc.push(WeightedMoments::default());
+                        }
+                    }
+                    self.add_run(label, x0, x1, y, clipped, background, img);
+                    self.cur.push(RunRef { x0, x1, label });
+                }
+                self.runs += row_runs.len();
+                if y == ya {
+                    self.first_row.clear();
+                    self.first_row.extend_from_slice(&self.cur);
+                    self.first_row_y = Some(y);
+                }
+                if y + 1 == yb {
+                    self.last_row.clear();
+                    self.last_row.extend_from_slice(&self.cur);
+                    self.last_row_y = Some(y);
+                }
+                std::mem::swap(&mut self.prev, &mut self.cur);
+                prev_y = Some(y);
+                y += 1;
+            }
+            self.row_runs = row_runs;
+        }
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
+// The extractor.
+
+/// Reusable blob extractor. After the first frames it allocates nothing per frame.
+#[derive(Debug)]
+pub struct Extractor {
+    cfg: ExtractConfig,
+    region: Region,
+    scratch: Vec<Scratch>,
+    blobs: Vec<Blob>,
+    stats: ExtractStats,
+    // Joining bands.
+    gparent: Vec<u32>,
+    gacc: Vec<Acc>,
+    gwacc: Vec<WeightedMoments>,
+    offsets: Vec<u32>,
+    ranges: Vec<(u32, u32)>,
+    /// Pixel tests with AVX2 (found at construction; see [`Extractor::use_avx2`]).
+    avx2: bool,
+}
+
+/// Whether this CPU runs the AVX2 pixel tests.
+fn cpu_has_avx2() -> bool {
+    #[cfg(target_arch = "x86_64")]
+    {
+        std::is_x86_feature_detected!("avx2")
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        false
+    }
+}
+
+impl Extractor {
+    pub fn new(cfg: ExtractConfig) -> Self {
+        Extractor {
+            cfg,
+            region: Region::default(),
+            scratch: Vec::new(),
+            blobs: Vec::new(),
+            stats: ExtractStats::default(),
+            gparent: Vec::new(),
+            gacc: Vec::new(),
+            gwacc: Vec::new(),
+            offsets: Vec::new(),
+            ranges: Vec::new(),
+            avx2: cpu_has_avx2(),
+        }
+    }
+
+    /// Uses the AVX2 pixel tests when `enabled` and the CPU has AVX2 (the default), else the
+    /// SSE2 ones; results are identical either way. Returns whether AVX2 is now used.
+    pub fn use_avx2(&mut self, enabled: bool) -> bool {
+        self.avx2 = enabled && cpu_has_avx2();
+        self.avx2
+    }
+
+    pub fn config(&self) -> &ExtractConfig {
+        &self.cfg
+    }
+
+    pub fn set_config(&mut self, cfg: ExtractConfig) {
+        self.cfg = cfg;
+    }
+
+    /// Statistics of the last extraction.
+    pub fn stats(&self) -> ExtractStats {
+        self.stats
+    }
+
+    /// The blobs of the last extraction.
+    pub fn blobs(&self) -> &[Blob] {
+        &self.blobs
+    }
+
+    /// Extracts the blobs of `img` with foreground `pixel >= threshold`, in the whole frame when
+    /// `windows` is empty, else in the union of the windows (each may carry its own threshold).
+    /// Blobs come in raster order of their first pixel.
+    pub fn extract<P: Pixel>(
+        &mut self,
+        img: GrayView<'_, P>,
+        threshold: u32,
+        windows: &[Window],
+    ) -> Result<&[Blob], VisionError> {
+        check_threshold::<P>(threshold)?;
+        if let Some((background, _)) = self.cfg.weighting.levels() {
+            let min_thr = windows
+                .iter()
+                .filter_map(|w| w.threshold)
+                .fold(threshold, u32::min);
+            if background >= min_thr {
+                return Err(VisionError::BackgroundNotBelowThreshold {
+                    background,
+                    threshold: min_thr,
+                });
+            }
+        }
+        let (w, h) = (img.width(), img.height());
+        if windows.is_empty() {
+            self.region.full(w, h, threshold);
+        } else {
+            self.region.set_windows::<P>(windows, w, h, threshold)?;
+        }
+        let (ya, yb) = self.region.rows();
+        let pixels = self.region.pixel_count();
+        let threads = match self.cfg.threads {
+            0 => rayon::current_num_threads(),
+            n => n,
+        };
+        // Below ~64k pixels a second thread costs more than it saves.
+        let parts = if pixels < 65_536 {
+            1
+        } else {
+            threads.clamp(1, ((yb - ya) / 16).max(1) as usize)
+        };
+        if self.scratch.len() < parts {
+            self.scratch.resize_with(parts, Scratch::default);
+        }
+        self.ranges.clear();
+        let rows = yb - ya;
+        for i in 0..parts as u32 {
+            let a = ya + rows * i / parts as u32;
+            let b = ya + rows * (i + 1) / parts as u32;
+            self.ranges.push((a, b));
+        }
+        let cfg = self.cfg;
+        let avx2 = self.avx2;
+        let region = &self.region;
+        if parts == 1 {
+            self.scratch[0].scan(&img, region, (ya, yb), &cfg, avx2);
+        } else {
+            // The caller scans the first band itself while the pool takes the others, so a
+            // frame never waits idle for a worker to wake up.
+            let ranges = &self.ranges;
+            let (first, rest) = self.scratch[..parts].split_at_mut(1);
+            rayon::in_place_scope(|scope| {
+                for (i, s) in rest.iter_mut().enumerate() {
+                    let (a, b) = ranges[i + 1];
+                    let img = &img;
+                    let cfg = &cfg;
+                    scope.spawn(move |_| s.scan(img, region, (a, b), cfg, avx2));
+                }
+                let (a, b) = ranges[0];
+                first[0].scan(&img, region, (a, b), &cfg, avx2);
+            });
+        }
+        self.join_parts(parts, w, h, pixels);
+        Ok(&self.blobs)
+    }
+
+    /// Joins the bands' labels into blobs and applies area filter, flags and capacity.
+    fn join_parts(&mut self, parts: usize, width: u32, height: u32, pixels: u64) {
+        let k = match self.cfg.connectivity {
+            Connectivity::Eight => 1u32,
+            Connectivity::Four => 0u32,
+        };
+        let weighted = self.cfg.weighting.levels().is_some();
+        let stats = ExtractStats {
+            runs: self.scratch[..parts].iter().map(|s| s.runs).sum(),
+            pixels_scanned: pixels,
+            ..Default::default()
+        };
+        if parts == 1 {
+            // One part (every tracking step): its labels are the blobs, nothing to copy or join.
+            let s = &mut self.scratch[0];
+            for l in 0..s.parent.len() as u32 {
+                let r = find(&mut s.parent, l);
+                s.parent[l as usize] = r;
+            }
+            self.stats = emit_blobs(
+                &s.parent,
+                &s.acc,
+                weighted.then_some(&s.wacc[..]),
+                &self.cfg,
+                (width, height),
+                stats,
+                &mut self.blobs,
+            );
+            return;
+        }
+        self.gparent.clear();
+        self.gacc.clear();
+        self.gwacc.clear();
+        self.offsets.clear();
+        for s in &mut self.scratch[..parts] {
+            self.offsets.push(self.gparent.len() as u32);
+            for l in 0..s.parent.len() as u32 {
+                let r = find(&mut s.parent, l);
+                self.gparent.push(self.offsets[self.offsets.len() - 1] + r);
+            }
+            self.gacc.extend_from_slice(&s.acc);
+            if weighted {
+                self.gwacc.extend_from_slice(&s.wacc);
+            }
+        }
+        // Join across cuts: the last row of part i and the first row of part i + 1.
+        for i in 0..parts.saturating_sub(1) {
+            let (up, down) = (&self.scratch[i], &self.scratch[i + 1]);
+            let (Some(yu), Some(yd)) = (up.last_row_y, down.first_row_y) else {
+                continue;
+            };
+            if yu + 1 != yd {
+                continue;
+            }
+            let (ou, od) = (self.offsets[i], self.offsets[i + 1]);
+            let mut j = 0usize;
+            for d in &down.first_row {
+                while j < up.last_row.len() && up.last_row[j].x1 + k < d.x0 {
+                    j += 1;
+                }
+                let mut jj = j;
+                while jj < up.last_row.len() && up.last_row[jj].x0 <= d.x1 + k {
+                    let a = find(&mut self.gparent, ou + up.last_row[jj].label);
+                    let b = find(&mut self.gparent, od + d.label);
+                    if a != b {
+                        let (keep, gone) = if a < b { (a, b) } else { (b, a) };
+                        self.gparent[gone as usize] = keep;
+                        let from = self.gacc[gone as usize];
+                        merge_acc(&mut self.gacc[keep as usize], &from);
+                        if weighted {
+                            let wf = self.gwacc[gone as usize];
+                            self.gwacc[keep as usize].merge(&wf);
+                        }
+                    }
+                    jj += 1;
+                }
+            }
+        }
+        self.stats = emit_blobs(
+            &self.gparent,
+            &self.gacc,
+            weighted.then_some(&self.gwacc[..]),
+            &self.cfg,
+            (width, height),
+            stats,
+            &mut self.blobs,
+        );
+    }
+}
+
+/// The roots of `parent` (labels that are their own parent) as blobs: area filter, border flag,
+/// capacity (largest kept), raster order of first pixels.
+fn emit_blobs(
+    parent: &[u32],
+    acc: &[Acc],
+    wacc: Option<&[WeightedMoments]>,
+    cfg: &ExtractConfig,
+    (width, height): (u32, u32),
+    mut stats: ExtractStats,
+    blobs: &mut Vec<Blob>,
+) -> ExtractStats {
+    blobs.clear();
+    for (l, a) in acc.iter().enumerate() {
+        if parent[l] as usize != l {
+            continue;
+        }
+        stats.regions += 1;
+        if a.m.m00 < cfg.min_area_px {
+            stats.below_min_area += 1;
+            continue;
+        }
+        let mut flags = a.flags;
+        let b = a.bbox;
+        if b.x0 == 0 || b.y0 == 0 || b.x1 + 1 == width || b.y1 + 1 == height {
+            flags.insert(BlobFlags::TOUCHES_BORDER);
+        }
+        blobs.push(Blob {
+            moments: a.m,
+            bbox: b,
+            flags,
+            weighted: wacc.map(|w| w[l]),
+            first_pixel: a.first,
+        });
+    }
+    if blobs.len() > cfg.max_blobs {
+        stats.dropped_over_capacity = blobs.len() - cfg.max_blobs;
+        // Keep the largest; ties by raster order.
+        blobs.sort_unstable_by(|p, q| {
+            q.moments
+                .m00
+                .cmp(&p.moments.m00)
+                .then(p.first_pixel.cmp(&q.first_pixel))
+        });
+        blobs.truncate(cfg.max_blobs);
+    }
+    // Labels are made in raster order and a merge keeps the older, so the blobs usually come
+    // sorted already (not after the capacity cut).
+    if !blobs.is_sorted_by_key(|b| b.first_pixel) {
+        blobs.sort_unstable_by_key(|b| b.first_pixel);
+    }
+    stats
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::image::GrayImage;
+
+    /// Reference: flood fill on a label image, moments pixel by pixel.
+    fn reference_blobs(
+        img: &GrayImage<u8>,
+        thr: u32,
+        conn: Connectivity,
+        mask: Option<&[Window]>,
+    ) -> Vec<(RawMoments, PixelRect, bool)> {
+        let (w, h) = (img.width() as i64, img.height() as i64);
+        let inside = |x: i64, y: i64| -> Option<u32> {
+            if x < 0 || y < 0 || x >= w || y >= h {
+                return None;
+            }
+            match mask {
+                None => Some(thr),
+                Some(ws) => ws
+                    .iter()
+                    .filter(|win| {
+                        let r = win.rect;
+                        x as u32 >= r.x0 && x as u32 <= r.x1 && y as u32 >= r.y0 && y as u32 <= r.y1
+                    })
+                    .map(|win| win.threshold.unwrap_or(thr))
+                    .min(),
+            }
+        };
+        let fg = |x: i64, y: i64| {
+            inside(x, y).is_some_and(|t| img.get(x as u32, y as u32).unwrap() as u32 >= t)
+        };
+        let mut seen = vec![false; (w * h) as usize];
+        let mut out = Vec::new();
+        for y in 0..h {
+            for x in 0..w {
+                if seen[(y * w + x) as usize] || !fg(x, y) {
+                    continue;
+                }
+                let mut m = RawMoments::default();
+                let mut bb = PixelRect {
+                    x0: x as u32,
+                    y0: y as u32,
+                    x1: x as u32,
+                    y1: y as u32,
+                };
+                let mut stack = vec![(x, y)];
+                seen[(y * w + x) as usize] = true;
+                // Clipped: a pixel with a 4-neighbour in the frame but outside the region.
+                let mut clipped = false;
+                while let Some((px, py)) = stack.pop() {
+                    m.add_pixel(px as u32, py as u32);
+                    for (dx, dy) in [(-1, 0), (1, 0), (0, -1), (0, 1)] {
+                        let (nx, ny) = (px + dx, py + dy);
+                        if nx >= 0 && ny >= 0 && nx < w && ny < h && inside(nx, ny).is_none() {
+                            clipped = true;
+                        }
+                    }
+                    bb.x0 = bb.x0.min(px as u32);
+                    bb.x1 = bb.x1.max(px as u32);
+                    bb.y0 = bb.y0.min(py as u32);
+                    bb.y1 = bb.y1.max(py as u32);
+                    for (dx, dy) in [
+                        (-1, 0),
+                        (1, 0),
+                        (0, -1),
+                        (0, 1),
+                        (-1, -1),
+                        (1, -1),
+                        (-1, 1),
+                        (1, 1),
+                    ] {
+                        if conn == Connectivity::Four && dx != 0 && dy != 0 {
+                            continue;
+                        }
+                        let (nx, ny) = (px + dx, py + dy);
+                        if fg(nx, ny) && !seen[(ny * w + nx) as usize] {
+                            seen[(ny * w + nx) as usize] = true;
+                            stack.push((nx, ny));
+                        }
+                    }
+                }
+                out.push((m, bb, clipped));
+            }
+        }
+        out
+    }
+
+    fn random_image(w: u32, h: u32, seed: u64, density: u32) -> GrayImage<u8> {
+        let mut rng = stereoscope_numeric::SplitMix64::new(seed);
+        let mut img = GrayImage::filled(w, h, 0u8).unwrap();
+        for p in img.as_mut_slice() {
+            *p = if (rng.next_u64() % 100) < density as u64 {
+                200 + (rng.next_u64() % 50) as u8
+            } else {
+                (rng.next_u64() % 90) as u8
+            };
+        }
+        img
+    }
+
+    fn sorted(mut v: Vec<(RawMoments, PixelRect, bool)>) -> Vec<(RawMoments, PixelRect, bool)> {
+        v.sort_by_key(|(m, b, _)| (b.y0, b.x0, m.m00, m.m10, m.m01));
+        v
+    }
+
+    fn ours(blobs: &[Blob]) -> Vec<(RawMoments, PixelRect, bool)> {
+        sorted(
+            blobs
+                .iter()
+                .map(|b| (b.moments, b.bbox, b.flags.contains(BlobFlags::CLIPPED)))
+                .collect(),
+        )
+    }
+
+    #[test]
+    fn matches_flood_fill_on_random_images_full_frame() {
+        for (seed, w, h) in [
+            (1u64, 67u32, 41u32),
+            (2, 130, 90),
+            (3, 200, 3),
+            (4, 1, 50),
+            (5, 300, 257),
+        ] {
+            for density in [5, 30, 60] {
+                let img = random_image(w, h, seed * 100 + density as u64, density);
+                for conn in [Connectivity::Four, Connectivity::Eight] {
+                    for threads in [1, 3] {
+                        let mut ex = Extractor::new(ExtractConfig {
+                            connectivity: conn,
+                            threads,
+                            max_blobs: 1 << 20,
+                            ..Default::default()
+                        });
+                        // The SSE2 tests with one thread, the CPU's best with three.
+                        ex.use_avx2(threads != 1);
+                        let got = ours(ex.extract(img.view(), 100, &[]).unwrap());
+                        let want = sorted(reference_blobs(&img, 100, conn, None));
+                        assert_eq!(
+                            got, want,
+                            "seed {seed} {w}×{h} density {density} {conn:?} threads {threads}"
+                        );
+                    }
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn matches_flood_fill_inside_overlapping_windows_with_own_thresholds() {
+        let img = random_image(160, 120, 77, 35);
+        let windows = [
+            Window {
+                rect: PixelRect {
+                    x0: 10,
+                    y0: 5,
+                    x1: 70,
+                    y1: 60,
+                },
+                threshold: None,
+            },
+            Window {
+                rect: PixelRect {
+                    x0: 50,
+                    y0: 40,
+                    x1: 120,
+                    y1: 100,
+                },
+                threshold: Some(150),
+            },
+            Window {
+                rect: PixelRect {
+                    x0: 60,
+                    y0: 0,
+                    x1: 159,
+                    y1: 20,
+                },
+                threshold: Some(60),
+            },
+            Window {
+                rect: PixelRect {
+                    x0: 100,
+                    y0: 90,
+                    x1: 400,
+                    y1: 400,
+                },
+                threshold: None,
+            },
+        ];
+        for conn in [Connectivity::Four, Connectivity::Eight] {
+            for threads in [1, 2] {
+                let mut ex = Extractor::new(ExtractConfig {
+                    connectivity: conn,
+                    threads,
+                    max_blobs: 1 << 20,
+                    ..Default::default()
+                });
+                let got = ours(ex.extract(img.view(), 100, &windows).unwrap());
+                let want = sorted(reference_blobs(&img, 100, conn, Some(&windows)));
+                assert_eq!(got, want, "{conn:?} threads {threads}");
+            }
+        }
+    }
+
+    #[test]
+    fn matches_flood_fill_in_random_narrow_and_wide_windows() {
+        // Widths around the 64-pixel chunk (the narrow-window path), windows at the right
+        // edge (where a 64-pixel read would leave the row), overlapping and apart.
+        let mut rng = stereoscope_numeric::SplitMix64::new(99);
+        for trial in 0..60u64 {
+            let (w, h) = (100 + (trial % 7) as u32 * 13, 70);
+            let img = random_image(w, h, 500 + trial, 40);
+            let count = 1 + (trial % 4) as usize;
+            let windows: Vec<Window> = (0..count)
+                .map(|_| {
+                    let ww = 1 + (rng.next_u64() % 80) as u32;
+                    let hh = 1 + (rng.next_u64() % 40) as u32;
+                    let x0 = (rng.next_u64() % w as u64) as u32;
+                    let y0 = (rng.next_u64() % h as u64) as u32;
+                    let threshold = if rng.uniform() < 0.3 {
+                        Some(60 + (rng.next_u64() % 120) as u32)
+                    } else {
+                        None
+                    };
+                    Window {
+                        rect: PixelRect {
+                            x0,
+                            y0,
+                            x1: x0 + ww - 1,
+                            y1: y0 + hh - 1,
+                        },
+                        threshold,
+                    }
+                })
+                .collect();
+            for conn in [Connectivity::Four, Connectivity::Eight] {
+                let want = sorted(reference_blobs(&img, 100, conn, Some(&windows)));
+                for avx2 in [false, true] {
+                    let mut ex = Extractor::new(ExtractConfig {
+                        connectivity: conn,
+                        max_blobs: 1 << 20,
+                        ..Default::default()
+                    });
+                    ex.use_avx2(avx2);
+                    let got = ours(ex.extract(img.view(), 100, &windows).unwrap());
+                    assert_eq!(got, want, "trial {trial} {conn:?} avx2 {avx2} {windows:?}");
+                }
+            }
+        }
+    }
+
+    /// The tracking windows' inner loop (a blob's rows summed as a block) and both pixel-test
+    /// widths against the flood fill: ellipses of radius 2–14 px in windows up to 64 px wide,
+    /// some cutting them, some overlapping, at the frame's edges too; and a blob the window
+    /// holds whole gets the very moments (binary and grey-level) of the full-frame pass.
+    #[test]
+    fn tracking_windows_over_ellipses_match_flood_fill_with_either_vector_width() {
+        use crate::raster::{Ellipse, draw_ellipse};
+        let mut rng = stereoscope_numeric::SplitMix64::new(5);
+        let mut whole = 0;
+        for trial in 0..80u64 {
+            let (w, h) = (160 + (trial % 5) as u32 * 17, 120);
+            let mut img = GrayImage::filled(w, h, 10u8).unwrap();
+            let mut windows = Vec::new();
+            for _ in 0..1 + trial % 4 {
+                let r = 2.0 + 12.0 * rng.uniform();
+                let (cx, cy) = (rng.uniform() * w as f64, rng.uniform() * h as f64);
+                let e = Ellipse {
+                    cx_px: cx,
+                    cy_px: cy,
+                    semi_major: r,
+                    semi_minor: r * (0.4 + 0.6 * rng.uniform()),
+                    angle_deg: 180.0 * rng.uniform(),
+                };
+                draw_ellipse(&mut img, &e, 1.0, 10.0, 210.0, 4);
+                let half = 5 + (rng.next_u64() % 27) as u32;
+                let jitter = (rng.uniform() - 0.5) * r;
+                windows.push(Window::new(crate::tracker::clamp_window(
+                    cx + jitter,
+                    cy - jitter,
+                    half,
+                    w,
+                    h,
+                )));
+            }
+            for conn in [Connectivity::Four, Connectivity::Eight] {
+                let want = sorted(reference_blobs(&img, 100, conn, Some(&windows)));
+                for avx2 in [false, true] {
+                    for weighting in [Weighting::Binary, Weighting::Intensity { background: 10 }] {
+                        let cfg = ExtractConfig {
+                            connectivity: conn,
+                            weighting,
+                            ..Default::default()
+                        };
+                        let mut ex = Extractor::new(cfg);
+                        ex.use_avx2(avx2);
+                        let got = ex.extract(img.view(), 100, &windows).unwrap().to_vec();
+                        assert_eq!(ours(&got), want, "trial {trial} {conn:?} avx2 {avx2}");
+                        let mut full = Extractor::new(cfg);
+                        full.use_avx2(!avx2);
+                        let all = full.extract(img.view(), 100, &[]).unwrap();
+                        for b in got.iter().filter(|b| !b.flags.contains(BlobFlags::CLIPPED)) {
+                            let same = all.iter().find(|a| a.first_pixel == b.first_pixel);
+                            assert_eq!(same, Some(b), "trial {trial} {conn:?} avx2 {avx2}");
+                            whole += 1;
+                        }
+                    }
+                }
+            }
+        }
+        assert!(whole > 200, "{whole} whole blobs compared");
+    }
+
+    #[test]
+    fn windowed_blob_equals_full_frame_blob_and_is_counted_once() {
+        let mut img = GrayImage::filled(100, 80, 10u8).unwrap();
+        for y in 30..41 {
+            for x in 40..61 {
+                img.set(x, y, 200);
+            }
+        }
+        let mut ex = Extractor::new(ExtractConfig::default());
+        let full = ex.extract(img.view(), 100, &[]).unwrap().to_vec();
+        assert_eq!(full.len(), 1);
+        // Two overlapping windows both covering the whole blob: one blob, same moments.
+        let windows = [
+            Window::new(PixelRect {
+                x0: 30,
+                y0: 20,
+                x1: 65,
+                y1: 50,
+            }),
+            Window::new(PixelRect {
+                x0: 35,
+                y0: 25,
+                x1: 70,
+                y1: 60,
+            }),
+        ];
+        let win = ex.extract(img.view(), 100, &windows).unwrap().to_vec();
+        assert_eq!(win.len(), 1);
+        assert_eq!(win[0].moments, full[0].moments);
+        assert_eq!(win[0].flags, BlobFlags::default());
+        // A window cutting the blob flags it clipped.
+        let cut = ex
+            .extract(
+                img.view(),
+                100,
+                &[Window::new(PixelRect {
+                    x0: 45,
+                    y0: 20,
+                    x1: 70,
+                    y1: 60,
+                })],
+            )
+            .unwrap();
+        assert_eq!(cut.len(), 1);
+        assert!(cut[0].flags.contains(BlobFlags::CLIPPED));
+        assert_eq!(cut[0].area_px(), 16 * 11);
+        let cut = ex
+            .extract(
+                img.view(),
+                100,
+                &[Window::new(PixelRect {
+                    x0: 0,
+                    y0: 35,
+                    x1: 99,
+                    y1: 79,
+                })],
+            )
+            .unwrap();
+        assert!(cut[0].flags.contains(BlobFlags::CLIPPED));
+    }
+
+    #[test]
+    fn translation_changes_centroid_only() {
+        let mut a = GrayImage::filled(64, 64, 0u8).unwrap();
+        let mut b = GrayImage::filled(64, 64, 0u8).unwrap();
+        let shape = [
+            (3, 1),
+            (4, 1),
+            (2, 2),
+            (3, 2),
+            (4, 2),
+            (5, 2),
+            (3, 3),
+            (6, 3),
+            (7, 4),
+        ];
+        for &(x, y) in &shape {
+            a.set(x + 10, y + 10, 255);
+            b.set(x + 37, y + 29, 255);
+        }
+        let mut ex = Extractor::new(ExtractConfig::default());
+        let ba = ex.extract(a.view(), 128, &[]).unwrap()[0];
+        let bb = ex.extract(b.view(), 128, &[]).unwrap()[0];
+        assert_eq!(ba.area_px(), bb.area_px());
+        assert_eq!(ba.central(), bb.central());
+        let (ca, cb) = (ba.centroid_px(), bb.centroid_px());
+        assert!((cb.0 - ca.0 - 27.0).abs() < 1e-12 && (cb.1 - ca.1 - 19.0).abs() < 1e-12);
+    }
+
+    #[test]
+    fn border_capacity_and_area_filter_are_reported() {
+        let mut img = GrayImage::filled(50, 40, 0u8).unwrap();
+        // A blob on the left border, three of area 4, six single pixels.
+        for y in 5..10 {
+            img.set(0, y, 255);
+            img.set(1, y, 255);
+        }
+        for i in 0..3 {
+            for (dx, dy) in [(0, 0), (1, 0), (0, 1), (1, 1)] {
+                img.set(10 + 8 * i + dx, 20 + dy, 255);
+            }
+        }
+        for i in 0..6 {
+            img.set(5 + 7 * i, 35, 255);
+        }
+        let mut ex = Extractor::new(ExtractConfig {
+            min_area_px: 2,
+            max_blobs: 3,
+            ..Default::default()
+        });
+        let blobs = ex.extract(img.view(), 1, &[]).unwrap();
+        assert_eq!(blobs.len(), 3);
+        assert_eq!(blobs[0].area_px(), 10, "largest kept, raster order");
+        assert!(blobs[0].flags.contains(BlobFlags::TOUCHES_BORDER));
+        let s = ex.stats();
+        assert_eq!(s.regions, 10);
+        assert_eq!(s.below_min_area, 6);
+        assert_eq!(s.dropped_over_capacity, 1);
+    }
+
+    #[test]
+    fn coverage_weights_give_the_silhouette_not_the_lit_side() {
+        // A disc of radius 8, 80 levels bright at its rim, with a highlight off-centre (a lit
+        // ball): grey-level weights pull the centroid to the highlight; coverage weights,
+        // saturating below the rim's level, give the silhouette.
+        let (cx, cy, r) = (40.3, 30.6, 8.0);
+        let mut img = GrayImage::filled(80, 60, 20u8).unwrap();
+        let n = 16;
+        for y in 0..60u32 {
+            for x in 0..80u32 {
+                let mut cov = 0.0;
+                for j in 0..n {
+                    for i in 0..n {
+                        let (sx, sy) = (
+                            x as f64 - 0.5 + (i as f64 + 0.5) / n as f64,
+                            y as f64 - 0.5 + (j as f64 + 0.5) / n as f64,
+                        );
+                        if (sx - cx).powi(2) + (sy - cy).powi(2) <= r * r {
+                            cov += 1.0 / (n * n) as f64;
+                        }
+                    }
+                }
+                let d2 = (x as f64 - cx - 3.0).powi(2) + (y as f64 - cy).powi(2);
+                let shade = 80.0 + 100.0 * (-d2 / 8.0).exp();
+                img.set(x, y, (20.0 + cov * shade).round() as u8);
+            }
+        }
+        let mut intensity = Extractor::new(ExtractConfig {
+            weighting: Weighting::Intensity { background: 20 },
+            ..Default::default()
+        });
+        let bi = intensity.extract(img.view(), 25, &[]).unwrap()[0];
+        let mut coverage = Extractor::new(ExtractConfig {
+            weighting: Weighting::Coverage {
+                background: 20,
+                full: 100,
+            },
+            ..Default::default()
+        });
+        let bc = coverage.extract(img.view(), 25, &[]).unwrap()[0];
+        let (ix, _) = bi.best_centroid_px();
+        let (kx, ky) = bc.best_centroid_px();
+        assert!(ix - cx > 0.2, "grey-level centroid {ix} should lean right");
+        assert!(
+            (kx - cx).abs() < 0.05 && (ky - cy).abs() < 0.05,
+            "coverage centroid ({kx}, {ky})"
+        );
+        let area = bc.weighted.unwrap().w00 as f64 / 80.0;
+        let truth = std::f64::consts::PI * r * r;
+        assert!(
+            (area - truth).abs() / truth < 0.02,
+            "area {area} vs {truth}"
+        );
+        let mut bad = Extractor::new(ExtractConfig {
+            weighting: Weighting::Coverage {
+                background: 30,
+                full: 60,
+            },
+            ..Default::default()
+        });
+        assert!(bad.extract(img.view(), 25, &[]).is_err());
+    }
+
+    #[test]
+    fn bad_input_gets_typed_errors() {
+        let img = GrayImage::filled(20, 10, 0u8).unwrap();
+        let mut ex = Extractor::new(ExtractConfig::default());
+        assert!(matches!(
+            ex.extract(img.view(), 256, &[]),
+            Err(VisionError::ThresholdOutOfRange {
+                threshold: 256,
+                bits: 8,
+                ..
+            })
+        ));
+        let empty = Window::new(PixelRect {
+            x0: 5,
+            y0: 5,
+            x1: 4,
+            y1: 6,
+        });
+        assert!(matches!(
+            ex.extract(img.view(), 10, &[empty]),
+            Err(VisionError::EmptyWindow { index: 0, .. })
+        ));
+        let outside = Window::new(PixelRect {
+            x0: 25,
+            y0: 0,
+            x1: 30,
+            y1: 5,
+        });
+        let ok = Window::new(PixelRect {
+            x0: 0,
+            y0: 0,
+            x1: 3,
+            y1: 3,
+        });
+        assert!(matches!(
+            ex.extract(img.view(), 10, &[ok, outside]),
+            Err(VisionError::WindowOutsideFrame { index: 1, .. })
+        ));
+        let bad_thr = Window {
+            rect: PixelRect {
+                x0: 0,
+                y0: 0,
+                x1: 3,
+                y1: 3,
+            },
+            threshold: Some(300),
+        };
+        assert!(matches!(
+            ex.extract(img.view(), 10, &[bad_thr]),
+            Err(VisionError::ThresholdOutOfRange { threshold: 300, .. })
+        ));
+        // A window reaching past the frame is clipped, not an error.
+        let past = Window::new(PixelRect {
+            x0: 15,
+            y0: 5,
+            x1: 1000,
+            y1: 1000,
+        });
+        assert!(ex.extract(img.view(), 10, &[past]).is_ok());
+        let mut wex = Extractor::new(ExtractConfig {
+            weighting: Weighting::Intensity { background: 50 },
+            ..Default::default()
+        });
+        assert!(matches!(
+            wex.extract(img.view(), 50, &[]),
+            Err(VisionError::BackgroundNotBelowThreshold { .. })
+        ));
+        // 16-bit frames take thresholds up to 65535.
+        let img16 = GrayImage::filled(20, 10, 1000u16).unwrap();
+        assert_eq!(ex.extract(img16.view(), 65535, &[]).unwrap().len(), 0);
+        assert_eq!(ex.extract(img16.view(), 1000, &[]).unwrap().len(), 1);
+        assert!(ex.extract(img16.view(), 65536, &[]).is_err());
+    }
+
+    #[test]
+    fn sixteen_bit_and_strided_views_match_eight_bit() {
+        let img8 = random_image(150, 70, 9, 30);
+        let padded: Vec<u16> = (0..70u32)
+            .flat_map(|y| {
+                let row: Vec<u16> = img8
+                    .view()
+                    .row(y)
+                    .iter()
+                    .map(|&p| p as u16 * 256 + 7)
+                    .collect();
+                row.into_iter().chain(std::iter::repeat_n(65535u16, 13))
+            })
+            .collect();
+        let v16 = GrayView::new(&padded, 150, 70, 163).unwrap();
+        let mut ex = Extractor::new(ExtractConfig {
+            max_blobs: 1 << 20,
+            ..Default::default()
+        });
+        let a = ours(ex.extract(img8.view(), 100, &[]).unwrap());
+        let b = ours(ex.extract(v16, 100 * 256, &[]).unwrap());
+        assert_eq!(a, b);
+    }
+
+    #[test]
+    fn long_runs_cross_simd_chunks() {
+        // Runs that start, end and continue across 64-pixel chunk edges.
+        let mut img = GrayImage::filled(300, 3, 0u8).unwrap();
+        for x in 60..200 {
+            img.set(x, 1, 255);
+        }
+        for x in 0..300 {
+            img.set(x, 0, if x % 70 < 64 { 255 } else { 0 });
+        }
+        let mut ex = Extractor::new(ExtractConfig {
+            connectivity: Connectivity::Four,
+            ..Default::default()
+        });
+        let got = ours(ex.extract(img.view(), 128, &[]).unwrap());
+        let want = sorted(reference_blobs(&img, 128, Connectivity::Four, None));
+        assert_eq!(got, want);
+    }
+}

@@ -1,0 +1,406 @@
+//! Grey-level histograms, automatic thresholds and histogram equalisation.
+//!
+//! Thesis: §3.1 and §4.1.2 ask for "a threshold determined by histogram" (the lab set it by
+//! eye and covered its windows in foil against changing light) and `struct region` carries a
+//! threshold per window. Two automatic methods are given here:
+//!
+//! - **Otsu** (maximum between-class variance). Good when target and background are both
+//!   large classes; it fails when a few small targets sit on a large, unevenly lit background,
+//!   because splitting the background's own spread then scores higher than splitting off the
+//!   targets (`tests::otsu_fails_on_small_targets_over_uneven_light`).
+//! - **Triangle** (Zack et al.): the line from the histogram's peak (the background) to the
+//!   brightest level present; the threshold is the level farthest below that line, i.e. the
+//!   knee where the background's tail ends. It depends on the background's shape, not on how
+//!   many target pixels there are, so it copes with a few small bright targets.
+//!
+//! - **Auto** (the default): the triangle knee, then halfway from it to the mean level of the
+//!   pixels at or above the knee (the targets). The knee alone sits on the background's noise
+//!   tail, so noise pixels cross it; halfway up the targets' edges no background pixel does,
+//!   and a binary blob's area is then that of its half-intensity outline, which is the true
+//!   area for a blurred edge.
+//!
+//! Foreground is `pixel >= threshold` everywhere in the project, so a threshold `t` puts levels
+//! `0..t` in the background.
+
+use crate::error::VisionError;
+use crate::image::{GrayView, Pixel, PixelRect};
+
+/// Counts of each grey level.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Histogram {
+    counts: Vec<u32>,
+    total: u64,
+}
+
+/// How a threshold is chosen.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ThresholdMethod {
+    Fixed(u32),
+    Otsu,
+    Triangle,
+    Auto,
+}
+
+impl ThresholdMethod {
+    /// Parses `N`, `auto`, `otsu` or `triangle` (module docs).
+    pub fn parse(s: &str) -> Option<Self> {
+        match s.trim().to_ascii_lowercase().as_str() {
+            "auto" => Some(ThresholdMethod::Auto),
+            "triangle" => Some(ThresholdMethod::Triangle),
+            "otsu" => Some(ThresholdMethod::Otsu),
+            other => other.parse::<u32>().ok().map(ThresholdMethod::Fixed),
+        }
+    }
+}
+
+impl Histogram {
+    /// An empty histogram for pixel type `P` (256 or 65536 levels).
+    pub fn new<P: Pixel>() -> Self {
+        Histogram {
+            counts: vec![0; P::MAX_VALUE as usize + 1],
+            total: 0,
+        }
+    }
+
+    /// The histogram of the pixels of `rect` (clipped to the image).
+    pub fn of_rect<P: Pixel>(img: &GrayView<'_, P>, rect: PixelRect) -> Self {
+        let mut h = Self::new::<P>();
+        h.add_rect(img, rect);
+        h
+    }
+
+    /// The histogram of the whole image.
+    pub fn of<P: Pixel>(img: &GrayView<'_, P>) -> Self {
+        Self::of_rect(img, img.full_rect())
+    }
+
+    /// Counts the pixels of `rect` (clipped to the image) into this histogram.
+    pub fn add_rect<P: Pixel>(&mut self, img: &GrayView<'_, P>, rect: PixelRect) {
+        if rect.x0 >= img.width()
+            || rect.y0 >= img.height()
+            || rect.x1 < rect.x0
+            || rect.y1 < rect.y0
+        {
+            return;
+        }
+        let x1 = rect.x1.min(img.width() - 1);
+        let y1 = rect.y1.min(img.height() - 1);
+        let levels = self.counts.len();
+        for y in rect.y0..=y1 {
+            for p in &img.row(y)[rect.x0 as usize..=x1 as usize] {
+                let v = (p.value() as usize).min(levels - 1);
+                self.counts[v] += 1;
+            }
+        }
+        self.total += (x1 - rect.x0 + 1) as u64 * (y1 - rect.y0 + 1) as u64;
+    }
+
+    pub fn counts(&self) -> &[u32] {
+        &self.counts
+    }
+
+    pub fn total(&self) -> u64 {
+        self.total
+    }
+
+    fn nonzero_range(&self) -> Result<(usize, usize), VisionError> {
+        let lo = self
+            .counts
+            .iter()
+            .position(|&c| c > 0)
+            .ok_or(VisionError::EmptyHistogram)?;
+        let hi = self
+            .counts
+            .iter()
+            .rposition(|&c| c > 0)
+            .ok_or(VisionError::EmptyHistogram)?;
+        Ok((lo, hi))
+    }
+
+    /// The most frequent level (the background level on a dark scene).
+    pub fn mode(&self) -> Result<u32, VisionError> {
+        self.nonzero_range()?;
+        let (mut best, mut count) = (0usize, 0u32);
+        for (i, &c) in self.counts.iter().enumerate() {
+            if c > count {
+                best = i;
+                count = c;
+            }
+        }
+        Ok(best as u32)
+    }
+
+    /// Otsu's threshold: maximises the between-class variance `w0·w1·(μ0 − μ1)²`.
+    pub fn otsu(&self) -> Result<u32, VisionError> {
+        let (lo, hi) = self.nonzero_range()?;
+        if lo == hi {
+            return Ok(hi as u32 + 1);
+        }
+        let total = self.total as f64;
+        let sum_all: f64 = self
+            .counts
+            .iter()
+            .enumerate()
+            .map(|(i, &c)| i as f64 * c as f64)
+            .sum();
+        let (mut w0, mut sum0) = (0.0f64, 0.0f64);
+        let (mut best_t, mut best) = (lo + 1, -1.0f64);
+        for t in lo + 1..=hi {
+            // Background is levels < t.
+            w0 += self.counts[t - 1] as f64;
+            sum0 += (t - 1) as f64 * self.counts[t - 1] as f64;
+            let w1 = total - w0;
+            if w0 == 0.0 || w1 == 0.0 {
+                continue;
+            }
+            let d = sum0 / w0 - (sum_all - sum0) / w1;
+            let between = w0 * w1 * d * d;
+            if between > best {
+                best = between;
+                best_t = t;
+            }
+        }
+        Ok(best_t as u32)
+    }
+
+    /// The triangle threshold, from the peak towards the bright end (module docs).
+    pub fn triangle(&self) -> Result<u32, VisionError> {
+        let (_lo, hi) = self.nonzero_range()?;
+        let peak = self.mode()? as usize;
+        if peak >= hi {
+            return Ok(hi as u32 + 1);
+        }
+        // Line from (peak, h[peak]) to (hi + 1, 0): the first empty level past the brightest.
+        let (x0, y0) = (peak as f64, self.counts[peak] as f64);
+        let x1 = (hi + 1) as f64;
+        let (dx, dy) = (x1 - x0, -y0);
+        let norm = (dx * dx + dy * dy).sqrt();
+        let (mut best_level, mut best_d) = (peak, -1.0f64);
+        for level in peak + 1..=hi {
+            let (px, py) = (level as f64, self.counts[level] as f64);
+            // Distance below the line (positive when the histogram sags under it).
+            let d = ((px - x0) * dy - (py - y0) * dx) / norm;
+            if d > best_d {
+                best_d = d;
+                best_level = level;
+            }
+        }
+        Ok(best_level as u32 + 1)
+    }
+
+    /// The auto threshold: halfway from the triangle knee to the mean of the levels at or
+    /// above it (module docs).
+    pub fn auto(&self) -> Result<u32, VisionError> {
+        let knee = self.triangle()? as usize;
+        let (mut n, mut sum) = (0u64, 0u64);
+        for (level, &c) in self.counts.iter().enumerate().skip(knee) {
+            n += c as u64;
+            sum += level as u64 * c as u64;
+        }
+        if n == 0 {
+            return Ok(knee as u32);
+        }
+        let bright = sum as f64 / n as f64;
+        Ok(((knee as f64 + bright) / 2.0).round() as u32)
+    }
+
+    /// The threshold a method gives on this histogram (a fixed one is range-checked for `P`).
+    pub fn threshold<P: Pixel>(&self, method: ThresholdMethod) -> Result<u32, VisionError> {
+        match method {
+            ThresholdMethod::Fixed(t) if t > P::MAX_VALUE => {
+                Err(VisionError::ThresholdOutOfRange {
+                    threshold: t,
+                    bits: P::BITS,
+                    max: P::MAX_VALUE,
+                })
+            }
+            ThresholdMethod::Fixed(t) => Ok(t),
+            ThresholdMethod::Otsu => Ok(self.otsu()?.min(P::MAX_VALUE)),
+            ThresholdMethod::Triangle => Ok(self.triangle()?.min(P::MAX_VALUE)),
+            ThresholdMethod::Auto => Ok(self.auto()?.min(P::MAX_VALUE)),
+        }
+    }
+
+    /// The equalisation map: level → level spreading the cumulative histogram evenly over the
+    /// pixel range (for display; the moments never see equalised pixels).
+    pub fn equalisation_map<P: Pixel>(&self) -> Result<Vec<P>, VisionError> {
+        let (lo, _) = self.nonzero_range()?;
+        let cdf_min = self.counts[lo] as f64;
+        let denom = (self.total as f64 - cdf_min).max(1.0);
+        let max = P::MAX_VALUE as f64;
+        let mut cum = 0u64;
+        Ok(self
+            .counts
+            .iter()
+            .map(|&c| {
+                cum += c as u64;
+                let v = ((cum as f64 - cdf_min) / denom * max)
+                    .round()
+                    .clamp(0.0, max);
+                P::from_u32_saturating(v as u32)
+            })
+            .collect())
+    }
+}
+
+/// Histogram-equalised copy of an image, for display.
+pub fn equalise<P: Pixel>(
+    img: &GrayView<'_, P>,
+) -> Result<crate::image::GrayImage<P>, VisionError> {
+    let map = Histogram::of(img).equalisation_map::<P>()?;
+    let mut out = crate::image::GrayImage::filled(img.width(), img.height(), P::default())?;
+    for y in 0..img.height() {
+        let src = img.row(y);
+        for (d, s) in out.row_mut(y).iter_mut().zip(src) {
+            *d = map[(s.value() as usize).min(map.len() - 1)];
+        }
+    }
+    Ok(out)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::extract::{ExtractConfig, Extractor};
+    use crate::image::GrayImage;
+    use crate::raster::{Ellipse, add_gaussian_noise, draw_ellipse, fill_background};
+    use stereoscope_numeric::SplitMix64;
+
+    fn scene(gradient: f64, seed: u64) -> GrayImage<u8> {
+        let mut img = GrayImage::filled(320, 240, 0u8).unwrap();
+        fill_background(&mut img, 15.0, gradient);
+        for (i, (x, y)) in [(60.0, 60.0), (250.0, 70.0), (160.0, 180.0), (280.0, 200.0)]
+            .into_iter()
+            .enumerate()
+        {
+            let bg = 15.0 + gradient * x;
+            draw_ellipse(
+                &mut img,
+                &Ellipse::disc(x, y, 4.0 + i as f64),
+                1.0,
+                bg,
+                bg + 150.0,
+                8,
+            );
+        }
+        add_gaussian_noise(&mut img, 2.0, &mut SplitMix64::new(seed));
+        img
+    }
+
+    fn count_blobs(img: &GrayImage<u8>, t: u32) -> usize {
+        let mut ex = Extractor::new(ExtractConfig {
+            min_area_px: 5,
+            ..Default::default()
+        });
+        ex.extract(img.view(), t, &[]).unwrap().len()
+    }
+
+    #[test]
+    fn both_methods_find_four_targets_under_even_light() {
+        let img = scene(0.0, 1);
+        let h = Histogram::of(&img.view());
+        for t in [h.otsu().unwrap(), h.triangle().unwrap(), h.auto().unwrap()] {
+            assert_eq!(count_blobs(&img, t), 4, "threshold {t}");
+        }
+    }
+
+    #[test]
+    fn otsu_fails_on_small_targets_over_uneven_light() {
+        // Background rising from 15 to ~79 across the frame: Otsu splits the background.
+        let img = scene(0.2, 2);
+        let h = Histogram::of(&img.view());
+        let (otsu, tri) = (h.otsu().unwrap(), h.triangle().unwrap());
+        assert!(otsu < 75, "otsu {otsu} lands inside the background");
+        assert_ne!(count_blobs(&img, otsu), 4);
+        assert!(tri > 80, "triangle {tri}");
+        assert_eq!(count_blobs(&img, tri), 4);
+        let auto = h.auto().unwrap();
+        assert!(auto > tri, "auto {auto}");
+        assert_eq!(count_blobs(&img, auto), 4);
+    }
+
+    #[test]
+    fn per_window_histogram_adapts_to_local_light() {
+        let img = scene(0.2, 3);
+        let left = Histogram::of_rect(
+            &img.view(),
+            PixelRect {
+                x0: 30,
+                y0: 30,
+                x1: 90,
+                y1: 90,
+            },
+        );
+        let right = Histogram::of_rect(
+            &img.view(),
+            PixelRect {
+                x0: 250,
+                y0: 170,
+                x1: 310,
+                y1: 230,
+            },
+        );
+        let (tl, tr) = (left.triangle().unwrap(), right.triangle().unwrap());
+        assert!(tl < tr, "{tl} {tr}");
+        assert!(tl > 25 && tl < 150);
+    }
+
+    #[test]
+    fn degenerate_histograms() {
+        let h = Histogram::new::<u8>();
+        assert_eq!(h.otsu(), Err(VisionError::EmptyHistogram));
+        assert_eq!(h.triangle(), Err(VisionError::EmptyHistogram));
+        let flat = GrayImage::filled(10, 10, 40u8).unwrap();
+        let h = Histogram::of(&flat.view());
+        assert_eq!(h.otsu().unwrap(), 41);
+        assert_eq!(h.triangle().unwrap(), 41);
+        assert_eq!(h.auto().unwrap(), 41);
+        assert_eq!(
+            h.threshold::<u8>(ThresholdMethod::Fixed(300)).unwrap_err(),
+            VisionError::ThresholdOutOfRange {
+                threshold: 300,
+                bits: 8,
+                max: 255
+            }
+        );
+        // A rect outside the image counts nothing.
+        let h = Histogram::of_rect(
+            &flat.view(),
+            PixelRect {
+                x0: 20,
+                y0: 0,
+                x1: 30,
+                y1: 5,
+            },
+        );
+        assert_eq!(h.total(), 0);
+    }
+
+    #[test]
+    fn equalisation_spreads_levels() {
+        let mut img = GrayImage::filled(16, 16, 0u8).unwrap();
+        for (i, p) in img.as_mut_slice().iter_mut().enumerate() {
+            *p = 100 + (i % 4) as u8;
+        }
+        let eq = equalise(&img.view()).unwrap();
+        let mut levels: Vec<u8> = eq.as_slice().to_vec();
+        levels.sort_unstable();
+        levels.dedup();
+        assert_eq!(levels, vec![0, 85, 170, 255]);
+    }
+
+    #[test]
+    fn parse_methods() {
+        assert_eq!(ThresholdMethod::parse("auto"), Some(ThresholdMethod::Auto));
+        assert_eq!(
+            ThresholdMethod::parse("triangle"),
+            Some(ThresholdMethod::Triangle)
+        );
+        assert_eq!(ThresholdMethod::parse("OTSU"), Some(ThresholdMethod::Otsu));
+        assert_eq!(
+            ThresholdMethod::parse("128"),
+            Some(ThresholdMethod::Fixed(128))
+        );
+        assert_eq!(ThresholdMethod::parse("-3"), None);
+    }
+}

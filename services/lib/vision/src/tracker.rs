@@ -1,0 +1,783 @@
+//! Self-adaptive tracking windows for several objects.
+//!
+//! Thesis: chapter 5, Eq. 5.1–5.3 and steps 1–5 (`auto_tracking_and_resizing_window`):
+//!
+//! 1. window half-width = MagicFactor (2.3) · √area (Eq. 5.1; the code uses it as the half-width
+//!    `ax`), with a floor (`HalfofWidth`, 30 px at 320×240);
+//! 2. centred on the object (Eq. 5.2) — here on its *predicted* position;
+//! 3. the motion `new − old` (Eq. 5.3) — computed by the thesis but never used by its code; here
+//!    it drives a constant-velocity prediction;
+//! 4. when the object is lost, the window doubles (the code jumped straight to the full frame)
+//!    each lost frame, still moving with the prediction, until it covers the frame: then the
+//!    whole frame is searched to reacquire;
+//! 5. the window is shifted back inside the frame (and clipped if it is larger).
+//!
+//! Several objects: all windows are extracted in one call over their union, so a pixel in two
+//! windows counts once, and blobs are given to tracks by a global minimum-cost assignment
+//! (distance to the prediction, gated by the track's window), so two tracks never share a blob.
+//! Each object keeps its id while tracked or lost; ids are never reused. New objects are taken
+//! only from full-frame searches, which run while no object is tracked, when a lost object's
+//! window has grown to the frame, and every `search_every_frames` frames while fewer than
+//! `max_objects` are tracked.
+//!
+//! Pixel conventions: `docs/conventions.md`.
+
+use crate::error::VisionError;
+use crate::extract::{Blob, BlobFlags, ExtractConfig, ExtractStats, Extractor, Window};
+use crate::heading::{HeadingConfig, HeadingTracker, HeadingUpdate};
+use crate::histogram::{Histogram, ThresholdMethod};
+use crate::image::{GrayView, Pixel, PixelRect};
+use crate::moments::{directed_angle_deg, validate_par};
+use stereoscope_numeric::Assigner;
+
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct TrackerConfig {
+    /// Eq. 5.1's MagicFactor.
+    pub magic_factor: f64,
+    /// Floor of the window half-width, pixels (the thesis's `HalfofWidth`).
+    pub min_half_width_px: u32,
+    /// How many objects to track at most.
+    pub max_objects: usize,
+    /// While fewer than `max_objects` are tracked, search the full frame every this many frames
+    /// for new ones (1 = every frame).
+    pub search_every_frames: u32,
+    /// A track lost for more than this many frames is dropped.
+    pub drop_after_lost_frames: u32,
+    /// Smallest blob that starts a new track, pixels.
+    pub min_new_area_px: u64,
+    /// Pixel aspect ratio (pixel width / pixel height) for orientation.
+    pub par: f64,
+    pub heading: HeadingConfig,
+    /// Minimum normalised skewness to trust a third-order direction; `None` disables it.
+    pub direction_min_skewness: Option<f64>,
+    /// Threshold each window from its own histogram with this method (the thesis's
+    /// `region.thres`); `None` uses the frame threshold everywhere.
+    pub window_threshold: Option<ThresholdMethod>,
+}
+
+impl Default for TrackerConfig {
+    fn default() -> Self {
+        TrackerConfig {
+            magic_factor: 2.3,
+            min_half_width_px: 30,
+            max_objects: 4,
+            search_every_frames: 10,
+            drop_after_lost_frames: 60,
+            min_new_area_px: 4,
+            par: 1.0,
+            heading: HeadingConfig::default(),
+            direction_min_skewness: Some(0.2),
+            window_threshold: None,
+        }
+    }
+}
+
+impl TrackerConfig {
+    pub fn validate(&self) -> Result<(), VisionError> {
+        let bad = |field, value: f64, reason| {
+            Err(VisionError::InvalidTrackerConfig {
+                field,
+                value,
+                reason,
+            })
+        };
+        if !(self.magic_factor.is_finite() && self.magic_factor > 0.0) {
+            return bad(
+                "magic_factor",
+                self.magic_factor,
+                "must be a finite number above zero",
+            );
+        }
+        if self.max_objects == 0 {
+            return bad("max_objects", 0.0, "must be at least 1");
+        }
+        if self.search_every_frames == 0 {
+            return bad("search_every_frames", 0.0, "must be at least 1");
+        }
+        if !(self.heading.ambiguous_step_deg > 0.0 && self.heading.ambiguous_step_deg < 90.0) {
+            return bad(
+                "heading.ambiguous_step_deg",
+                self.heading.ambiguous_step_deg,
+                "must be in (0, 90)",
+            );
+        }
+        validate_par(self.par)?;
+        Ok(())
+    }
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum TrackStatus {
+    /// Found this frame for the first time.
+    New,
+    /// Found this frame in its window.
+    Tracked,
+    /// Not found this frame; its window is growing.
+    Lost,
+}
+
+/// One tracked object.
+#[derive(Debug, Clone)]
+pub struct Track {
+    pub id: u32,
+    pub status: TrackStatus,
+    /// Last measured centroid (intensity-weighted when the extractor computes weights), pixels.
+    pub x_px: f64,
+    pub y_px: f64,
+    /// Motion per frame (Eq. 5.3).
+    pub vx_px: f64,
+    pub vy_px: f64,
+    pub area_px: u64,
+    /// The window searched this frame.
+    pub window: PixelRect,
+    pub lost_frames: u32,
+    /// This frame's blob, when found.
+    pub blob: Option<Blob>,
+    /// Continuous heading 0–360°.
+    pub heading: HeadingUpdate,
+    heading_tracker: HeadingTracker,
+}
+
+impl Track {
+    fn predicted(&self) -> (f64, f64) {
+        let k = (self.lost_frames + 1) as f64;
+        (self.x_px + self.vx_px * k, self.y_px + self.vy_px * k)
+    }
+}
+
+/// What one tracking step did.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct TrackStep {
+    /// The whole frame was searched.
+    pub full_frame: bool,
+    pub extract: ExtractStats,
+    pub tracked: usize,
+    pub lost: usize,
+    pub new: usize,
+    pub dropped: usize,
+}
+
+/// Self-adaptive multi-object tracker over one camera's frames.
+#[derive(Debug)]
+pub struct Tracker {
+    cfg: TrackerConfig,
+    extractor: Extractor,
+    tracks: Vec<Track>,
+    next_id: u32,
+    /// The last step's frame number (the caller's, see [`Tracker::step_frame`], or counted).
+    last_frame: Option<u64>,
+    counted_frames: u64,
+    windows: Vec<Window>,
+    cost: Vec<f64>,
+    /// This step's blob centroids, for the costs.
+    centroids: Vec<(f64, f64)>,
+    assigner: Assigner,
+    taken: Vec<bool>,
+}
+
+/// `c.round() as i64` (halves away from zero, saturating) without the library call that
+/// `round` is on the x86-64 baseline.
+#[inline]
+fn round_half_away(c: f64) -> i64 {
+    let i = c as i64;
+    let f = c - i as f64;
+    if f >= 0.5 {
+        i.saturating_add(1)
+    } else if f <= -0.5 {
+        i.saturating_sub(1)
+    } else {
+        i
+    }
+}
+
+/// The window of half-width `half` centred at `(cx, cy)`, shifted inside the frame and clipped
+/// if larger (step 5).
+pub fn clamp_window(cx: f64, cy: f64, half: u32, width: u32, height: u32) -> PixelRect {
+    fn axis(c: f64, half: u32, size: u32) -> (u32, u32) {
+        let span = 2 * half as i64 + 1;
+        if span >= size as i64 {
+            return (0, size - 1);
+        }
+        let c = if c.is_finite() {
+            round_half_away(c)
+        } else {
+            size as i64 / 2
+        };
+        let lo = (c - half as i64).clamp(0, size as i64 - span);
+        (lo as u32, (lo + span - 1) as u32)
+    }
+    let (x0, x1) = axis(cx, half, width);
+    let (y0, y1) = axis(cy, half, height);
+    PixelRect { x0, y0, x1, y1 }
+}
+
+impl Tracker {
+    pub fn new(cfg: TrackerConfig, extract: ExtractConfig) -> Result<Self, VisionError> {
+        cfg.validate()?;
+        Ok(Tracker {
+            cfg,
+            extractor: Extractor::new(extract),
+            tracks: Vec::new(),
+            next_id: 1,
+            last_frame: None,
+            counted_frames: 0,
+            windows: Vec::new(),
+            cost: Vec::new(),
+            centroids: Vec::new(),
+            assigner: Assigner::default(),
+            taken: Vec::new(),
+        })
+    }
+
+    pub fn config(&self) -> &TrackerConfig {
+        &self.cfg
+    }
+
+    /// The extraction settings (weighting, connectivity, capacity).
+    pub fn extract_config(&self) -> &ExtractConfig {
+        self.extractor.config()
+    }
+
+    /// Changes the extraction settings from the next step on (e.g. new grey-level weights
+    /// after a fresh threshold); tracks are kept.
+    pub fn set_extract_config(&mut self, cfg: ExtractConfig) {
+        self.extractor.set_config(cfg);
+    }
+
+    pub fn tracks(&self) -> &[Track] {
+        &self.tracks
+    }
+
+    /// The windows searched in the last step (empty after a full-frame search).
+    pub fn windows(&self) -> &[Window] {
+        &self.windows
+    }
+
+    /// Eq. 5.1 with the floor and step 4's doubling per lost frame.
+    fn half_width(&self, t: &Track, limit: u32) -> u32 {
+        let base = (self.cfg.magic_factor * (t.area_px as f64).sqrt()) as u32;
+        let base = base.max(self.cfg.min_half_width_px).max(1);
+        let grown = base as u64 * (1u64 << t.lost_frames.min(20));
+        grown.min(limit as u64) as u32
+    }
+
+    /// Tracks one frame: `threshold` is the frame threshold (windows may override it, see
+    /// [`TrackerConfig::window_threshold`]). Frames are numbered by the calls.
+    pub fn step<P: Pixel>(
+        &mut self,
+        img: GrayView<'_, P>,
+        threshold: u32,
+    ) -> Result<TrackStep, VisionError> {
+        let frame = self.counted_frames;
+        self.counted_frames += 1;
+        self.step_frame(img, threshold, frame)
+    }
+
+    /// [`Tracker::step`] for frame number `frame` (the camera's sequence number): the periodic
+    /// search for new objects runs on the first frame of each period of
+    /// `search_every_frames` numbers, so trackers fed the same frames search on the same ones
+    /// whenever each started (a replay of recorded frames finds objects when the live system
+    /// did), and a skipped frame does not skip a period's search.
+    pub fn step_frame<P: Pixel>(
+        &mut self,
+        img: GrayView<'_, P>,
+        threshold: u32,
+        frame: u64,
+    ) -> Result<TrackStep, VisionError> {
+        let (w, h) = (img.width(), img.height());
+        let limit = w.max(h);
+        // Steps 1–5: a window per track around its prediction.
+        self.windows.clear();
+        let mut needs_full = self.tracks.is_empty();
+        for i in 0..self.tracks.len() {
+            let t = &self.tracks[i];
+            let (px, py) = t.predicted();
+            let half = self.half_width(t, limit);
+            let rect = clamp_window(px, py, half, w, h);
+            if rect.width() == w && rect.height() == h {
+                needs_full = true;
+            }
+            self.tracks[i].window = rect;
+            let thr = match self.cfg.window_threshold {
+                Some(m) => Some(Histogram::of_rect(&img, rect).threshold::<P>(m)?),
+                None => None,
+            };
+            self.windows.push(Window {
+                rect,
+                threshold: thr,
+            });
+        }
+        let every = self.cfg.search_every_frames as u64;
+        let new_period = self.last_frame.is_none_or(|l| frame / every != l / every);
+        self.last_frame = Some(frame);
+        let searching = self.tracks.len() < self.cfg.max_objects && new_period;
+        let full_frame = needs_full || searching;
+        if full_frame {
+            self.windows.clear();
+        }
+        self.extractor.extract(img, threshold, &self.windows)?;
+        let blobs = self.extractor.blobs();
+        let mut step = TrackStep {
+            full_frame,
+            extract: self.extractor.stats(),
+            ..Default::default()
+        };
+
+        // Global assignment: cost = squared distance to the prediction, gated by the window.
+        self.cost.clear();
+        self.centroids.clear();
+        self.centroids
+            .extend(blobs.iter().map(|b| b.best_centroid_px()));
+        for t in &self.tracks {
+            let (px, py) = t.predicted();
+            self.cost.extend(self.centroids.iter().map(|&(bx, by)| {
+                if t.window.contains(bx, by) {
+                    (bx - px).powi(2) + (by - py).powi(2)
+                } else {
+                    f64::INFINITY
+                }
+            }));
+        }
+        let assignment = self
+            .assigner
+            .solve(&self.cost, self.tracks.len(), blobs.len());
+        self.taken.clear();
+        self.taken.resize(blobs.len(), false);
+        let par = self.cfg.par;
+        let skew = self.cfg.direction_min_skewness;
+        for (t, a) in self.tracks.iter_mut().zip(assignment) {
+            match a {
+                Some(j) => {
+                    let b = blobs[*j];
+                    self.taken[*j] = true;
+                    let (bx, by) = self.centroids[*j];
+                    let k = (t.lost_frames + 1) as f64;
+                    t.vx_px = (bx - t.x_px) / k;
+                    t.vy_px = (by - t.y_px) / k;
+                    t.x_px = bx;
+                    t.y_px = by;
+                    t.area_px = b.area_px();
+                    t.lost_frames = 0;
+                    t.status = TrackStatus::Tracked;
+                    t.heading = heading_of(&mut t.heading_tracker, &b, par, skew);
+                    t.blob = Some(b);
+                    step.tracked += 1;
+                }
+                None => {
+                    t.lost_frames += 1;
+                    t.status = TrackStatus::Lost;
+                    t.blob = None;
+                    step.lost += 1;
+                }
+            }
+        }
+        let before = self.tracks.len();
+        let drop_after = self.cfg.drop_after_lost_frames;
+        self.tracks.retain(|t| t.lost_frames <= drop_after);
+        step.dropped = before - self.tracks.len();
+
+        // New objects, only from full-frame searches: largest unclaimed, whole blobs first.
+        if full_frame && self.tracks.len() < self.cfg.max_objects {
+            let mut fresh: Vec<usize> = (0..blobs.len())
+                .filter(|&j| {
+                    !self.taken[j]
+                        && blobs[j].area_px() >= self.cfg.min_new_area_px
+                        && !blobs[j].flags.contains(BlobFlags::CLIPPED)
+                })
+                .collect();
+            fresh.sort_by(|&a, &b| blobs[b].area_px().cmp(&blobs[a].area_px()).then(a.cmp(&b)));
+            for j in fresh {
+                if self.tracks.len() >= self.cfg.max_objects {
+                    break;
+                }
+                let b = blobs[j];
+                let (bx, by) = b.best_centroid_px();
+                let mut ht = HeadingTracker::new(self.cfg.heading);
+                let heading = heading_of(&mut ht, &b, par, skew);
+                self.tracks.push(Track {
+                    id: self.next_id,
+                    status: TrackStatus::New,
+                    x_px: bx,
+                    y_px: by,
+                    vx_px: 0.0,
+                    vy_px: 0.0,
+                    area_px: b.area_px(),
+                    window: PixelRect::full(w, h),
+                    lost_frames: 0,
+                    blob: Some(b),
+                    heading,
+                    heading_tracker: ht,
+                });
+                self.next_id += 1;
+                step.new += 1;
+            }
+        }
+        Ok(step)
+    }
+}
+
+fn heading_of(ht: &mut HeadingTracker, b: &Blob, par: f64, min_skew: Option<f64>) -> HeadingUpdate {
+    let shape = b.best_central().axis_shape(par);
+    let roundness = shape.roundness();
+    // A round blob's heading is held, so its direction is not worth the third moments.
+    let directed = if roundness > ht.config().max_roundness {
+        None
+    } else {
+        min_skew.and_then(|s| directed_angle_deg(&b.moments, &shape, par, s))
+    };
+    ht.update(shape.angle_deg, roundness, directed)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::heading::HeadingStatus;
+    use crate::image::GrayImage;
+    use crate::raster::{Ellipse, draw_ellipse};
+
+    fn frame(objs: &[(f64, f64, f64)]) -> GrayImage<u8> {
+        let mut img = GrayImage::filled(320, 240, 10u8).unwrap();
+        for &(x, y, r) in objs {
+            draw_ellipse(&mut img, &Ellipse::disc(x, y, r), 1.0, 10.0, 210.0, 4);
+        }
+        img
+    }
+
+    /// Two trackers fed the same numbered frames, one from frame 0 and one from frame 13 (a
+    /// replay of a recording that began mid-run): an object appearing at frame 15 is found by
+    /// both at frame 20, the next search period, and from then on they report the same.
+    #[test]
+    fn periodic_searches_follow_the_frame_numbers() {
+        let scene = |f: u64| {
+            let mut objs = vec![(60.0 + f as f64, 80.0, 5.0)];
+            if f >= 15 {
+                objs.push((200.0, 150.0 - f as f64, 6.0));
+            }
+            frame(&objs)
+        };
+        let cfg = TrackerConfig {
+            search_every_frames: 10,
+            ..Default::default()
+        };
+        let mut live = Tracker::new(cfg, ExtractConfig::default()).unwrap();
+        let mut replay = Tracker::new(cfg, ExtractConfig::default()).unwrap();
+        let mut found = [None, None];
+        for f in 0..40u64 {
+            let img = scene(f);
+            let mut seen = Vec::new();
+            for (k, tr) in [&mut live, &mut replay].into_iter().enumerate() {
+                if k == 1 && f < 13 {
+                    continue;
+                }
+                let step = tr.step_frame(img.view(), 128, f).unwrap();
+                if tr.tracks().len() == 2 && found[k].is_none() {
+                    found[k] = Some(f);
+                    assert_eq!(step.new, 1);
+                }
+                let mut xy: Vec<(f64, f64)> =
+                    tr.tracks().iter().map(|t| (t.x_px, t.y_px)).collect();
+                xy.sort_by(|a, b| a.0.total_cmp(&b.0));
+                seen.push(xy);
+            }
+            if f >= 20 {
+                assert_eq!(seen[0], seen[1], "frame {f}");
+            }
+        }
+        assert_eq!(found, [Some(20), Some(20)]);
+        // Numbered by the calls, the same schedule.
+        let mut counted = Tracker::new(cfg, ExtractConfig::default()).unwrap();
+        let first_two = (0..40u64).find(|&f| {
+            counted.step(scene(f).view(), 128).unwrap();
+            counted.tracks().len() == 2
+        });
+        assert_eq!(first_two, Some(20));
+    }
+
+    #[test]
+    fn rounding_matches_the_library_round() {
+        for c in [
+            0.0,
+            0.49999999999999994,
+            0.5,
+            1.5,
+            2.5,
+            -0.5,
+            -1.5,
+            -2.4,
+            1e300,
+            -1e300,
+            4e18,
+            1919.5,
+        ] {
+            assert_eq!(round_half_away(c), c.round() as i64, "{c}");
+        }
+        let mut rng = stereoscope_numeric::SplitMix64::new(3);
+        for _ in 0..10_000 {
+            let c = (rng.uniform() - 0.5) * 1e4;
+            assert_eq!(round_half_away(c), c.round() as i64, "{c}");
+        }
+    }
+
+    #[test]
+    fn window_follows_eq_5_1_and_stays_in_the_frame() {
+        assert_eq!(
+            clamp_window(100.0, 100.0, 30, 320, 240),
+            PixelRect {
+                x0: 70,
+                y0: 70,
+                x1: 130,
+                y1: 130
+            }
+        );
+        assert_eq!(
+            clamp_window(5.0, 235.0, 30, 320, 240),
+            PixelRect {
+                x0: 0,
+                y0: 179,
+                x1: 60,
+                y1: 239
+            }
+        );
+        assert_eq!(
+            clamp_window(5.0, 5.0, 500, 320, 240),
+            PixelRect::full(320, 240)
+        );
+        assert_eq!(clamp_window(f64::NAN, 5.0, 10, 320, 240).width(), 21);
+        let t = Tracker::new(TrackerConfig::default(), ExtractConfig::default()).unwrap();
+        let mut track = Track {
+            id: 1,
+            status: TrackStatus::Tracked,
+            x_px: 0.0,
+            y_px: 0.0,
+            vx_px: 0.0,
+            vy_px: 0.0,
+            area_px: 400,
+            window: PixelRect::full(1, 1),
+            lost_frames: 0,
+            blob: None,
+            heading: HeadingUpdate {
+                heading_deg: 0.0,
+                step_deg: 0.0,
+                status: HeadingStatus::Initial,
+            },
+            heading_tracker: HeadingTracker::new(HeadingConfig::default()),
+        };
+        assert_eq!(t.half_width(&track, 320), 46); // 2.3 · 20
+        track.area_px = 9;
+        assert_eq!(t.half_width(&track, 320), 30); // floor
+        track.lost_frames = 2;
+        assert_eq!(t.half_width(&track, 320), 120); // doubled twice
+        track.lost_frames = 5;
+        assert_eq!(t.half_width(&track, 320), 320);
+    }
+
+    #[test]
+    fn tracks_three_crossing_objects_keeping_ids() {
+        let mut tr = Tracker::new(
+            TrackerConfig {
+                max_objects: 3,
+                ..Default::default()
+            },
+            ExtractConfig::default(),
+        )
+        .unwrap();
+        let mut ids_at_start = Vec::new();
+        for f in 0..60 {
+            let t = f as f64;
+            // Two objects cross at frame 30 with offset rows; a third moves slowly.
+            let objs = [
+                (40.0 + 4.0 * t, 100.0, 6.0),
+                (280.0 - 4.0 * t, 118.0, 5.0),
+                (160.0, 30.0 + t, 7.0),
+            ];
+            let img = frame(&objs);
+            let step = tr.step(img.view(), 110).unwrap();
+            if f == 0 {
+                assert!(step.full_frame);
+                assert_eq!(step.new, 3);
+                ids_at_start = objs
+                    .iter()
+                    .map(|o| {
+                        tr.tracks()
+                            .iter()
+                            .find(|k| (k.x_px - o.0).abs() < 1.0 && (k.y_px - o.1).abs() < 1.0)
+                            .unwrap()
+                            .id
+                    })
+                    .collect();
+            } else {
+                assert!(!step.full_frame, "frame {f} should be windowed");
+                assert_eq!(step.tracked, 3, "frame {f}");
+            }
+            for (o, id) in objs.iter().zip(&ids_at_start) {
+                let k = tr.tracks().iter().find(|k| k.id == *id).unwrap();
+                assert!(
+                    (k.x_px - o.0).abs() < 0.5 && (k.y_px - o.1).abs() < 0.5,
+                    "frame {f} id {id}: ({}, {}) vs {:?}",
+                    k.x_px,
+                    k.y_px,
+                    o
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn lost_object_grows_its_window_then_reacquires_from_the_full_frame() {
+        let mut tr = Tracker::new(
+            TrackerConfig {
+                max_objects: 1,
+                ..Default::default()
+            },
+            ExtractConfig::default(),
+        )
+        .unwrap();
+        tr.step(frame(&[(50.0, 50.0, 5.0)]).view(), 110).unwrap();
+        tr.step(frame(&[(52.0, 50.0, 5.0)]).view(), 110).unwrap();
+        let id = tr.tracks()[0].id;
+        let w0 = tr.tracks()[0].window;
+        // Gone for a few frames: the window doubles each time, moving with the prediction.
+        let mut widths = vec![w0.width()];
+        let empty = frame(&[]);
+        let mut went_full = false;
+        for _ in 0..4 {
+            let s = tr.step(empty.view(), 110).unwrap();
+            assert_eq!(tr.tracks()[0].status, TrackStatus::Lost);
+            widths.push(tr.tracks()[0].window.width());
+            went_full |= s.full_frame;
+        }
+        assert!(widths.windows(2).all(|p| p[1] >= p[0]), "{widths:?}");
+        assert!(went_full);
+        // It comes back far away: the full-frame search finds it with the same id.
+        let s = tr.step(frame(&[(250.0, 200.0, 5.0)]).view(), 110).unwrap();
+        assert!(s.full_frame);
+        assert_eq!(tr.tracks()[0].id, id);
+        assert_eq!(tr.tracks()[0].status, TrackStatus::Tracked);
+        assert!((tr.tracks()[0].x_px - 250.0).abs() < 0.5);
+    }
+
+    #[test]
+    fn two_tracks_never_share_a_blob_when_windows_overlap() {
+        let mut tr = Tracker::new(
+            TrackerConfig {
+                max_objects: 2,
+                ..Default::default()
+            },
+            ExtractConfig::default(),
+        )
+        .unwrap();
+        tr.step(
+            frame(&[(100.0, 100.0, 5.0), (120.0, 100.0, 5.0)]).view(),
+            110,
+        )
+        .unwrap();
+        assert_eq!(tr.tracks().len(), 2);
+        // One object disappears: its overlapping window sees the other's blob, but only one
+        // track may take it.
+        tr.step(frame(&[(120.0, 100.0, 5.0)]).view(), 110).unwrap();
+        let tracked: Vec<_> = tr
+            .tracks()
+            .iter()
+            .filter(|t| t.status == TrackStatus::Tracked)
+            .collect();
+        assert_eq!(tracked.len(), 1);
+        assert!((tracked[0].x_px - 120.0).abs() < 0.5);
+    }
+
+    #[test]
+    fn drops_long_lost_tracks_and_rejects_bad_config() {
+        let mut tr = Tracker::new(
+            TrackerConfig {
+                max_objects: 1,
+                drop_after_lost_frames: 3,
+                ..Default::default()
+            },
+            ExtractConfig::default(),
+        )
+        .unwrap();
+        tr.step(frame(&[(50.0, 50.0, 5.0)]).view(), 110).unwrap();
+        let empty = frame(&[]);
+        let mut dropped = 0;
+        for _ in 0..5 {
+            dropped += tr.step(empty.view(), 110).unwrap().dropped;
+        }
+        assert_eq!(dropped, 1);
+        assert!(tr.tracks().is_empty());
+        for cfg in [
+            TrackerConfig {
+                magic_factor: -1.0,
+                ..Default::default()
+            },
+            TrackerConfig {
+                max_objects: 0,
+                ..Default::default()
+            },
+            TrackerConfig {
+                par: 0.0,
+                ..Default::default()
+            },
+            TrackerConfig {
+                search_every_frames: 0,
+                ..Default::default()
+            },
+        ] {
+            assert!(Tracker::new(cfg, ExtractConfig::default()).is_err());
+        }
+    }
+
+    #[test]
+    fn per_window_thresholds_follow_local_light() {
+        // Left half dim background, right half bright background: one frame threshold cannot
+        // serve both, per-window histograms can.
+        let mut img = GrayImage::filled(320, 240, 10u8).unwrap();
+        for y in 0..240 {
+            for x in 160..320 {
+                img.set(x, y, 120);
+            }
+        }
+        draw_ellipse(
+            &mut img,
+            &Ellipse::disc(80.0, 120.0, 6.0),
+            1.0,
+            10.0,
+            100.0,
+            4,
+        );
+        draw_ellipse(
+            &mut img,
+            &Ellipse::disc(240.0, 120.0, 6.0),
+            1.0,
+            120.0,
+            230.0,
+            4,
+        );
+        let cfg = TrackerConfig {
+            max_objects: 2,
+            search_every_frames: 1000,
+            window_threshold: Some(ThresholdMethod::Otsu),
+            ..Default::default()
+        };
+        let mut tr = Tracker::new(cfg, ExtractConfig::default()).unwrap();
+        // Acquire with a frame threshold that only sees the right object's surroundings...
+        tr.step(img.view(), 160).unwrap();
+        assert_eq!(tr.tracks().len(), 1);
+        // ...and with a low one that sees both blobs (the right half is all foreground then,
+        // but the left disc is whole).
+        let mut tr2 = Tracker::new(cfg, ExtractConfig::default()).unwrap();
+        tr2.step(img.view(), 55).unwrap();
+        let left = tr2
+            .tracks()
+            .iter()
+            .find(|t| (t.x_px - 80.0).abs() < 1.0)
+            .map(|t| t.id);
+        assert!(left.is_some());
+        // Windowed frames then threshold each window by its own histogram.
+        for _ in 0..3 {
+            tr2.step(img.view(), 55).unwrap();
+        }
+        assert!(tr2.windows().iter().all(|w| w.threshold.is_some()));
+        let t = tr2.tracks().iter().find(|t| Some(t.id) == left).unwrap();
+        assert_eq!(t.status, TrackStatus::Tracked);
+        assert!((t.x_px - 80.0).abs() < 0.3);
+    }
+}
