@@ -338,6 +338,136 @@ fn bad_rig_files_are_named_and_nothing_starts() {
     assert!(stderr(&out).contains("pc7"), "{}", stderr(&out));
 }
 
+/// Every rule of the rig's checks, broken one at a time: `stereoscope run` refuses the rig at
+/// once (no service starts, nothing is retried), exits non-zero and names the key and value.
+#[test]
+fn every_rig_rule_is_refused_at_start_with_its_key() {
+    let _serial = serial();
+    let dir = TempDir::new("rig-rules");
+    let demo = demo_rig();
+    let cam0 = "source = { kind = \"synthetic\", fps = 30.0 }";
+    let with_cam0 = |s: &str| demo.replacen(cam0, s, 1);
+    let cases: Vec<(&str, String, &[&str])> = vec![
+        (
+            "max_objects",
+            demo.replacen("max_objects = 6", "max_objects = 0", 1),
+            &["camera[0].moments.max_objects", "0"],
+        ),
+        (
+            "threshold",
+            demo.replacen("threshold = \"auto\"", "threshold = 300", 1),
+            &["camera[0].moments.threshold", "300"],
+        ),
+        (
+            "y4m",
+            with_cam0("source = { kind = \"y4m\", path = \"no-such-clip.y4m\" }"),
+            &["camera[0].source.path", "no-such-clip.y4m"],
+        ),
+        (
+            "images",
+            with_cam0("source = { kind = \"images\", path = \"no-such-folder\", fps = 30.0 }"),
+            &["camera[0].source.path", "no-such-folder"],
+        ),
+        (
+            "image_size",
+            demo.replacen(
+                "image_size = [320, 240]",
+                "image_size = [4000000000, 4000000000]",
+                1,
+            ),
+            &["camera[0].image_size", "4000000000"],
+        ),
+        (
+            "loop_frames",
+            with_cam0("source = { kind = \"synthetic\", fps = 30.0, loop_frames = 4000000000 }"),
+            &["camera[0].source.loop_frames", "4000000000"],
+        ),
+        (
+            "fps_tiny",
+            with_cam0("source = { kind = \"synthetic\", fps = 1e-300 }"),
+            &["camera[0].source.fps", "1e-300"],
+        ),
+        (
+            "fps_huge",
+            with_cam0("source = { kind = \"synthetic\", fps = 1e300 }"),
+            &["camera[0].source.fps"],
+        ),
+        (
+            "max_skew_ms",
+            demo.replacen("max_skew_ms = 5.0", "max_skew_ms = 1e300", 1),
+            &["fusion.max_skew_ms"],
+        ),
+        (
+            "camera_id",
+            demo.replacen("id = \"cam1\"", "id = \"cam0\"", 1),
+            &["camera[1].id", "cam0"],
+        ),
+        (
+            "device",
+            demo.replace(
+                cam0,
+                "source = { kind = \"v4l\", device = \"/dev/video7\" }",
+            ),
+            &["camera[1].source.device", "/dev/video7"],
+        ),
+        (
+            "host",
+            format!("{demo}\n[[host]]\nname = \"pc1\"\n[[host]]\nname = \"pc1\"\n"),
+            &["host[1].name", "pc1"],
+        ),
+        (
+            "weighting",
+            demo.replacen(
+                "max_objects = 6 }",
+                "max_objects = 6, weighting = \"gauss\" }",
+                1,
+            ),
+            &["weighting", "gauss", "coverage"],
+        ),
+    ];
+    for (name, text, wanted) in cases {
+        let path = dir.file(&format!("{name}.toml"), &text);
+        let out = run_with_limit(&["run", &path], Duration::from_secs(10));
+        assert!(!out.status.success(), "{name}: the rig was accepted");
+        let e = stderr(&out);
+        assert!(
+            e.contains(&format!("{name}.toml")),
+            "{name}: the file is not named: {e}"
+        );
+        for w in wanted {
+            assert!(e.contains(w), "{name}: {w:?} missing from: {e}");
+        }
+        assert!(!e.contains("started "), "{name}: a service started: {e}");
+    }
+    // A service refuses the same rig with the configuration status, which the launcher does
+    // not restart.
+    let bad = dir.file(
+        "service.toml",
+        &demo.replacen("max_objects = 6", "max_objects = 0", 1),
+    );
+    let out = run_with_limit(
+        &["service", "moments", "--rig", &bad, "--camera", "cam0"],
+        Duration::from_secs(10),
+    );
+    assert_eq!(out.status.code(), Some(78), "{}", stderr(&out));
+    assert!(stderr(&out).contains("camera[0].moments.max_objects"));
+    if cfg!(not(feature = "v4l")) {
+        // A V4L2 camera in a build without V4L2: refused by `run` before anything starts.
+        let v4l = dir.file(
+            "v4l-build.toml",
+            &with_cam0("source = { kind = \"v4l\", device = \"/dev/video0\" }"),
+        );
+        let out = run_with_limit(&["run", &v4l], Duration::from_secs(10));
+        assert!(!out.status.success());
+        let e = stderr(&out);
+        assert!(
+            e.contains("camera[0].source") && e.contains("--features v4l"),
+            "{e}"
+        );
+        assert!(!e.contains("started "), "{e}");
+    }
+}
+
 #[test]
 fn bad_sources_are_named() {
     let _serial = serial();

@@ -50,6 +50,37 @@ pub enum CaptureError {
         #[source]
         source: SourceError,
     },
+    /// The rig asks for what this build cannot do.
+    #[error("camera {camera}: {source}")]
+    Unsupported {
+        camera: String,
+        #[source]
+        source: stereoscope_rig::RigError,
+    },
+}
+
+/// Refuses a rig whose cameras on this PC need what this build lacks (V4L2 without the `v4l`
+/// feature): a configuration error, found before any service starts.
+pub fn check_supported(rig: &stereoscope_rig::Rig, cameras: &[String]) -> Result<(), CaptureError> {
+    for (i, c) in rig.spec.cameras.iter().enumerate() {
+        if cfg!(not(feature = "v4l"))
+            && cameras.contains(&c.id)
+            && let Some(SourceSpec::V4l { device, .. }) = &c.source
+        {
+            return Err(CaptureError::Unsupported {
+                camera: c.id.clone(),
+                source: stereoscope_rig::RigError {
+                    kind: stereoscope_rig::RigErrorKind::Value,
+                    file: rig.path.clone(),
+                    key: format!("camera[{i}].source"),
+                    message: format!(
+                        "{device}: this build has no V4L2 support; build with `--features v4l` (needs libclang-dev)"
+                    ),
+                },
+            });
+        }
+    }
+    Ok(())
 }
 
 /// What a run did.
@@ -135,14 +166,13 @@ pub fn open_source(ctx: &Context, camera: &str) -> Result<Box<dyn FrameSource>, 
             exposure,
             gain,
         } => Box::new(
-            v4l::V4lSource::open(device, format.as_deref(), *fps, *exposure, *gain)
+            v4l::V4lSource::open(device, format.map(|f| f.fourcc()), *fps, *exposure, *gain)
                 .map_err(wrap)?,
         ),
         #[cfg(not(feature = "v4l"))]
-        SourceSpec::V4l { device, .. } => {
-            return Err(setup(format!(
-                "{device}: this build has no V4L2 support; build with `--features v4l` (needs libclang-dev)"
-            )));
+        SourceSpec::V4l { .. } => {
+            check_supported(&ctx.rig, &[camera.to_string()])?;
+            return Err(setup("V4L2 is not in this build".into()));
         }
     };
     let (w, h) = source.size();

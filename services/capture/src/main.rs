@@ -9,6 +9,6 @@ struct Cli {
     args: stereoscope_capture::cli::Args,
 }
 
-fn main() -> anyhow::Result<()> {
-    stereoscope_capture::cli::main(Cli::parse().args)
+fn main() -> std::process::ExitCode {
+    stereoscope_rig::exit::exit_code(stereoscope_capture::cli::main(Cli::parse().args))
 }

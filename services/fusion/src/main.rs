@@ -9,6 +9,6 @@ struct Cli {
     args: stereoscope_fusion::cli::Args,
 }
 
-fn main() -> anyhow::Result<()> {
-    stereoscope_fusion::cli::main(Cli::parse().args)
+fn main() -> std::process::ExitCode {
+    stereoscope_rig::exit::exit_code(stereoscope_fusion::cli::main(Cli::parse().args))
 }

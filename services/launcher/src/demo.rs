@@ -138,6 +138,18 @@ pub fn run(cfg: DemoConfig, shutdown: Shutdown) -> Result<DemoSummary, LaunchErr
         "{base}\n[[host]]\nname = \"demo\"\nzenoh_listen = [\"tcp/127.0.0.1:{port}\"]\niceoryx2_prefix = \"{prefix}\"\n"
     );
     let rig = Rig::from_toml(&text).map_err(|e| setup(format!("demo rig: {e}")))?;
+    // The demo scores against the synthetic scene's truth: every camera must render it.
+    if let Some((i, c)) = rig.spec.cameras.iter().enumerate().find(|(_, c)| {
+        !matches!(
+            c.source,
+            Some(stereoscope_rig::schema::SourceSpec::Synthetic { .. })
+        )
+    }) {
+        return Err(setup(format!(
+            "demo rig: camera[{i}] ({:?}) has no synthetic source; the demo scores synthetic cameras against their scene's truth (run a rig of real sources with `stereoscope run`)",
+            c.id
+        )));
+    }
     std::fs::create_dir_all(&cfg.work_dir)
         .map_err(|e| setup(format!("{}: {e}", cfg.work_dir.display())))?;
     let rig_path = cfg.work_dir.join("demo-rig.toml");

@@ -15,6 +15,8 @@ pub mod status;
 
 use std::io::{BufRead, BufReader};
 use std::process::{Child, Command, Stdio};
+use std::sync::{Arc, Mutex};
+use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 use stereoscope_rig::Context;
 use stereoscope_rig::context::local_endpoint;
@@ -55,6 +57,12 @@ pub const DRAIN_AFTER_SOURCES_END: Duration = Duration::from_millis(1500);
 pub enum LaunchError {
     #[error("launcher: {0}")]
     Setup(String),
+    /// A service refused its configuration: no restart would mend it, so the rig stopped.
+    #[error(
+        "{service} refused its configuration (exit status {}): {message}; stopped the rig",
+        stereoscope_rig::exit::CONFIG_EXIT_STATUS
+    )]
+    ServiceConfig { service: String, message: String },
 }
 
 /// The services of `ctx.host`, in start order (capture before its worker, outputs, fusion last).
@@ -104,6 +112,9 @@ pub fn services_here(ctx: &Context, service_zenoh: &ZenohSpec) -> Vec<ServiceSpe
 struct Running {
     spec: ServiceSpec,
     child: Option<Child>,
+    /// The last line the service wrote to standard error, and the thread copying it.
+    last_error_line: Arc<Mutex<String>>,
+    stderr_copier: Option<JoinHandle<()>>,
     started: Instant,
     backoff: Duration,
     restart_at: Option<Instant>,
@@ -112,20 +123,31 @@ struct Running {
     finished: bool,
 }
 
-fn pipe_lines(name: String, stream: impl std::io::Read + Send + 'static, to_err: bool) {
+fn pipe_lines(
+    name: String,
+    stream: impl std::io::Read + Send + 'static,
+    last: Option<Arc<Mutex<String>>>,
+) -> JoinHandle<()> {
     std::thread::spawn(move || {
         for line in BufReader::new(stream).lines() {
             let Ok(line) = line else { break };
-            if to_err {
+            if let Some(last) = &last {
+                if let Ok(mut l) = last.lock() {
+                    line.clone_into(&mut l);
+                }
                 eprintln!("[{name}] {line}");
             } else {
                 println!("[{name}] {line}");
             }
         }
-    });
+    })
 }
 
-fn spawn(cfg: &LaunchConfig, spec: &ServiceSpec) -> std::io::Result<Child> {
+fn spawn(
+    cfg: &LaunchConfig,
+    spec: &ServiceSpec,
+    last_error_line: &Arc<Mutex<String>>,
+) -> std::io::Result<(Child, Option<JoinHandle<()>>)> {
     let (prog, pre) = cfg
         .program
         .split_first()
@@ -151,12 +173,13 @@ fn spawn(cfg: &LaunchConfig, spec: &ServiceSpec) -> std::io::Result<Child> {
     }
     let mut child = cmd.spawn()?;
     if let Some(out) = child.stdout.take() {
-        pipe_lines(spec.name.clone(), out, false);
+        pipe_lines(spec.name.clone(), out, None);
     }
-    if let Some(err) = child.stderr.take() {
-        pipe_lines(spec.name.clone(), err, true);
-    }
-    Ok(child)
+    let copier = child
+        .stderr
+        .take()
+        .map(|err| pipe_lines(spec.name.clone(), err, Some(last_error_line.clone())));
+    Ok((child, copier))
 }
 
 fn terminate(children: &mut [Running]) {
@@ -243,12 +266,15 @@ pub fn run(cfg: LaunchConfig, shutdown: Shutdown) -> Result<u32, LaunchError> {
     }
     let mut running: Vec<Running> = Vec::new();
     for spec in specs {
-        let child = spawn(&cfg, &spec)
+        let last_error_line = Arc::new(Mutex::new(String::new()));
+        let (child, stderr_copier) = spawn(&cfg, &spec, &last_error_line)
             .map_err(|e| LaunchError::Setup(format!("starting {}: {e}", spec.name)))?;
         tracing::info!("started {} (pid {})", spec.name, child.id());
         running.push(Running {
             spec,
             child: Some(child),
+            last_error_line,
+            stderr_copier,
             started: Instant::now(),
             backoff: Duration::from_millis(500),
             restart_at: None,
@@ -257,7 +283,8 @@ pub fn run(cfg: LaunchConfig, shutdown: Shutdown) -> Result<u32, LaunchError> {
         });
     }
     let mut restarts = 0;
-    while !shutdown.requested() {
+    let mut refused: Option<LaunchError> = None;
+    while !shutdown.requested() && refused.is_none() {
         for r in running.iter_mut() {
             if let Some(c) = &mut r.child
                 && let Ok(Some(status)) = c.try_wait()
@@ -267,6 +294,23 @@ pub fn run(cfg: LaunchConfig, shutdown: Shutdown) -> Result<u32, LaunchError> {
                     tracing::info!("{} finished", r.spec.name);
                     r.finished = true;
                     continue;
+                }
+                if status.code() == Some(stereoscope_rig::exit::CONFIG_EXIT_STATUS.into()) {
+                    // The copier ends at the pipe's end, after the service's last line.
+                    if let Some(t) = r.stderr_copier.take() {
+                        let _ = t.join();
+                    }
+                    let message = r
+                        .last_error_line
+                        .lock()
+                        .map(|l| l.clone())
+                        .unwrap_or_default();
+                    tracing::error!("{} refused its configuration; stopping", r.spec.name);
+                    refused = Some(LaunchError::ServiceConfig {
+                        service: r.spec.name.clone(),
+                        message,
+                    });
+                    break;
                 }
                 if r.started.elapsed() > Duration::from_secs(30) {
                     r.backoff = Duration::from_millis(500);
@@ -286,10 +330,11 @@ pub fn run(cfg: LaunchConfig, shutdown: Shutdown) -> Result<u32, LaunchError> {
                 if let Err(e) = iox::cleanup_dead_nodes(&ctx.iox_prefix) {
                     tracing::warn!("cleaning dead iceoryx2 nodes: {e}");
                 }
-                match spawn(&cfg, &r.spec) {
-                    Ok(c) => {
+                match spawn(&cfg, &r.spec, &r.last_error_line) {
+                    Ok((c, copier)) => {
                         tracing::info!("restarted {} (pid {})", r.spec.name, c.id());
                         r.child = Some(c);
+                        r.stderr_copier = copier;
                         r.started = Instant::now();
                         r.restart_at = None;
                         r.restarts += 1;
@@ -317,7 +362,10 @@ pub fn run(cfg: LaunchConfig, shutdown: Shutdown) -> Result<u32, LaunchError> {
     tracing::info!("stopping {} services", running.len());
     terminate(&mut running);
     let _ = iox::cleanup_dead_nodes(&ctx.iox_prefix);
-    Ok(restarts)
+    match refused {
+        Some(e) => Err(e),
+        None => Ok(restarts),
+    }
 }
 
 #[cfg(test)]
@@ -334,6 +382,89 @@ mod tests {
             iox_prefix: "p_".into(),
             zenoh: ZenohSpec::client_of("tcp/127.0.0.1:1"),
         }
+    }
+
+    /// Runs the launcher over the demo rig with every service replaced by `script` (a real
+    /// child process); `until` decides, from how many times a service started so far, when to
+    /// ask it to stop. Returns the launcher's result and the start count.
+    fn supervise(script: &str, until: impl Fn(usize) -> bool) -> (Result<u32, LaunchError>, usize) {
+        let dir = std::env::temp_dir().join(format!(
+            "stereoscope-launcher-{}-{}",
+            std::process::id(),
+            script.len()
+        ));
+        std::fs::create_dir_all(&dir).unwrap();
+        let count = dir.join("starts");
+        let _ = std::fs::remove_file(&count);
+        let mut c = ctx(demo::DEMO_RIG, "local");
+        c.iox_prefix = format!("stsc_l{}_{}_", std::process::id(), script.len());
+        let cfg = LaunchConfig {
+            ctx: c,
+            program: vec![
+                "sh".into(),
+                "-c".into(),
+                format!("echo x >> '{}'; {script}", count.display()),
+                "sh".into(),
+            ],
+            env: Vec::new(),
+            router: false,
+            until_sources_end: false,
+        };
+        let starts = || {
+            std::fs::read_to_string(&count)
+                .map(|t| t.lines().count())
+                .unwrap_or(0)
+        };
+        let shutdown = Shutdown::new();
+        let (tx, rx) = std::sync::mpsc::channel();
+        let s = shutdown.clone();
+        let handle = std::thread::spawn(move || {
+            let _ = tx.send(run(cfg, s));
+        });
+        let deadline = Instant::now() + Duration::from_secs(30);
+        let result = loop {
+            if let Ok(r) = rx.recv_timeout(Duration::from_millis(20)) {
+                break r;
+            }
+            assert!(Instant::now() < deadline, "the launcher did not stop");
+            if until(starts()) {
+                shutdown.request();
+            }
+        };
+        handle.join().unwrap();
+        let n = starts();
+        let _ = std::fs::remove_dir_all(&dir);
+        (result, n)
+    }
+
+    #[test]
+    fn a_service_that_refuses_its_configuration_stops_the_rig_unrestarted() {
+        // Five services (capture and worker per camera, fusion); none is asked to stop.
+        let (result, starts) = supervise(
+            "echo 'error: r.toml: camera[0].moments.max_objects: 0 is not between 1 and 64' >&2; exit 78",
+            |_| false,
+        );
+        match result {
+            Err(LaunchError::ServiceConfig { service, message }) => {
+                assert!(!service.is_empty());
+                assert!(
+                    message.contains("camera[0].moments.max_objects"),
+                    "{message}"
+                );
+            }
+            other => panic!("expected a configuration stop, got {other:?}"),
+        }
+        assert!(starts <= 5, "a service was restarted: {starts} starts");
+    }
+
+    #[test]
+    fn a_crashing_service_is_restarted() {
+        let (result, starts) = supervise("exit 3", |n| n > 5);
+        let restarts = result.unwrap();
+        assert!(
+            restarts >= 1 && starts > 5,
+            "{restarts} restarts, {starts} starts"
+        );
     }
 
     #[test]

@@ -9,6 +9,6 @@ struct Cli {
     args: stereoscope_recorder::cli::Args,
 }
 
-fn main() -> anyhow::Result<()> {
-    stereoscope_recorder::cli::main(Cli::parse().args)
+fn main() -> std::process::ExitCode {
+    stereoscope_rig::exit::exit_code(stereoscope_recorder::cli::main(Cli::parse().args))
 }

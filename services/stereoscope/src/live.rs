@@ -27,6 +27,13 @@ pub fn run_rig(
         zenoh_listen: Vec::new(),
     }
     .resolve()?;
+    stereoscope_capture::check_supported(&ctx.rig, &ctx.cameras_here())?;
+    if ctx.rig.spec.fusion.is_none() {
+        tracing::warn!(
+            "{} has no [fusion] section: no fusion will run, so no poses are made",
+            ctx.rig_path.display()
+        );
+    }
     let restarts = run(
         LaunchConfig {
             ctx,

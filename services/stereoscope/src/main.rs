@@ -405,13 +405,7 @@ fn main() -> ExitCode {
             )
             .map(|()| 0),
         ),
-        Command::Service(cmd) => match service(cmd) {
-            Ok(()) => ExitCode::SUCCESS,
-            Err(e) => {
-                eprintln!("error: {e:#}");
-                ExitCode::from(1)
-            }
-        },
+        Command::Service(cmd) => stereoscope_rig::exit::exit_code(service(cmd)),
         Command::Run {
             rig,
             host,

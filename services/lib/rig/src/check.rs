@@ -35,7 +35,7 @@ fn in_range(key: &str, v: f64, lo: f64, hi: f64, what: &str) -> Result<(), RigEr
     } else {
         Err(err(
             key,
-            format!("{v} {what} must be between {lo} and {hi}"),
+            format!("{v:?} {what} must be between {lo} and {hi}"),
         ))
     }
 }
@@ -46,7 +46,7 @@ fn positive_at_most(key: &str, v: f64, hi: f64, what: &str) -> Result<(), RigErr
     } else {
         Err(err(
             key,
-            format!("{v} {what} must be above 0 and at most {hi}"),
+            format!("{v:?} {what} must be above 0 and at most {hi}"),
         ))
     }
 }

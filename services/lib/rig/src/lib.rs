@@ -9,6 +9,7 @@ pub mod cameras;
 mod check;
 pub mod context;
 pub mod error;
+pub mod exit;
 pub mod moments;
 pub mod schema;
 

@@ -80,7 +80,7 @@ impl V4lFormat {
     pub fn fourcc(self) -> &'static str {
         match self {
             V4lFormat::Grey => "GREY",
-            V4lFormat::Y16 => "Y16 ",
+            V4lFormat::Y16 => "Y16",
             V4lFormat::Yuyv => "YUYV",
             V4lFormat::Mjpg => "MJPG",
         }
