@@ -25,9 +25,8 @@ use stereoscope_proto::messages::{SCHEMA_VERSION, Truth, now_ns};
 use stereoscope_proto::names::{iox as iox_names, zenoh as keys};
 use stereoscope_rig::Context;
 use stereoscope_rig::schema::SourceSpec;
-use stereoscope_transport::iox::{FramePublisher, FrameStamp, MessagePublisher};
-use stereoscope_transport::net::JsonPublisher;
-use stereoscope_transport::{Counters, HealthReporter, Shutdown, net};
+use stereoscope_transport::iox::{FramePublisher, FrameStamp};
+use stereoscope_transport::{Outlet, ServiceNode, Shutdown};
 
 /// What to run.
 #[derive(Debug, Clone)]
@@ -42,8 +41,32 @@ pub struct CaptureConfig {
 
 #[derive(Debug, thiserror::Error)]
 pub enum CaptureError {
-    #[error("camera {camera}: {message}")]
-    Setup { camera: String, message: String },
+    #[error("camera {camera}: not a camera of the rig")]
+    UnknownCamera { camera: String },
+    #[error("camera {camera}: camera[{index}].source is missing: say where its frames come from")]
+    NoSource { camera: String, index: usize },
+    #[error(
+        "camera {camera}: the source gives {}×{} frames but camera[{index}].image_size is {}×{}",
+        .got_px.0, .got_px.1, .rig_px.0, .rig_px.1
+    )]
+    SizeMismatch {
+        camera: String,
+        index: usize,
+        got_px: (u32, u32),
+        rig_px: (u32, u32),
+    },
+    #[error("camera {camera}: the frame header")]
+    Header {
+        camera: String,
+        #[source]
+        source: stereoscope_proto::frame::FrameError,
+    },
+    #[error("camera {camera}")]
+    Transport {
+        camera: String,
+        #[source]
+        source: stereoscope_transport::TransportError,
+    },
     #[error("camera {camera}: {source}")]
     Source {
         camera: String,
@@ -67,20 +90,29 @@ pub fn check_supported(rig: &stereoscope_rig::Rig, cameras: &[String]) -> Result
             && cameras.contains(&c.id)
             && let Some(SourceSpec::V4l { device, .. }) = &c.source
         {
-            return Err(CaptureError::Unsupported {
-                camera: c.id.clone(),
-                source: stereoscope_rig::RigError {
-                    kind: stereoscope_rig::RigErrorKind::Value,
-                    file: rig.path.clone(),
-                    key: format!("camera[{i}].source"),
-                    message: format!(
-                        "{device}: this build has no V4L2 support; build with `--features v4l` (needs libclang-dev)"
-                    ),
-                },
-            });
+            return Err(no_v4l(rig, i, device));
         }
     }
     Ok(())
+}
+
+/// Camera `index` of `rig` wants V4L2 device `device`, which this build cannot open.
+fn no_v4l(rig: &stereoscope_rig::Rig, index: usize, device: &str) -> CaptureError {
+    CaptureError::Unsupported {
+        camera: rig
+            .cameras
+            .get(index)
+            .map(|c| c.id.clone())
+            .unwrap_or_default(),
+        source: stereoscope_rig::RigError {
+            kind: stereoscope_rig::RigErrorKind::Value,
+            file: rig.path.clone(),
+            key: format!("camera[{index}].source"),
+            message: format!(
+                "{device}: this build has no V4L2 support; build with `--features v4l` (needs libclang-dev)"
+            ),
+        },
+    }
 }
 
 /// What a run did.
@@ -92,38 +124,22 @@ pub struct CaptureSummary {
 
 /// Opens the camera's source as the rig file describes it.
 pub fn open_source(ctx: &Context, camera: &str) -> Result<Box<dyn FrameSource>, CaptureError> {
-    let setup = |message: String| CaptureError::Setup {
-        camera: camera.to_string(),
-        message,
-    };
     let index = ctx
         .rig
         .camera_index(camera)
-        .ok_or_else(|| setup(format!("not a camera of {}", ctx.rig_path.display())))?;
+        .ok_or_else(|| CaptureError::UnknownCamera {
+            camera: camera.to_string(),
+        })?;
     let spec = &ctx.rig.spec.cameras[index];
-    let src = spec.source.as_ref().ok_or_else(|| {
-        setup(format!(
-            "camera[{index}].source is missing in {}: say where its frames come from",
-            ctx.rig_path.display()
-        ))
+    let src = spec.source.as_ref().ok_or_else(|| CaptureError::NoSource {
+        camera: camera.to_string(),
+        index,
     })?;
     let wrap = |source: SourceError| CaptureError::Source {
         camera: camera.to_string(),
         source,
     };
-    let rel = |p: &str| -> String {
-        let path = std::path::Path::new(p);
-        if path.is_absolute() || p == "-" {
-            p.to_string()
-        } else {
-            ctx.rig_path
-                .parent()
-                .map(|d| d.join(path))
-                .unwrap_or_else(|| path.to_path_buf())
-                .display()
-                .to_string()
-        }
-    };
+    let rel = |p: &str| ctx.rig.source_path(p).display().to_string();
     let source: Box<dyn FrameSource> = match src {
         SourceSpec::Synthetic {
             fps,
@@ -170,17 +186,19 @@ pub fn open_source(ctx: &Context, camera: &str) -> Result<Box<dyn FrameSource>, 
                 .map_err(wrap)?,
         ),
         #[cfg(not(feature = "v4l"))]
-        SourceSpec::V4l { .. } => {
-            check_supported(&ctx.rig, &[camera.to_string()])?;
-            return Err(setup("V4L2 is not in this build".into()));
+        SourceSpec::V4l { device, .. } => {
+            return Err(no_v4l(&ctx.rig, index, device));
         }
     };
     let (w, h) = source.size();
     let [rw, rh] = spec.image_size;
     if (w, h) != (rw, rh) {
-        return Err(setup(format!(
-            "the source gives {w}×{h} frames but camera[{index}].image_size is {rw}×{rh}"
-        )));
+        return Err(CaptureError::SizeMismatch {
+            camera: camera.to_string(),
+            index,
+            got_px: (w, h),
+            rig_px: (rw, rh),
+        });
     }
     Ok(source)
 }
@@ -188,43 +206,33 @@ pub fn open_source(ctx: &Context, camera: &str) -> Result<Box<dyn FrameSource>, 
 /// Runs until the source ends, `max_frames`, or shutdown.
 pub fn run(cfg: CaptureConfig, shutdown: Shutdown) -> Result<CaptureSummary, CaptureError> {
     let cam = cfg.camera.clone();
-    let setup = |message: String| CaptureError::Setup {
+    let transport = |source| CaptureError::Transport {
         camera: cam.clone(),
-        message,
+        source,
     };
     let ctx = &cfg.ctx;
-    let rig = &ctx.rig.spec.name;
+    let rig = &ctx.rig.name;
     let mut source = open_source(ctx, &cam)?;
     let (w, h) = source.size();
     let format = source.format();
-    let header0 = FrameHeader::new(&cam, format, w, h).map_err(|e| setup(e.to_string()))?;
-    let node = stereoscope_transport::iox::node(&ctx.iox_prefix, &format!("capture-{cam}"))
-        .map_err(|e| setup(e.to_string()))?;
+    let header0 = FrameHeader::new(&cam, format, w, h).map_err(|source| CaptureError::Header {
+        camera: cam.clone(),
+        source,
+    })?;
+    let mut node =
+        ServiceNode::start(ctx.node_spec(&format!("capture/{cam}"))).map_err(transport)?;
     let frames = FramePublisher::new(
-        &node,
+        &node.iox,
         &iox_names::frames(rig, &cam),
         header0.payload_len() as usize,
     )
-    .map_err(|e| setup(e.to_string()))?;
-    let session = net::open(&ctx.zenoh).map_err(|e| setup(e.to_string()))?;
-    let mut health = HealthReporter::new(&session, rig, &ctx.host, &format!("capture/{cam}"))
-        .map_err(|e| setup(e.to_string()))?;
-    let has_truth = source.truth().is_some();
-    let truth_iox = if has_truth {
-        Some(
-            MessagePublisher::new(&node, &iox_names::truth(rig, &cam), &[])
-                .map_err(|e| setup(e.to_string()))?,
-        )
-    } else {
-        None
-    };
-    let truth_net = if has_truth {
-        Some(
-            JsonPublisher::new(&session, &keys::truth(rig, &cam))
-                .map_err(|e| setup(e.to_string()))?,
-        )
-    } else {
-        None
+    .map_err(transport)?;
+    let mut truth_outlet: Option<Outlet<Truth>> = match source.truth() {
+        Some(_) => Some(
+            node.outlet(&iox_names::truth(rig, &cam), &[], &keys::truth(rig, &cam))
+                .map_err(transport)?,
+        ),
+        None => None,
     };
     tracing::info!(camera = %cam, "capturing from {}", source.describe());
 
@@ -239,8 +247,9 @@ pub fn run(cfg: CaptureConfig, shutdown: Shutdown) -> Result<CaptureSummary, Cap
     let start = Instant::now();
     let start_ns = now_ns();
     let first_slot = period_ns.map(|p| start_ns / p + 1).unwrap_or(0);
-    let mut counters = Counters::default();
-    counters.detail.insert("source".into(), source.describe());
+    node.counters
+        .detail
+        .insert("source".into(), source.describe());
     let mut summary = CaptureSummary::default();
     let mut index: u64 = 0;
     let mut next_slot = first_slot;
@@ -252,7 +261,7 @@ pub fn run(cfg: CaptureConfig, shutdown: Shutdown) -> Result<CaptureSummary, Cap
                 // sequence numbers and is counted as dropped.
                 let now_slot = (start_ns + start.elapsed().as_nanos() as u64) / p;
                 if now_slot > next_slot + 1 {
-                    counters.dropped += now_slot - next_slot;
+                    node.counters.dropped += now_slot - next_slot;
                     next_slot = now_slot;
                 }
                 let slot = next_slot;
@@ -280,40 +289,38 @@ pub fn run(cfg: CaptureConfig, shutdown: Shutdown) -> Result<CaptureSummary, Cap
             index
         };
         header.timestamp_ns = nominal_ns;
-        let result = frames.publish(header, |buf| match source.read(slot, scene_time_s, buf) {
+        let mut loan = frames.loan(header).map_err(transport)?;
+        match source.read(slot, scene_time_s, loan.pixels_mut()) {
             Ok(Read::Frame {
                 timestamp_ns,
                 sequence,
-            }) => Ok(FrameStamp {
-                timestamp_ns,
-                sequence,
-            }),
-            Ok(Read::End) => Err(None),
-            Err(e) => Err(Some(e)),
-        });
-        match result {
-            Ok(Ok(_)) => {}
-            Ok(Err(None)) => {
+            }) => {
+                loan.send(FrameStamp {
+                    timestamp_ns,
+                    sequence,
+                })
+                .map_err(transport)?;
+            }
+            Ok(Read::End) => {
                 tracing::info!(camera = %cam, frames = index, "end of source");
                 break;
             }
-            Ok(Err(Some(SourceError::BadFrame(m)))) => {
+            Err(SourceError::BadFrame(m)) => {
                 tracing::warn!(camera = %cam, "skipped a frame: {m}");
-                counters.rejected += 1;
-                counters.last_error = Some(m);
+                node.counters.rejected += 1;
+                node.counters.last_error = Some(m);
                 summary.bad_frames += 1;
                 index += 1;
                 continue;
             }
-            Ok(Err(Some(e))) => {
+            Err(e) => {
                 return Err(CaptureError::Source {
                     camera: cam.clone(),
                     source: e,
                 });
             }
-            Err(e) => return Err(setup(e.to_string())),
         }
-        if let Some(truth) = source.truth() {
+        if let (Some(truth), Some(outlet)) = (source.truth(), &mut truth_outlet) {
             let t = Truth {
                 schema: SCHEMA_VERSION,
                 camera: cam.clone(),
@@ -321,17 +328,12 @@ pub fn run(cfg: CaptureConfig, shutdown: Shutdown) -> Result<CaptureSummary, Cap
                 timestamp_ns: nominal_ns,
                 targets: truth,
             };
-            if let Some(p) = &truth_iox {
-                counters.note(p.publish(&t));
-            }
-            if let Some(p) = &truth_net {
-                counters.note(p.put(&t));
-            }
+            outlet.publish(&t, &mut node.counters);
         }
         index += 1;
         summary.frames += 1;
-        counters.processed = summary.frames;
-        health.tick(&counters);
+        node.counters.processed = summary.frames;
+        node.tick();
     }
     Ok(summary)
 }

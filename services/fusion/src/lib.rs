@@ -25,9 +25,9 @@ use stereoscope_proto::messages::{
 use stereoscope_proto::names::{iox as iox_names, zenoh as keys};
 use stereoscope_rig::Context;
 use stereoscope_rig::schema::{ObservationRoute, RigFile};
-use stereoscope_transport::iox::{MessagePublisher, MessageSubscriber, Waker};
-use stereoscope_transport::net::{JsonPublisher, KeyedPublisher};
-use stereoscope_transport::{Counters, HealthReporter, Shutdown, net};
+use stereoscope_transport::iox::{MessageSubscriber, Waker};
+use stereoscope_transport::net::KeyedPublisher;
+use stereoscope_transport::{Counters, Outlet, ServiceNode, Shutdown, net};
 
 #[derive(Debug, Clone)]
 pub struct FusionConfig {
@@ -38,8 +38,10 @@ pub struct FusionConfig {
 
 #[derive(Debug, thiserror::Error)]
 pub enum FusionError {
-    #[error("fusion: {0}")]
-    Setup(String),
+    #[error("fusion: the rig has no cameras")]
+    NoCameras,
+    #[error("fusion")]
+    Transport(#[from] stereoscope_transport::TransportError),
 }
 
 /// Fusion's settings from the rig file's `[fusion]` table (defaults in `docs/services.md`;
@@ -75,16 +77,13 @@ enum Input {
 /// Runs until shutdown (or `max_sets`); returns the number of pose frames published.
 pub fn run(cfg: FusionConfig, shutdown: Shutdown) -> Result<u64, FusionError> {
     let ctx = &cfg.ctx;
-    let setup = |m: String| FusionError::Setup(m);
     let rig = ctx.rig.spec.name.clone();
     let (pair_cfg, fuser_cfg, all_zenoh) = settings(&ctx.rig.spec);
     let n = ctx.rig.cameras.len();
     if n == 0 {
-        return Err(setup(format!("{} has no cameras", ctx.rig_path.display())));
+        return Err(FusionError::NoCameras);
     }
-    let node = stereoscope_transport::iox::node(&ctx.iox_prefix, "fusion")
-        .map_err(|e| setup(e.to_string()))?;
-    let session = net::open(&ctx.zenoh).map_err(|e| setup(e.to_string()))?;
+    let mut node = ServiceNode::start(ctx.node_spec("fusion"))?;
     let here = ctx.cameras_here();
     let mut local: Vec<(usize, MessageSubscriber)> = Vec::new();
     let (tx, rx) = mpsc::sync_channel::<Input>(256);
@@ -93,8 +92,7 @@ pub fn run(cfg: FusionConfig, shutdown: Shutdown) -> Result<u64, FusionError> {
     let mut remote_subs = Vec::new();
     for (i, c) in ctx.rig.cameras.iter().enumerate() {
         if !all_zenoh && here.contains(&c.id) {
-            let sub = MessageSubscriber::new(&node, &iox_names::observations(&rig, &c.id))
-                .map_err(|e| setup(e.to_string()))?;
+            let sub = MessageSubscriber::new(&node.iox, &iox_names::observations(&rig, &c.id))?;
             local.push((i, sub));
         } else {
             let tx = tx.clone();
@@ -102,7 +100,7 @@ pub fn run(cfg: FusionConfig, shutdown: Shutdown) -> Result<u64, FusionError> {
             let expected_rig = rig.clone();
             let cam_id = c.id.clone();
             let overflow = overflow.clone();
-            let sub = net::subscribe(&session, &key, move |k, bytes| {
+            let sub = net::subscribe(&node.session, &key, move |k, bytes| {
                 let input = match Observation::from_json(bytes) {
                     Ok(o) if o.rig == expected_rig && o.camera == cam_id => Input::Obs(i, o),
                     Ok(o) => Input::Bad(format!(
@@ -114,21 +112,15 @@ pub fn run(cfg: FusionConfig, shutdown: Shutdown) -> Result<u64, FusionError> {
                 if tx.try_send(input).is_err() {
                     overflow.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
                 }
-            })
-            .map_err(|e| setup(e.to_string()))?;
+            })?;
             remote_subs.push(sub);
         }
     }
     drop(tx);
-    let waker = Waker::new(&node, &iox_names::observations_ready(&rig))
-        .map_err(|e| setup(e.to_string()))?;
-    let poses_local = MessagePublisher::new(&node, &iox_names::poses(&rig), &[])
-        .map_err(|e| setup(e.to_string()))?;
-    let poses_net =
-        JsonPublisher::new(&session, &keys::poses(&rig)).map_err(|e| setup(e.to_string()))?;
-    let mut per_object = KeyedPublisher::new(&session);
-    let mut health = HealthReporter::new(&session, &rig, &ctx.host, "fusion")
-        .map_err(|e| setup(e.to_string()))?;
+    let waker = Waker::new(&node.iox, &iox_names::observations_ready(&rig))?;
+    let mut poses: Outlet<PoseFrame> =
+        node.outlet(&iox_names::poses(&rig), &[], &keys::poses(&rig))?;
+    let mut per_object = KeyedPublisher::new(&node.session);
     tracing::info!(
         local = local.len(),
         remote = remote_subs.len(),
@@ -137,7 +129,6 @@ pub fn run(cfg: FusionConfig, shutdown: Shutdown) -> Result<u64, FusionError> {
 
     let mut pairer = Pairer::new(n, pair_cfg);
     let mut fuser = Fuser::new(&ctx.rig, fuser_cfg);
-    let mut counters = Counters::default();
     let mut sequence = 0u64;
     // With remote cameras, poll the network channel often; with local ones only, sleep on
     // the iceoryx2 event until a worker notifies.
@@ -150,8 +141,9 @@ pub fn run(cfg: FusionConfig, shutdown: Shutdown) -> Result<u64, FusionError> {
         if !local.is_empty() {
             waker.wait(wait);
         } else if let Ok(input) = rx.recv_timeout(Duration::from_millis(50)) {
-            handle(input, &mut pairer, &mut counters);
+            handle(input, &mut pairer, &mut node.counters);
         }
+        let counters = &mut node.counters;
         for (i, sub) in &local {
             loop {
                 match sub.try_next::<Observation>() {
@@ -162,18 +154,18 @@ pub fn run(cfg: FusionConfig, shutdown: Shutdown) -> Result<u64, FusionError> {
                     Ok(Some(Err(e))) => handle(
                         Input::Bad(format!("{}: {e}", sub.name())),
                         &mut pairer,
-                        &mut counters,
+                        counters,
                     ),
                     Ok(None) => break,
                     Err(e) => {
-                        counters.last_error = Some(e.to_string());
+                        counters.note::<(), _>(Err(e));
                         break;
                     }
                 }
             }
         }
         while let Ok(input) = rx.try_recv() {
-            handle(input, &mut pairer, &mut counters);
+            handle(input, &mut pairer, counters);
         }
         while let Some(set) = pairer.pop(now_ns()) {
             if set.is_empty() {
@@ -189,7 +181,7 @@ pub fn run(cfg: FusionConfig, shutdown: Shutdown) -> Result<u64, FusionError> {
                 .iter()
                 .map(|(c, _)| ctx.rig.cameras[*c].id.clone())
                 .collect();
-            let poses = fuser.fuse(&set, timestamp_ns);
+            let fused = fuser.fuse(&set, timestamp_ns);
             let published_ns = now_ns();
             let frame = PoseFrame {
                 schema: SCHEMA_VERSION,
@@ -199,10 +191,9 @@ pub fn run(cfg: FusionConfig, shutdown: Shutdown) -> Result<u64, FusionError> {
                 frame_published_ns,
                 published_ns,
                 cameras,
-                poses,
+                poses: fused,
             };
-            counters.note(poses_net.put(&frame));
-            counters.note(poses_local.publish(&frame));
+            poses.publish(&frame, counters);
             for p in &frame.poses {
                 let u = PoseUpdate {
                     schema: SCHEMA_VERSION,
@@ -221,7 +212,8 @@ pub fn run(cfg: FusionConfig, shutdown: Shutdown) -> Result<u64, FusionError> {
                 break;
             }
         }
-        if health.due() {
+        if node.report_due() {
+            let counters = &mut node.counters;
             let now = now_ns();
             counters.dropped =
                 pairer.discarded + overflow.load(std::sync::atomic::Ordering::Relaxed);
@@ -239,7 +231,7 @@ pub fn run(cfg: FusionConfig, shutdown: Shutdown) -> Result<u64, FusionError> {
                 .detail
                 .insert("objects".into(), fuser.objects().to_string());
         }
-        health.tick(&counters);
+        node.tick();
     }
     Ok(sequence)
 }

@@ -24,9 +24,8 @@ use stereoscope_proto::names::{iox as iox_names, zenoh as keys};
 use stereoscope_rig::Context;
 use stereoscope_rig::moments::WorkerSettings;
 use stereoscope_rig::schema::WeightingSpec;
-use stereoscope_transport::iox::{FrameSubscriber, MessagePublisher};
-use stereoscope_transport::net::JsonPublisher;
-use stereoscope_transport::{Counters, HealthReporter, Shutdown, net};
+use stereoscope_transport::iox::FrameSubscriber;
+use stereoscope_transport::{Outlet, ServiceNode, Shutdown};
 use stereoscope_vision::extract::{BlobFlags, Weighting};
 use stereoscope_vision::{
     GrayView, HeadingStatus, Histogram, Pixel, TrackStatus, Tracker, VisionError,
@@ -43,10 +42,40 @@ pub struct MomentsConfig {
     pub max_frames: Option<u64>,
 }
 
+/// Why a worker could not start.
 #[derive(Debug, thiserror::Error)]
 pub enum MomentsError {
-    #[error("moments/{camera}: {message}")]
-    Setup { camera: String, message: String },
+    #[error("moments/{camera}: not a camera of the rig")]
+    UnknownCamera { camera: String },
+    #[error("moments/{camera}")]
+    Rig {
+        camera: String,
+        #[source]
+        source: stereoscope_rig::RigError,
+    },
+    #[error("moments/{camera}: the tracker")]
+    Vision {
+        camera: String,
+        #[source]
+        source: VisionError,
+    },
+    #[error("moments/{camera}")]
+    Transport {
+        camera: String,
+        #[source]
+        source: stereoscope_transport::TransportError,
+    },
+}
+
+/// Why one frame was rejected (the worker goes on with the next).
+#[derive(Debug, thiserror::Error)]
+pub enum FrameRejected {
+    #[error("header and payload disagree")]
+    Header(#[from] stereoscope_proto::frame::FrameError),
+    #[error("a Gray16 frame must be 2-byte aligned with an even stride")]
+    Unaligned,
+    #[error("tracking")]
+    Vision(#[from] VisionError),
 }
 
 /// The per-frame processing, independent of transport: thresholds, tracking, the message.
@@ -225,13 +254,12 @@ impl Worker {
         &mut self,
         header: &FrameHeader,
         payload: &[u8],
-    ) -> Result<Observation, String> {
-        let format = header.validate(payload.len()).map_err(|e| e.to_string())?;
+    ) -> Result<Observation, FrameRejected> {
+        let format = header.validate(payload.len())?;
         let (w, h) = (header.width, header.height);
         let result = match format {
             PixelFormat::Gray8 => {
-                let view = GrayView::new(payload, w, h, header.stride_bytes as usize)
-                    .map_err(|e| e.to_string())?;
+                let view = GrayView::new(payload, w, h, header.stride_bytes as usize)?;
                 self.process(view, header)
             }
             PixelFormat::Gray16 => {
@@ -240,65 +268,71 @@ impl Worker {
                 // aligned middle part.
                 let (pre, mid, _) = unsafe { payload.align_to::<u16>() };
                 if !pre.is_empty() || !header.stride_bytes.is_multiple_of(2) {
-                    return Err("a Gray16 frame must be 2-byte aligned with an even stride".into());
+                    return Err(FrameRejected::Unaligned);
                 }
-                let view = GrayView::new(mid, w, h, header.stride_bytes as usize / 2)
-                    .map_err(|e| e.to_string())?;
+                let view = GrayView::new(mid, w, h, header.stride_bytes as usize / 2)?;
                 self.process(view, header)
             }
         };
-        result.map_err(|e| e.to_string())
+        Ok(result?)
     }
 }
 
 /// Runs until shutdown (or `max_frames`).
 pub fn run(cfg: MomentsConfig, shutdown: Shutdown) -> Result<u64, MomentsError> {
     let cam = cfg.camera.clone();
-    let setup = |message: String| MomentsError::Setup {
+    let transport = |source| MomentsError::Transport {
         camera: cam.clone(),
-        message,
+        source,
     };
     let ctx = &cfg.ctx;
-    let rig = ctx.rig.spec.name.clone();
+    let rig = ctx.rig.name.clone();
     let index = ctx
         .rig
         .camera_index(&cam)
-        .ok_or_else(|| setup(format!("not a camera of {}", ctx.rig_path.display())))?;
+        .ok_or_else(|| MomentsError::UnknownCamera {
+            camera: cam.clone(),
+        })?;
     let settings = ctx
         .rig
         .worker_settings(index)
-        .map_err(|e| setup(e.to_string()))?;
-    let mut worker = Worker::new(settings, &rig, &cam).map_err(|e| setup(e.to_string()))?;
-    let node = stereoscope_transport::iox::node(&ctx.iox_prefix, &format!("moments-{cam}"))
-        .map_err(|e| setup(e.to_string()))?;
-    let frames = FrameSubscriber::new(&node, &iox_names::frames(&rig, &cam))
-        .map_err(|e| setup(e.to_string()))?;
-    let ready = iox_names::observations_ready(&rig);
-    let local = MessagePublisher::new(&node, &iox_names::observations(&rig, &cam), &[&ready])
-        .map_err(|e| setup(e.to_string()))?;
-    let session = net::open(&ctx.zenoh).map_err(|e| setup(e.to_string()))?;
-    let remote = JsonPublisher::new(&session, &keys::observations(&rig, &cam))
-        .map_err(|e| setup(e.to_string()))?;
-    let mut health = HealthReporter::new(&session, &rig, &ctx.host, &format!("moments/{cam}"))
-        .map_err(|e| setup(e.to_string()))?;
+        .map_err(|source| MomentsError::Rig {
+            camera: cam.clone(),
+            source,
+        })?;
+    let mut worker = Worker::new(settings, &rig, &cam).map_err(|source| MomentsError::Vision {
+        camera: cam.clone(),
+        source,
+    })?;
+    let mut node =
+        ServiceNode::start(ctx.node_spec(&format!("moments/{cam}"))).map_err(transport)?;
+    let frames =
+        FrameSubscriber::new(&node.iox, &iox_names::frames(&rig, &cam)).map_err(transport)?;
+    let mut observations: Outlet<Observation> = node
+        .outlet(
+            &iox_names::observations(&rig, &cam),
+            &[&iox_names::observations_ready(&rig)],
+            &keys::observations(&rig, &cam),
+        )
+        .map_err(transport)?;
     tracing::info!(camera = %cam, "moment worker ready");
 
-    let mut counters = Counters::default();
     let mut last_sequence: Option<u64> = None;
     let mut processed = 0u64;
     while !shutdown.requested() && cfg.max_frames.is_none_or(|m| processed < m) {
-        let got = match frames.next_newest(Duration::from_millis(100)) {
+        let got = frames.next_newest(Duration::from_millis(100));
+        let Some((sample, skipped)) = (match got {
             Ok(g) => g,
             Err(e) => {
-                counters.last_error = Some(e.to_string());
-                health.tick(&counters);
+                node.counters.note::<(), _>(Err(e));
+                node.tick();
                 continue;
             }
-        };
-        let Some((sample, skipped)) = got else {
-            health.tick(&counters);
+        }) else {
+            node.tick();
             continue;
         };
+        let counters = &mut node.counters;
         counters.dropped += skipped;
         let header = *sample.user_header();
         if let Some(prev) = last_sequence
@@ -316,31 +350,32 @@ pub fn run(cfg: MomentsConfig, shutdown: Shutdown) -> Result<u64, MomentsError> 
         match result {
             Ok(mut obs) => {
                 obs.published_ns = now_ns();
-                counters.note(local.publish(&obs));
-                counters.note(remote.put(&obs));
+                observations.publish(&obs, counters);
                 processed += 1;
                 counters.processed = processed;
             }
             Err(e) => {
-                let m = format!("frame {} of {}: {e}", header.sequence, header.camera_id());
+                let m = format!(
+                    "frame {} of {}: {}",
+                    header.sequence,
+                    header.camera_id(),
+                    stereoscope_transport::error_chain(&e)
+                );
                 tracing::warn!(camera = %cam, "rejected {m}");
                 counters.rejected += 1;
                 counters.last_error = Some(m);
             }
         }
-        if health.due() {
-            counters.detail.insert(
-                "threshold".into(),
-                worker
-                    .threshold()
-                    .map(|t| t.to_string())
-                    .unwrap_or_default(),
-            );
-            counters
-                .detail
-                .insert("tracked".into(), worker.tracked().to_string());
+        if node.report_due() {
+            let threshold = worker
+                .threshold()
+                .map(|t| t.to_string())
+                .unwrap_or_default();
+            let detail = &mut node.counters.detail;
+            detail.insert("threshold".into(), threshold);
+            detail.insert("tracked".into(), worker.tracked().to_string());
         }
-        health.tick(&counters);
+        node.tick();
     }
     Ok(processed)
 }
@@ -420,10 +455,11 @@ mod tests {
         let h16 = FrameHeader::new("c", PixelFormat::Gray16, 64, 48).unwrap();
         let o = w16.process_frame(&h16, &img16).unwrap();
         assert_eq!(o.blobs.len(), 1);
-        assert!(
-            w.process_frame(&h, &img[..100])
-                .unwrap_err()
-                .contains("payload")
-        );
+        assert!(matches!(
+            w.process_frame(&h, &img[..100]),
+            Err(FrameRejected::Header(
+                stereoscope_proto::frame::FrameError::PayloadSize { .. }
+            ))
+        ));
     }
 }

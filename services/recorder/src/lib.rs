@@ -24,7 +24,7 @@ use stereoscope_proto::messages::{Message, Observation, PoseFrame, now_ns};
 use stereoscope_proto::names::{iox as iox_names, zenoh as keys};
 use stereoscope_rig::Context;
 use stereoscope_transport::iox::FrameSubscriber;
-use stereoscope_transport::{Counters, HealthReporter, Shutdown, net};
+use stereoscope_transport::{ServiceNode, Shutdown, net};
 
 #[derive(Debug, Clone)]
 pub struct RecorderConfig {
@@ -38,8 +38,24 @@ pub struct RecorderConfig {
 
 #[derive(Debug, thiserror::Error)]
 pub enum RecorderError {
-    #[error("recorder: {0}")]
-    Setup(String),
+    #[error("recorder: {} exists and is not empty: give a new session folder", .0.display())]
+    NotEmpty(std::path::PathBuf),
+    #[error("recorder: {}", .dir.display())]
+    CreateDir {
+        dir: std::path::PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
+    #[error("recorder: reading the rig {}", .file.display())]
+    ReadRig {
+        file: std::path::PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
+    #[error("recorder: encoding session.json")]
+    Encode(#[from] serde_json::Error),
+    #[error("recorder")]
+    Transport(#[from] stereoscope_transport::TransportError),
     #[error("recorder: writing {file}: {source}")]
     Write {
         file: String,
@@ -164,21 +180,27 @@ impl Y4mState {
 /// Records until shutdown; returns `(pose frames, observations)` written.
 pub fn run(cfg: RecorderConfig, shutdown: Shutdown) -> Result<(u64, u64), RecorderError> {
     let ctx = &cfg.ctx;
-    let setup = |m: String| RecorderError::Setup(m);
-    let rig = ctx.rig.spec.name.clone();
+    let rig = ctx.rig.name.clone();
     if cfg.out.exists()
         && std::fs::read_dir(&cfg.out)
             .map(|mut d| d.next().is_some())
             .unwrap_or(true)
     {
-        return Err(setup(format!(
-            "{} exists and is not empty: give a new session folder",
-            cfg.out.display()
-        )));
+        return Err(RecorderError::NotEmpty(cfg.out.clone()));
     }
-    std::fs::create_dir_all(&cfg.out).map_err(|e| setup(format!("{}: {e}", cfg.out.display())))?;
-    let rig_text = std::fs::read_to_string(&ctx.rig_path)
-        .map_err(|e| setup(format!("{}: {e}", ctx.rig_path.display())))?;
+    let rig_text =
+        std::fs::read_to_string(&ctx.rig_path).map_err(|source| RecorderError::ReadRig {
+            file: ctx.rig_path.clone(),
+            source,
+        })?;
+    // Connected before anything is written: a recorder that cannot reach the rig leaves no
+    // half-made session folder in the way of the next try.
+    let mut node = ServiceNode::start(ctx.node_spec("recorder"))?;
+    let create = |source| RecorderError::CreateDir {
+        dir: cfg.out.clone(),
+        source,
+    };
+    std::fs::create_dir_all(&cfg.out).map_err(create)?;
     let info = SessionInfo {
         schema: SESSION_SCHEMA,
         rig: rig.clone(),
@@ -187,10 +209,10 @@ pub fn run(cfg: RecorderConfig, shutdown: Shutdown) -> Result<(u64, u64), Record
     };
     // session.json whole, through a temporary name.
     let tmp = cfg.out.join("session.json.tmp");
-    let text = serde_json::to_vec_pretty(&info).map_err(|e| setup(e.to_string()))?;
+    let text = serde_json::to_vec_pretty(&info)?;
     std::fs::write(&tmp, text)
         .and_then(|_| std::fs::rename(&tmp, cfg.out.join("session.json")))
-        .map_err(|e| setup(format!("{}: {e}", cfg.out.display())))?;
+        .map_err(create)?;
     let mut poses_out = Out::create(&cfg.out, "poses.jsonl")?;
     let mut obs_out = Out::create(&cfg.out, "observations.jsonl")?;
     let mut csv_out = Out::create(&cfg.out, "poses.csv")?;
@@ -199,46 +221,29 @@ pub fn run(cfg: RecorderConfig, shutdown: Shutdown) -> Result<(u64, u64), Record
     // Raw frames, through shared memory — subscribed before the poses, so that every pose
     // recorded has its frames (a shared-memory subscriber gets every frame published after
     // it exists; creating one takes a while).
-    let node = if cfg.frames.is_empty() {
-        None
-    } else {
-        Some(
-            stereoscope_transport::iox::node(&ctx.iox_prefix, "recorder")
-                .map_err(|e| setup(e.to_string()))?,
-        )
-    };
     let mut frame_subs = Vec::new();
-    if let Some(node) = &node {
-        for cam in &cfg.frames {
-            let sub = FrameSubscriber::new(node, &iox_names::frames(&rig, cam))
-                .map_err(|e| setup(e.to_string()))?;
-            let out = Out::create(&cfg.out, &format!("frames-{cam}.y4m"))?;
-            frame_subs.push((cam.clone(), sub, out, Y4mState::default()));
-        }
+    for cam in &cfg.frames {
+        let sub = FrameSubscriber::new(&node.iox, &iox_names::frames(&rig, cam))?;
+        let out = Out::create(&cfg.out, &format!("frames-{cam}.y4m"))?;
+        frame_subs.push((cam.clone(), sub, out, Y4mState::default()));
     }
-    let session = net::open(&ctx.zenoh).map_err(|e| setup(e.to_string()))?;
     let (tx, rx) = mpsc::sync_channel::<Item>(4096);
     let tx2 = tx.clone();
-    let _p = net::subscribe(&session, &keys::poses(&rig), move |k, b| {
+    let _p = net::subscribe(&node.session, &keys::poses(&rig), move |k, b| {
         let item = match PoseFrame::from_json(b) {
             Ok(f) => Item::Poses(b.to_vec(), f),
             Err(e) => Item::Bad(format!("{k}: {e}")),
         };
         let _ = tx.send(item);
-    })
-    .map_err(|e| setup(e.to_string()))?;
-    let _o = net::subscribe(&session, &keys::all_observations(&rig), move |k, b| {
+    })?;
+    let _o = net::subscribe(&node.session, &keys::all_observations(&rig), move |k, b| {
         let item = match Observation::from_json(b) {
             Ok(_) => Item::Observation(b.to_vec()),
             Err(e) => Item::Bad(format!("{k}: {e}")),
         };
         let _ = tx2.send(item);
-    })
-    .map_err(|e| setup(e.to_string()))?;
-    let mut health = HealthReporter::new(&session, &rig, &ctx.host, "recorder")
-        .map_err(|e| setup(e.to_string()))?;
+    })?;
     tracing::info!(out = %cfg.out.display(), "recording");
-    let mut counters = Counters::default();
     let (mut n_poses, mut n_obs) = (0u64, 0u64);
     let mut last_flush = Instant::now();
     loop {
@@ -247,6 +252,7 @@ pub fn run(cfg: RecorderConfig, shutdown: Shutdown) -> Result<(u64, u64), Record
         // Wait for one message, then take whatever else is queued, without waiting: the
         // frames below must be read at least every frame period.
         let first = rx.recv_timeout(Duration::from_millis(wait)).ok();
+        let counters = &mut node.counters;
         for item in first
             .into_iter()
             .chain(std::iter::from_fn(|| rx.try_recv().ok()))
@@ -320,7 +326,7 @@ pub fn run(cfg: RecorderConfig, shutdown: Shutdown) -> Result<(u64, u64), Record
         counters
             .detail
             .insert("observations".into(), n_obs.to_string());
-        health.tick(&counters);
+        node.tick();
         if stopping {
             break;
         }

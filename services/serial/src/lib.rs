@@ -25,7 +25,7 @@ use stereoscope_proto::messages::{Message, PoseFrame};
 use stereoscope_proto::names::zenoh as keys;
 use stereoscope_proto::serial::{SerialMode, SerialPose, encode_framed, encode_legacy};
 use stereoscope_rig::Context;
-use stereoscope_transport::{Counters, HealthReporter, Shutdown, net};
+use stereoscope_transport::{ServiceNode, Shutdown, net};
 
 #[derive(Debug, Clone)]
 pub struct SerialConfig {
@@ -43,8 +43,14 @@ pub struct SerialConfig {
 
 #[derive(Debug, thiserror::Error)]
 pub enum SerialServiceError {
-    #[error("serial {port}: {message}")]
-    Setup { port: String, message: String },
+    #[error("serial {port}: the baud rate must be above zero")]
+    ZeroBaud { port: String },
+    #[error("serial {port}")]
+    Transport {
+        port: String,
+        #[source]
+        source: stereoscope_transport::TransportError,
+    },
 }
 
 /// Seconds the line needs for `bytes` at `baud` with 8N1 framing (10 bits a byte).
@@ -122,19 +128,29 @@ struct Latest {
 /// Runs until shutdown (or `max_packets`); returns the packets written.
 pub fn run(cfg: SerialConfig, shutdown: Shutdown) -> Result<u64, SerialServiceError> {
     let ctx = &cfg.ctx;
-    let setup = |m: String| SerialServiceError::Setup {
+    let transport = |source| SerialServiceError::Transport {
         port: cfg.port.clone(),
-        message: m,
+        source,
     };
     if cfg.baud == 0 {
-        return Err(setup("baud rate 0".into()));
+        return Err(SerialServiceError::ZeroBaud {
+            port: cfg.port.clone(),
+        });
     }
-    let rig = ctx.rig.spec.name.clone();
-    let session = net::open(&ctx.zenoh).map_err(|e| setup(e.to_string()))?;
+    let rig = ctx.rig.name.clone();
+    let short = std::path::Path::new(&cfg.port)
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_else(|| "port".into());
+    let service = format!(
+        "serial/{}",
+        short.replace(|c: char| !c.is_ascii_alphanumeric() && c != '-', "_")
+    );
+    let mut node = ServiceNode::start(ctx.node_spec(&service)).map_err(transport)?;
     let latest = Arc::new(Mutex::new(Latest::default()));
     let sink = latest.clone();
     let expected_rig = rig.clone();
-    let _sub = net::subscribe(&session, &keys::poses(&rig), move |k, b| {
+    let _sub = net::subscribe(&node.session, &keys::poses(&rig), move |k, b| {
         let mut l = sink.lock().unwrap_or_else(|e| e.into_inner());
         match PoseFrame::from_json(b) {
             Ok(f) if f.rig == expected_rig => {
@@ -145,20 +161,9 @@ pub fn run(cfg: SerialConfig, shutdown: Shutdown) -> Result<u64, SerialServiceEr
             Err(e) => l.bad = Some(format!("{k}: {e}")),
         }
     })
-    .map_err(|e| setup(e.to_string()))?;
-    let short = std::path::Path::new(&cfg.port)
-        .file_name()
-        .map(|n| n.to_string_lossy().into_owned())
-        .unwrap_or_else(|| "port".into());
-    let service = format!(
-        "serial/{}",
-        short.replace(|c: char| !c.is_ascii_alphanumeric() && c != '-', "_")
-    );
-    let mut health = HealthReporter::new(&session, &rig, &ctx.host, &service)
-        .map_err(|e| setup(e.to_string()))?;
+    .map_err(transport)?;
     tracing::info!(port = %cfg.port, baud = cfg.baud, mode = ?cfg.mode, "serial output ready");
 
-    let mut counters = Counters::default();
     let mut port: Option<Box<dyn serialport::SerialPort>> = None;
     let mut next_open = Instant::now();
     let mut line_free = Instant::now();
@@ -169,7 +174,8 @@ pub fn run(cfg: SerialConfig, shutdown: Shutdown) -> Result<u64, SerialServiceEr
     let mut clamped = 0u64;
     let mut packets = 0u64;
     while !shutdown.requested() && cfg.max_packets.is_none_or(|m| packets < m) {
-        health.tick(&counters);
+        node.tick();
+        let counters = &mut node.counters;
         if port.is_none() {
             if Instant::now() < next_open {
                 shutdown.sleep(Duration::from_millis(20));

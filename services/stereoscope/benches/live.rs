@@ -45,14 +45,11 @@ fn iox_latency(w: u32, h: u32, frames: usize) -> (f64, f64) {
             let mut hd = header;
             hd.sequence = i;
             // The camera writes its pixels (here one byte per row) before publication.
-            p.publish::<()>(hd, |buf| {
-                for row in buf.chunks_exact_mut(w as usize) {
-                    row[0] = i as u8;
-                }
-                Ok(FrameStamp::default())
-            })
-            .unwrap()
-            .unwrap();
+            let mut loan = p.loan(hd).unwrap();
+            for row in loan.pixels_mut().chunks_exact_mut(w as usize) {
+                row[0] = i as u8;
+            }
+            loan.send(FrameStamp::default()).unwrap();
             std::thread::sleep(Duration::from_millis(4));
         }
     });

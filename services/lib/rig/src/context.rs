@@ -130,6 +130,18 @@ pub fn local_endpoint(listen: &str) -> String {
 }
 
 impl Context {
+    /// Who service `service` (`moments/cam0`) of this context is, for
+    /// [`stereoscope_transport::ServiceNode::start`].
+    pub fn node_spec<'a>(&'a self, service: &'a str) -> stereoscope_transport::NodeSpec<'a> {
+        stereoscope_transport::NodeSpec {
+            rig: &self.rig.name,
+            host: &self.host,
+            service,
+            iox_prefix: &self.iox_prefix,
+            zenoh: &self.zenoh,
+        }
+    }
+
     /// The camera ids whose services run on this host.
     pub fn cameras_here(&self) -> Vec<String> {
         self.rig

@@ -22,9 +22,9 @@ pub struct Counters {
 impl Counters {
     /// Keeps the error of a failed publication (or any side effect the service carries on
     /// after) as the last error; the service goes on either way.
-    pub fn note<T, E: std::fmt::Display>(&mut self, result: Result<T, E>) {
+    pub fn note<T, E: std::error::Error + 'static>(&mut self, result: Result<T, E>) {
         if let Err(e) = result {
-            self.last_error = Some(e.to_string());
+            self.last_error = Some(crate::error_chain(&e));
         }
     }
 }
@@ -60,9 +60,9 @@ impl HealthReporter {
             .liveliness()
             .declare_token(keys::alive(rig, host, service))
             .wait()
-            .map_err(|e| TransportError::Zenoh {
+            .map_err(|source| TransportError::Zenoh {
                 what: format!("liveliness token for {service}"),
-                message: e.to_string(),
+                source,
             })?;
         Ok(HealthReporter {
             publisher,

@@ -16,11 +16,15 @@ use stereoscope_proto::names::iox as names;
 
 pub type IoxService = ipc::Service;
 
-fn err(what: &'static str, name: &str, e: impl std::fmt::Debug) -> TransportError {
+fn err(
+    what: &'static str,
+    name: &str,
+    e: impl std::error::Error + Send + Sync + 'static,
+) -> TransportError {
     TransportError::Iox {
         what,
         name: name.to_string(),
-        message: format!("{e:?}"),
+        source: Box::new(e),
     }
 }
 
@@ -28,7 +32,7 @@ fn err(what: &'static str, name: &str, e: impl std::fmt::Debug) -> TransportErro
 pub fn config(prefix: &str) -> Result<Config, TransportError> {
     let mut cfg = Config::default();
     cfg.global.prefix = FileName::new(prefix.as_bytes())
-        .map_err(|e| TransportError::Config(format!("iceoryx2 prefix {prefix:?}: {e:?}")))?;
+        .map_err(|_| TransportError::BadPrefix(prefix.to_string()))?;
     Ok(cfg)
 }
 
@@ -133,7 +137,7 @@ fn frame_service(
     iceoryx2::service::port_factory::publish_subscribe::PortFactory<IoxService, [u8], FrameHeader>,
     TransportError,
 > {
-    let eight = Alignment::new(8).ok_or_else(|| err("alignment", name, 8))?;
+    let eight = Alignment::new(8).ok_or_else(|| TransportError::Alignment(name.to_string()))?;
     node.service_builder(&service_name(name)?)
         .publish_subscribe::<[u8]>()
         .user_header::<FrameHeader>()
@@ -174,36 +178,64 @@ impl FramePublisher {
         })
     }
 
-    /// Loans `header.payload_len()` bytes of shared memory, lets `fill` write the pixels in
-    /// place (returning the exposure time and sequence number when it knows better ones than
-    /// the header's), stamps `published_ns` and sends. Returns how many subscribers got it.
-    /// `fill` returning an error sends nothing.
-    pub fn publish<E>(
-        &self,
-        mut header: FrameHeader,
-        fill: impl FnOnce(&mut [u8]) -> Result<FrameStamp, E>,
-    ) -> Result<Result<usize, E>, TransportError> {
+    /// Loans `header.payload_len()` bytes of shared memory for one frame: write the pixels
+    /// in place ([`FrameLoan::pixels_mut`]), then [`FrameLoan::send`] it, or drop the loan to
+    /// send nothing.
+    pub fn loan(&self, header: FrameHeader) -> Result<FrameLoan<'_>, TransportError> {
         let len = header.payload_len() as usize;
         let sample = self
             .publisher
             .loan_slice_uninit(len)
             .map_err(|e| err("frame loan", &self.name, e))?;
         // Zero-initialise once (a memset at memory speed), then let the source write.
-        let mut sample = sample.write_from_fn(|_| 0u8);
-        match fill(sample.payload_mut()) {
-            Ok(stamp) => {
-                header.timestamp_ns = stamp.timestamp_ns.unwrap_or(header.timestamp_ns);
-                header.sequence = stamp.sequence.unwrap_or(header.sequence);
-            }
-            Err(e) => return Ok(Err(e)),
-        }
+        let sample = sample.write_from_fn(|_| 0u8);
+        Ok(FrameLoan {
+            sample,
+            header,
+            publisher: self,
+        })
+    }
+}
+
+/// One frame's shared memory, loaned from a [`FramePublisher`]: the pixels are written in
+/// place, then the frame is sent with its stamp, or dropped unsent.
+pub struct FrameLoan<'a> {
+    sample: iceoryx2::sample_mut::SampleMut<IoxService, [u8], FrameHeader>,
+    header: FrameHeader,
+    publisher: &'a FramePublisher,
+}
+
+impl std::fmt::Debug for FrameLoan<'_> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "FrameLoan({} {})",
+            self.publisher.name, self.header.sequence
+        )
+    }
+}
+
+impl FrameLoan<'_> {
+    /// The frame's payload, `header.payload_len()` bytes, zeroed.
+    pub fn pixels_mut(&mut self) -> &mut [u8] {
+        self.sample.payload_mut()
+    }
+
+    /// Sends the frame, with the exposure time and sequence number from `stamp` where the
+    /// writer knows better ones than the header's, and `published_ns` now. Returns how many
+    /// subscribers got it.
+    pub fn send(mut self, stamp: FrameStamp) -> Result<usize, TransportError> {
+        let mut header = self.header;
+        header.timestamp_ns = stamp.timestamp_ns.unwrap_or(header.timestamp_ns);
+        header.sequence = stamp.sequence.unwrap_or(header.sequence);
         header.published_ns = stereoscope_proto::messages::now_ns();
-        *sample.user_header_mut() = header;
-        let n = sample
+        *self.sample.user_header_mut() = header;
+        let n = self
+            .sample
             .send()
-            .map_err(|e| err("frame send", &self.name, e))?;
-        let _ = self.notifier.notify();
-        Ok(Ok(n))
+            .map_err(|e| err("frame send", &self.publisher.name, e))?;
+        let _ = self.publisher.notifier.notify();
+        Ok(n)
     }
 }
 
@@ -363,14 +395,10 @@ impl MessagePublisher {
     pub fn publish<M: Message>(&self, msg: &M) -> Result<usize, TransportError> {
         let bytes = msg.to_binary();
         if bytes.len() > names::MESSAGE_MAX_BYTES {
-            return Err(TransportError::Iox {
-                what: "message",
+            return Err(TransportError::MessageTooLarge {
                 name: self.name.clone(),
-                message: format!(
-                    "{} bytes is more than the {} a sample holds",
-                    bytes.len(),
-                    names::MESSAGE_MAX_BYTES
-                ),
+                bytes: bytes.len(),
+                max: names::MESSAGE_MAX_BYTES,
             });
         }
         let sample = self

@@ -8,12 +8,14 @@
 pub mod health;
 pub mod iox;
 pub mod net;
+pub mod service;
 
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 
 pub use health::{Counters, HealthReporter};
 pub use net::{ZenohMode, ZenohSpec};
+pub use service::{NodeSpec, Outlet, ServiceNode};
 
 /// A shared "please stop" flag: set by SIGINT/SIGTERM ([`Shutdown::on_signals`]) or by a
 /// caller ([`Shutdown::request`]); services poll it between bounded waits.
@@ -78,17 +80,59 @@ pub fn init_logging(service: &str) {
     tracing::debug!(service, "logging started");
 }
 
-/// Errors of the transport layer, naming the service or endpoint concerned.
+/// An error of a library beneath transport (iceoryx2's enums, Zenoh's boxed errors), kept.
+pub type BoxError = Box<dyn std::error::Error + Send + Sync + 'static>;
+
+/// Errors of the transport layer, naming the service or endpoint concerned and keeping
+/// iceoryx2's or Zenoh's own error as the source (print with `{:#}` or walk `source()` to
+/// see it; [`error_chain`] joins them).
 #[derive(Debug, thiserror::Error)]
 pub enum TransportError {
-    #[error("iceoryx2 {what} {name:?}: {message}")]
+    /// An iceoryx2 call failed.
+    #[error("iceoryx2 {what} {name:?}")]
     Iox {
         what: &'static str,
         name: String,
-        message: String,
+        #[source]
+        source: BoxError,
     },
-    #[error("zenoh {what}: {message}")]
-    Zenoh { what: String, message: String },
-    #[error("{0}")]
-    Config(String),
+    /// A message too large for its shared-memory sample.
+    #[error("iceoryx2 message on {name:?}: {bytes} bytes is more than the {max} a sample holds")]
+    MessageTooLarge {
+        name: String,
+        bytes: usize,
+        max: usize,
+    },
+    /// iceoryx2 refused the frames' 8-byte payload alignment.
+    #[error("iceoryx2 frame service {0:?}: no 8-byte payload alignment")]
+    Alignment(String),
+    /// A Zenoh call failed.
+    #[error("zenoh {what}")]
+    Zenoh {
+        what: String,
+        #[source]
+        source: zenoh::Error,
+    },
+    /// Not `client`, `peer` or `router`.
+    #[error("zenoh mode {0:?} is not client, peer or router")]
+    UnknownZenohMode(String),
+    /// An iceoryx2 file prefix iceoryx2 does not take.
+    #[error("iceoryx2 prefix {0:?} is not a valid file name prefix")]
+    BadPrefix(String),
+}
+
+/// An error and its sources, joined by ": " (what `{:#}` prints for an `anyhow::Error`): for
+/// health reports and logs, which keep one line.
+pub fn error_chain(e: &(dyn std::error::Error + 'static)) -> String {
+    let mut s = e.to_string();
+    let mut cur = e.source();
+    while let Some(c) = cur {
+        let t = c.to_string();
+        if !s.ends_with(&t) {
+            s.push_str(": ");
+            s.push_str(&t);
+        }
+        cur = c.source();
+    }
+    s
 }

@@ -22,9 +22,7 @@ impl ZenohMode {
             "client" => Ok(ZenohMode::Client),
             "peer" => Ok(ZenohMode::Peer),
             "router" => Ok(ZenohMode::Router),
-            other => Err(TransportError::Config(format!(
-                "zenoh mode {other:?} is not client, peer or router"
-            ))),
+            other => Err(TransportError::UnknownZenohMode(other.to_string())),
         }
     }
 
@@ -80,10 +78,10 @@ impl ZenohSpec {
     }
 }
 
-fn zerr(what: impl Into<String>, e: impl std::fmt::Display) -> TransportError {
+fn zerr(what: impl Into<String>, e: impl Into<zenoh::Error>) -> TransportError {
     TransportError::Zenoh {
         what: what.into(),
-        message: e.to_string(),
+        source: e.into(),
     }
 }
 

@@ -1,0 +1,121 @@
+//! The skeleton every service stands on: a node started in one call (iceoryx2 node, Zenoh
+//! session, liveliness token and health reports, the counters they report), and an outlet that
+//! publishes one message on the same PC (iceoryx2, zero-copy) and to the network (Zenoh) at
+//! once. A service is then its setup (`ServiceNode::start`, its inputs and outlets) and its
+//! step, in a short `run(config, shutdown)`; `docs/architecture.md` shows how to add one.
+
+use crate::TransportError;
+use crate::health::{Counters, HealthReporter};
+use crate::iox::{IoxService, MessagePublisher};
+use crate::net::{self, JsonPublisher, ZenohSpec};
+use iceoryx2::prelude::Node;
+use std::marker::PhantomData;
+use stereoscope_proto::messages::Message;
+
+/// Who a service is and where it joins: what [`ServiceNode::start`] needs.
+#[derive(Debug, Clone, Copy)]
+pub struct NodeSpec<'a> {
+    pub rig: &'a str,
+    pub host: &'a str,
+    /// The service's name, at most one `/` (`moments/cam0`).
+    pub service: &'a str,
+    pub iox_prefix: &'a str,
+    pub zenoh: &'a ZenohSpec,
+}
+
+/// A running service's connections: its iceoryx2 node, its Zenoh session, and its health.
+pub struct ServiceNode {
+    pub iox: Node<IoxService>,
+    pub session: zenoh::Session,
+    pub counters: Counters,
+    health: HealthReporter,
+    rig: String,
+    service: String,
+}
+
+impl std::fmt::Debug for ServiceNode {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "ServiceNode({}/{})", self.rig, self.service)
+    }
+}
+
+impl ServiceNode {
+    /// Creates the iceoryx2 node (named after the service, `/` as `-`), opens the Zenoh
+    /// session and declares the service alive.
+    pub fn start(spec: NodeSpec<'_>) -> Result<Self, TransportError> {
+        let iox = crate::iox::node(spec.iox_prefix, &spec.service.replace('/', "-"))?;
+        let session = net::open(spec.zenoh)?;
+        let health = HealthReporter::new(&session, spec.rig, spec.host, spec.service)?;
+        Ok(ServiceNode {
+            iox,
+            session,
+            counters: Counters::default(),
+            health,
+            rig: spec.rig.to_string(),
+            service: spec.service.to_string(),
+        })
+    }
+
+    pub fn rig(&self) -> &str {
+        &self.rig
+    }
+
+    /// An outlet publishing on iceoryx2 service `iox_name` (waking the listeners of
+    /// `also_notify` too) and on Zenoh key `key`.
+    pub fn outlet<M: Message>(
+        &self,
+        iox_name: &str,
+        also_notify: &[&str],
+        key: &str,
+    ) -> Result<Outlet<M>, TransportError> {
+        Ok(Outlet {
+            local: MessagePublisher::new(&self.iox, iox_name, also_notify)?,
+            remote: JsonPublisher::new(&self.session, key)?,
+            published: 0,
+            _message: PhantomData,
+        })
+    }
+
+    /// Whether the next [`ServiceNode::tick`] reports: fill `counters.detail` only then.
+    pub fn report_due(&self) -> bool {
+        self.health.due()
+    }
+
+    /// Reports health when a report is due (once a second).
+    pub fn tick(&mut self) {
+        self.health.tick(&self.counters);
+    }
+}
+
+/// One kind of message published both on this PC (iceoryx2) and on the network (Zenoh).
+pub struct Outlet<M> {
+    local: MessagePublisher,
+    remote: JsonPublisher,
+    published: u64,
+    _message: PhantomData<fn(&M)>,
+}
+
+impl<M> std::fmt::Debug for Outlet<M> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "Outlet({:?}, {} published)", self.local, self.published)
+    }
+}
+
+impl<M: Message> Outlet<M> {
+    /// Publishes `msg` on both; a side that fails is noted in `counters` as the last error and
+    /// the other still gets it. Returns whether both took it.
+    pub fn publish(&mut self, msg: &M, counters: &mut Counters) -> bool {
+        let local = self.local.publish(msg);
+        let remote = self.remote.put(msg);
+        let ok = local.is_ok() && remote.is_ok();
+        counters.note(local);
+        counters.note(remote);
+        self.published += 1;
+        ok
+    }
+
+    /// Messages published so far.
+    pub fn published(&self) -> u64 {
+        self.published
+    }
+}
