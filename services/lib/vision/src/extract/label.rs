@@ -1,0 +1,409 @@
+//! Connected runs joined into blobs: a union-find over provisional labels per band (no label
+//! image), each run's moments added to its label's accumulator (Eq. 3.33–3.40, Eq. 3.1 weights),
+//! and the bands of a parallel scan joined at their cuts. Part of `extract` (module docs there).
+
+use super::*;
+
+// ---------------------------------------------------------------------------------------------
+// Scanning one band of rows.
+
+#[derive(Debug, Clone, Copy)]
+pub(super) struct RunRef {
+    pub(super) x0: u32,
+    pub(super) x1: u32,
+    pub(super) label: u32,
+}
+
+#[derive(Debug, Clone, Copy)]
+pub(super) struct Acc {
+    pub(super) m: RawMoments,
+    pub(super) bbox: PixelRect,
+    pub(super) first: (u32, u32),
+    pub(super) flags: BlobFlags,
+}
+
+#[derive(Debug, Default)]
+pub(super) struct Scratch {
+    pub(super) prev: Vec<RunRef>,
+    pub(super) cur: Vec<RunRef>,
+    pub(super) parent: Vec<u32>,
+    pub(super) acc: Vec<Acc>,
+    pub(super) wacc: Vec<WeightedMoments>,
+    pub(super) row_runs: Vec<(u32, u32, bool)>,
+    pub(super) first_row: Vec<RunRef>,
+    pub(super) first_row_y: Option<u32>,
+    pub(super) last_row: Vec<RunRef>,
+    pub(super) last_row_y: Option<u32>,
+    pub(super) runs: usize,
+}
+
+#[inline]
+pub(super) fn find(parent: &mut [u32], mut a: u32) -> u32 {
+    while parent[a as usize] != a {
+        let p = parent[a as usize];
+        parent[a as usize] = parent[p as usize];
+        a = p;
+    }
+    a
+}
+
+pub(super) fn merge_acc(into: &mut Acc, from: &Acc) {
+    into.m.merge(&from.m);
+    into.bbox.x0 = into.bbox.x0.min(from.bbox.x0);
+    into.bbox.y0 = into.bbox.y0.min(from.bbox.y0);
+    into.bbox.x1 = into.bbox.x1.max(from.bbox.x1);
+    into.bbox.y1 = into.bbox.y1.max(from.bbox.y1);
+    into.first = into.first.min(from.first);
+    into.flags.0 |= from.flags.0;
+}
+
+// The narrow-window pixel tests (a tracking window's row is one 64-pixel chunk), in SSE2 (the
+// x86-64 baseline) or, when `AVX2` is set, with 256-bit vectors: two loads per row instead of
+// four. `AVX2 = true` is instantiated only inside `Scratch::scan_avx2`, which runs only after
+// the CPU was found to support AVX2 (`Extractor::new`) and is compiled with it enabled. Whole
+// rows (the full-frame pass) keep the 16-byte tests: with 256-bit ones the full pass measured
+// 20 % slower (docs/performance.md), every other 32-byte load of a row straddling a cache line.
+
+impl Scratch {
+    /// Adds the run `x0..=x1` of row `y` to blob `label`'s sums (and weighted sums).
+    #[inline(always)]
+    #[allow(clippy::too_many_arguments)]
+    pub(super) fn add_run<P: Pixel>(
+        &mut self,
+        label: u32,
+        x0: u32,
+        x1: u32,
+        y: u32,
+        clipped: bool,
+        background: Option<(u32, u32)>,
+        img: &GrayView<'_, P>,
+    ) {
+        let a = &mut self.acc[label as usize];
+        a.m.add_run(x0, x1, y);
+        a.bbox.x0 = a.bbox.x0.min(x0);
+        a.bbox.x1 = a.bbox.x1.max(x1);
+        a.bbox.y1 = y;
+        if clipped {
+            a.flags.insert(BlobFlags::CLIPPED);
+        }
+        if let Some(levels) = background {
+            self.add_weighted_run(label, x0, x1, y, levels, img);
+        }
+    }
+
+    /// Adds the run's grey-level weights (Eq. 3.1, `pixel − background` capped) to blob
+    /// `label`'s weighted sums.
+    #[inline(always)]
+    pub(super) fn add_weighted_run<P: Pixel>(
+        &mut self,
+        label: u32,
+        x0: u32,
+        x1: u32,
+        y: u32,
+        (bg, cap): (u32, u32),
+        img: &GrayView<'_, P>,
+    ) {
+        let row = img.row(y);
+        let (mut sw, mut swx, mut swxx) = (0u64, 0u64, 0u64);
+        for (x, p) in (x0..=x1).zip(&row[x0 as usize..=x1 as usize]) {
+            let w = p.value().saturating_sub(bg).min(cap) as u64;
+            let xf = x as u64;
+            sw += w;
+            swx += w * xf;
+            swxx += w * xf * xf;
+        }
+        self.wacc[label as usize].add_row_sums(sw, swx, swxx, y);
+    }
+
+    pub(super) fn reset(&mut self) {
+        self.prev.clear();
+        self.cur.clear();
+        self.parent.clear();
+        self.acc.clear();
+        self.wacc.clear();
+        self.first_row.clear();
+        self.first_row_y = None;
+        self.last_row.clear();
+        self.last_row_y = None;
+        self.runs = 0;
+    }
+
+    /// Scans rows `ya..yb` of the region, with AVX2 pixel tests when `avx2` (the CPU has it).
+    pub(super) fn scan<P: Pixel>(
+        &mut self,
+        img: &GrayView<'_, P>,
+        region: &Region,
+        (ya, yb): (u32, u32),
+        cfg: &ExtractConfig,
+        avx2: bool,
+    ) {
+        #[cfg(target_arch = "x86_64")]
+        if avx2 {
+            // SAFETY: `avx2` is set only when the CPU was found to support AVX2.
+            unsafe { self.scan_avx2(img, region, ya, yb, cfg) };
+            return;
+        }
+        let _ = avx2;
+        self.scan_with::<P, false>(img, region, ya, yb, cfg);
+    }
+
+    /// [`Scratch::scan_with`] compiled with AVX2, so its 256-bit pixel tests are inlined.
+    ///
+    /// # Safety
+    /// The CPU must support AVX2.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    pub(super) unsafe fn scan_avx2<P: Pixel>(
+        &mut self,
+        img: &GrayView<'_, P>,
+        region: &Region,
+        ya: u32,
+        yb: u32,
+        cfg: &ExtractConfig,
+    ) {
+        self.scan_with::<P, true>(img, region, ya, yb, cfg);
+    }
+
+    #[inline(always)]
+    pub(super) fn scan_with<P: Pixel, const AVX2: bool>(
+        &mut self,
+        img: &GrayView<'_, P>,
+        region: &Region,
+        ya: u32,
+        yb: u32,
+        cfg: &ExtractConfig,
+    ) {
+        self.reset();
+        let k = match cfg.connectivity {
+            Connectivity::Eight => 1u32,
+            Connectivity::Four => 0u32,
+        };
+        let background = cfg.weighting.levels();
+        let mut prev_y: Option<u32> = None;
+        for (bi, band) in region.bands.iter().enumerate() {
+            let (y0, y1) = (band.y0.max(ya), band.y1.min(yb));
+            if y0 >= y1 {
+                continue;
+            }
+            let segs = &region.segs[band.segs.0..band.segs.1];
+            // A band that is one segment of at most 64 pixels (a tracking window) is read as
+            // one 64-pixel chunk per row, its runs taken straight from the chunk's mask.
+            // With the mask of its `n` pixels in a 64-pixel chunk.
+            let narrow = match segs {
+                [seg] if seg.x1 - seg.x0 < 64 && seg.x0 + 64 <= img.width() => {
+                    let n = seg.x1 - seg.x0 + 1;
+                    Some((*seg, if n == 64 { u64::MAX } else { (1u64 << n) - 1 }))
+                }
+                _ => None,
+            };
+            let mut row_runs = std::mem::take(&mut self.row_runs);
+            let mut y = y0;
+            while y < y1 {
+                // Empty rows (most rows of a tracking window) are skipped in a tight loop: they
+                // join nothing, and an empty cut row needs no record for the band joins.
+                let skip_from = y;
+                let mut narrow_mask = 0u64;
+                let row = match narrow {
+                    Some((seg, limit)) => {
+                        let x0 = seg.x0 as usize;
+                        // SAFETY: a narrow band has `seg.x0 + 64 <= width` (checked above) and
+                        // its rows are below `y1 <= height`; every call below is for a row < y1.
+                        let chunk = |y: u32| unsafe { img.chunk64_unchecked(y, x0) };
+                        let mut mask = 0;
+                        // Right after a row with runs the next row is likely busy too: test it
+                        // alone before skipping in fours.
+                        let mut skip_fours =
+                            prev_y != Some(y.wrapping_sub(1)) || self.prev.is_empty();
+                        while y < y1 {
+                            if skip_fours
+                                && y + 4 <= y1
+                                && !any64x4::<P, AVX2>(
+                                    [chunk(y), chunk(y + 1), chunk(y + 2), chunk(y + 3)],
+                                    seg.threshold,
+                                )
+                            {
+                                y += 4;
+                                continue;
+                            }
+                            mask = mask64::<P, AVX2>(chunk(y), seg.threshold) & limit;
+                            if mask != 0 {
+                                break;
+                            }
+                            skip_fours = true;
+                            y += 1;
+                        }
+                        narrow_mask = mask;
+                        None
+                    }
+                    None => {
+                        y = next_nonempty_row(img, segs, y, y1);
+                        if y < y1 { Some(img.row(y)) } else { None }
+                    }
+                };
+                if y > skip_from {
+                    self.prev.clear();
+                    prev_y = Some(y - 1);
+                }
+                if y >= y1 {
+                    break;
+                }
+                // The common row of a tracked blob: one run, continuing the one run of the row
+                // above — no labels to join, so it goes straight into that blob's sums.
+                if let Some((seg, limit)) = narrow
+                    && y != ya
+                    && y + 1 != yb
+                    && prev_y == Some(y - 1)
+                    && self.prev.len() == 1
+                {
+                    let start = narrow_mask.trailing_zeros();
+                    let ones = (!(narrow_mask >> start)).trailing_zeros();
+                    let (x0, x1) = (seg.x0 + start, seg.x0 + start + ones - 1);
+                    let p = self.prev[0];
+                    let single = start + ones >= 64 || narrow_mask >> (start + ones) == 0;
+                    if single && p.x0 <= x1 + k && p.x1 + k >= x0 {
+                        let n = seg.x1 - seg.x0 + 1;
+                        let hclip =
+                            (start == 0 && seg.open_left) || (start + ones == n && seg.open_right);
+                        let label = find(&mut self.parent, p.label);
+                        let edge_row = (band.check_top && y == band.y0)
+                            || (band.check_bottom && y + 1 == band.y1);
+                        let mut clipped =
+                            hclip || (edge_row && region.vertically_clipped(bi, y, x0, x1));
+                        // The blob's next rows, while each is again one run continuing the
+                        // one above: summed relative to this row in u64 and added once. The
+                        // loop stops before the part's last row (recorded for the joins) and
+                        // before a bottom row that needs the coverage check.
+                        let mut block = RunBlock::new(y);
+                        block.add_run(x0, x1, 0);
+                        if let Some(levels) = background {
+                            self.add_weighted_run(label, x0, x1, y, levels, img);
+                        }
+                        let (mut bx0, mut bx1) = (x0, x1);
+                        let mut run = (x0, x1);
+                        let mut stop = y1.min(yb - 1);
+                        if band.check_bottom {
+                            stop = stop.min(band.y1 - 1);
+                        }
+                        let edge_bits = seg.open_left as u64 | (seg.open_right as u64) << (n - 1);
+                        let cx0 = seg.x0 as usize;
+                        let mut yy = y + 1;
+                        while yy < stop {
+                            // SAFETY: as for the skipped rows: `yy < stop <= y1` and the
+                            // narrow band's `seg.x0 + 64 <= width`.
+                            let chunk = unsafe { img.chunk64_unchecked(yy, cx0) };
+                            let mask = mask64::<P, AVX2>(chunk, seg.threshold) & limit;
+                            if mask == 0 {
+                                break;
+                            }
+                            let start = mask.trailing_zeros();
+                            let ones = (!(mask >> start)).trailing_zeros();
+                            let single = start + ones >= 64 || mask >> (start + ones) == 0;
+                            let (r0, r1) = (seg.x0 + start, seg.x0 + start + ones - 1);
+                            if !(single && run.0 <= r1 + k && run.1 + k >= r0) {
+                                break;
+                            }
+                            clipped |= mask & edge_bits != 0;
+                            block.add_run(r0, r1, yy - y);
+                            if let Some(levels) = background {
+                                self.add_weighted_run(label, r0, r1, yy, levels, img);
+                            }
+                            bx0 = bx0.min(r0);
+                            bx1 = bx1.max(r1);
+                            run = (r0, r1);
+                            yy += 1;
+                        }
+                        let a = &mut self.acc[label as usize];
+                        block.add_to(&mut a.m);
+                        a.bbox.x0 = a.bbox.x0.min(bx0);
+                        a.bbox.x1 = a.bbox.x1.max(bx1);
+                        a.bbox.y1 = yy - 1;
+                        if clipped {
+                            a.flags.insert(BlobFlags::CLIPPED);
+                        }
+                        self.prev[0] = RunRef {
+                            x0: run.0,
+                            x1: run.1,
+                            label,
+                        };
+                        self.runs += (yy - y) as usize;
+                        prev_y = Some(yy - 1);
+                        y = yy;
+                        continue;
+                    }
+                }
+                match (row, narrow) {
+                    (Some(row), _) => find_row_runs(row, segs, &mut row_runs),
+                    (None, Some((seg, _))) => runs_from_mask(narrow_mask, &seg, &mut row_runs),
+                    (None, None) => row_runs.clear(),
+                }
+                if prev_y != Some(y.wrapping_sub(1)) || y == 0 {
+                    self.prev.clear();
+                }
+                self.cur.clear();
+                let mut j = 0usize;
+                for &(x0, x1, hclip) in &row_runs {
+                    while j < self.prev.len() && self.prev[j].x1 + k < x0 {
+                        j += 1;
+                    }
+                    let mut label = u32::MAX;
+                    let mut jj = j;
+                    while jj < self.prev.len() && self.prev[jj].x0 <= x1 + k {
+                        let r = find(&mut self.parent, self.prev[jj].label);
+                        if label == u32::MAX {
+                            label = r;
+                        } else if r != label {
+                            let (keep, gone) = if r < label { (r, label) } else { (label, r) };
+                            self.parent[gone as usize] = keep;
+                            let from = self.acc[gone as usize];
+                            merge_acc(&mut self.acc[keep as usize], &from);
+                            if background.is_some() {
+                                let w = self.wacc[gone as usize];
+                                self.wacc[keep as usize].merge(&w);
+                            }
+                            label = keep;
+                        }
+                        jj += 1;
+                    }
+                    let edge_row =
+                        (band.check_top && y == band.y0) || (band.check_bottom && y + 1 == band.y1);
+                    let clipped = hclip || (edge_row && region.vertically_clipped(bi, y, x0, x1));
+                    if label == u32::MAX {
+                        label = self.parent.len() as u32;
+                        self.parent.push(label);
+                        self.acc.push(Acc {
+                            m: RawMoments::default(),
+                            bbox: PixelRect {
+                                x0,
+                                y0: y,
+                                x1,
+                                y1: y,
+                            },
+                            first: (y, x0),
+                            flags: BlobFlags::default(),
+                        });
+                        if background.is_some() {
+                            self.wacc.push(WeightedMoments::default());
+                        }
+                    }
+                    self.add_run(label, x0, x1, y, clipped, background, img);
+                    self.cur.push(RunRef { x0, x1, label });
+                }
+                self.runs += row_runs.len();
+                if y == ya {
+                    self.first_row.clear();
+                    self.first_row.extend_from_slice(&self.cur);
+                    self.first_row_y = Some(y);
+                }
+                if y + 1 == yb {
+                    self.last_row.clear();
+                    self.last_row.extend_from_slice(&self.cur);
+                    self.last_row_y = Some(y);
+                }
+                std::mem::swap(&mut self.prev, &mut self.cur);
+                prev_y = Some(y);
+                y += 1;
+            }
+            self.row_runs = row_runs;
+        }
+    }
+}

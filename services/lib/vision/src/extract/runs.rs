@@ -1,0 +1,172 @@
+//! Foreground runs of a row: `pixel >= threshold` tested 64 pixels at a time (SSE2, or AVX2 where
+//! the CPU has it) and turned into runs `x0..=x1` (thesis Eq. 3.33–3.40 sum over them in closed
+//! form). Part of `extract` (module docs there).
+
+use super::*;
+
+#[inline(always)]
+pub(super) fn mask64<P: Pixel, const AVX2: bool>(chunk: &[P], threshold: u32) -> u64 {
+    if AVX2 {
+        // SAFETY: see above — AVX2 is present whenever this instantiation runs.
+        unsafe { P::foreground_mask64_avx2(chunk, threshold) }
+    } else {
+        P::foreground_mask64(chunk, threshold)
+    }
+}
+
+#[inline(always)]
+pub(super) fn any64x4<P: Pixel, const AVX2: bool>(chunks: [&[P]; 4], threshold: u32) -> bool {
+    if AVX2 {
+        // SAFETY: as for `mask64`.
+        unsafe { P::any_foreground64x4_avx2(chunks, threshold) }
+    } else {
+        P::any_foreground64x4(chunks, threshold)
+    }
+}
+
+/// Whether any pixel of the row's segments is foreground: the quick test that lets empty rows
+/// (most rows of a tracking window) skip all bookkeeping.
+#[inline]
+pub(super) fn row_has_foreground<P: Pixel>(row: &[P], segs: &[Seg]) -> bool {
+    for seg in segs {
+        let (mut x, end) = (seg.x0 as usize, seg.x1 as usize + 1);
+        while x + 64 <= end {
+            if P::any_foreground64(&row[x..x + 64], seg.threshold) {
+                return true;
+            }
+            x += 64;
+        }
+        if x < end {
+            let n = end - x;
+            let hit = if x + 64 <= row.len() {
+                let chunk = &row[x..x + 64];
+                P::any_foreground64(chunk, seg.threshold)
+                    && P::foreground_mask64(chunk, seg.threshold) & ((1u64 << n) - 1) != 0
+            } else {
+                row[x..end].iter().any(|p| p.value() >= seg.threshold)
+            };
+            if hit {
+                return true;
+            }
+        }
+    }
+    false
+}
+
+/// The first row in `y..y1` with a foreground pixel in `segs`, or `y1` (bands of whole rows
+/// or several segments; a narrow window's band is skipped four rows at a time in the scan).
+#[inline]
+pub(super) fn next_nonempty_row<P: Pixel>(
+    img: &GrayView<'_, P>,
+    segs: &[Seg],
+    mut y: u32,
+    y1: u32,
+) -> u32 {
+    while y < y1 && !row_has_foreground(img.row(y), segs) {
+        y += 1;
+    }
+    y
+}
+
+/// The runs of a segment read as one masked 64-pixel chunk (bit i = pixel `seg.x0 + i`).
+#[inline]
+pub(super) fn runs_from_mask(mut mask: u64, seg: &Seg, out: &mut Vec<(u32, u32, bool)>) {
+    out.clear();
+    let n = seg.x1 - seg.x0 + 1;
+    while mask != 0 {
+        let start = mask.trailing_zeros();
+        let end = start + (!(mask >> start)).trailing_zeros(); // exclusive
+        let clipped = (start == 0 && seg.open_left) || (end == n && seg.open_right);
+        out.push((seg.x0 + start, seg.x0 + end - 1, clipped));
+        mask = if end >= 64 {
+            0
+        } else {
+            mask & (u64::MAX << end)
+        };
+    }
+}
+
+/// Finds the foreground runs of one row across the row's segments, joining runs that cross
+/// from one segment into a contiguous next one. Each run: `(x0, x1, clipped_horizontally)`.
+pub(super) fn find_row_runs<P: Pixel>(row: &[P], segs: &[Seg], out: &mut Vec<(u32, u32, bool)>) {
+    out.clear();
+    // An open run: (start, clipped on the left).
+    let mut open: Option<(u32, bool)> = None;
+    for seg in segs {
+        if seg.open_left {
+            // Not contiguous with a previous segment: nothing can be open here.
+            if let Some((s, c)) = open.take() {
+                out.push((s, seg.x0 - 1, c));
+            }
+        }
+        let thr = seg.threshold;
+        let mut x = seg.x0;
+        let end = seg.x1 + 1;
+        // 64 pixels at a time; the last chunk of a segment is masked to the segment's end
+        // (read from the row when it has 64 pixels left, else from a padded copy).
+        while x < end {
+            if open.is_none() {
+                // The common case: 64 background pixels, one compare and skip.
+                while x + 64 <= end && !P::any_foreground64(&row[x as usize..x as usize + 64], thr)
+                {
+                    x += 64;
+                }
+                if x >= end {
+                    break;
+                }
+            }
+            let n = (end - x).min(64);
+            let limit = if n == 64 { u64::MAX } else { (1u64 << n) - 1 };
+            let mask = if x as usize + 64 <= row.len() {
+                P::foreground_mask64(&row[x as usize..x as usize + 64], thr) & limit
+            } else {
+                // The last pixels of the row: read through a padded copy.
+                let mut pad = [P::default(); 64];
+                pad[..n as usize].copy_from_slice(&row[x as usize..(x + n) as usize]);
+                P::foreground_mask64(&pad, thr) & limit
+            };
+            if open.is_none() && mask == 0 {
+                x += n;
+                continue;
+            }
+            if open.is_some() && mask == limit {
+                x += n;
+                continue;
+            }
+            let mut pos = 0u32;
+            while pos < n {
+                match open {
+                    Some((start, c)) => {
+                        let ones = (!mask >> pos).trailing_zeros();
+                        if pos + ones >= n {
+                            break;
+                        }
+                        out.push((start, x + pos + ones - 1, c));
+                        open = None;
+                        pos += ones;
+                    }
+                    None => {
+                        let zeros = (mask >> pos).trailing_zeros();
+                        if zeros >= n - pos {
+                            break;
+                        }
+                        let start = x + pos + zeros;
+                        open = Some((start, start == seg.x0 && seg.open_left));
+                        pos += zeros;
+                    }
+                }
+            }
+            x += n;
+        }
+        if seg.open_right
+            && let Some((s, _c)) = open.take()
+        {
+            out.push((s, seg.x1, true));
+        }
+    }
+    if let Some((s, c)) = open.take() {
+        // Ends at the last segment's end, which is then the frame's right edge or contiguous.
+        let last = segs.last().map_or(s, |g| g.x1);
+        out.push((s, last, c));
+    }
+}
