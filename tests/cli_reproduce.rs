@@ -6,7 +6,7 @@
 mod common;
 use common::{TempDir, run_with_limit, stderr};
 use std::time::Duration;
-use stereoscope::reproduce::read_table;
+use stereoscope_reproduce::read_table;
 
 #[test]
 fn reduced_reproduce_writes_every_table_and_meets_the_goals() {

@@ -2,12 +2,12 @@
 //! from images of the dot-grid target. Uses `stereoscope_geometry::calibrate` (thesis §2.2.3,
 //! Zhang/DLT start, Levenberg–Marquardt) and `dotgrid`.
 
-use crate::csvin;
 use std::io::Write;
 use std::path::PathBuf;
 use stereoscope_geometry::calibrate::{Calibration, DistortionModel, calibrate_camera};
 use stereoscope_geometry::dotgrid::{DotGrid, detect};
 use stereoscope_geometry::{Camera, Distortion};
+use stereoscope_imageio::csv;
 use stereoscope_imageio::{AnyGray, read_gray};
 use stereoscope_proto::reports::{CalibrationReport, ViewReport};
 use stereoscope_rig::{Units, camera_spec};
@@ -47,7 +47,7 @@ type Views = (
 );
 
 fn views_from_csv(path: &std::path::Path, scale: f64) -> Result<Views, String> {
-    let rows = csvin::read(path, &["view", "X", "Y", "Z", "u", "v"]).map_err(|e| e.to_string())?;
+    let rows = csv::read(path, &["view", "X", "Y", "Z", "u", "v"]).map_err(|e| e.to_string())?;
     let (mut labels, mut views): Views = (Vec::new(), Vec::new());
     let file = path.display();
     for r in &rows {

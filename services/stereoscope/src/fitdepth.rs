@@ -2,10 +2,10 @@
 //! (Eq. 4.15–4.27) fitted to measured `area_px,distance` samples
 //! (`stereoscope_geometry::depth`).
 
-use crate::csvin;
 use std::io::Write;
 use std::path::PathBuf;
 use stereoscope_geometry::depth::{AreaModel, DepthFit, fit_three_parameter, fit_two_parameter};
+use stereoscope_imageio::csv;
 use stereoscope_proto::reports::DepthFitReport;
 
 #[derive(Debug, Clone)]
@@ -36,7 +36,7 @@ fn report(name: &str, fit: &DepthFit, samples: &[(f64, f64)]) -> DepthFitReport 
 
 /// Runs the command; a fit that cannot be made is an `Err` naming why.
 pub fn run(opts: &FitDepthOptions, out: &mut impl Write) -> anyhow::Result<()> {
-    let rows = csvin::read(&opts.samples, &["area_px", "distance"])?;
+    let rows = csv::read(&opts.samples, &["area_px", "distance"])?;
     let file = opts.samples.display();
     let samples = rows
         .iter()

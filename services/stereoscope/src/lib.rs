@@ -3,9 +3,9 @@
 
 pub mod blobs;
 pub mod calibrate;
-pub mod csvin;
+
 pub mod example;
 pub mod fitdepth;
 pub mod live;
-pub mod reproduce;
+
 pub mod triangulate;

@@ -382,17 +382,17 @@ fn main() -> ExitCode {
             no_noise_table,
             rig,
         } => {
-            let opts = stereoscope::reproduce::ReproduceOptions {
+            let opts = stereoscope_reproduce::ReproduceOptions {
                 seed,
                 readings: readings.max(1),
                 noise_sigma: noise,
                 noise_sweep: !no_noise_table,
                 rig,
-                ..stereoscope::reproduce::ReproduceOptions::realistic(out)
+                ..stereoscope_reproduce::ReproduceOptions::realistic(out)
             };
-            let result = stereoscope::reproduce::run(&opts).and_then(|r| {
-                stereoscope::reproduce::write(&r, &opts)?;
-                print!("{}", stereoscope::reproduce::summary_md(&r, &opts));
+            let result = stereoscope_reproduce::run(&opts).and_then(|r| {
+                stereoscope_reproduce::write(&r, &opts)?;
+                print!("{}", stereoscope_reproduce::summary_md(&r, &opts));
                 println!("\nTables and plots in {}", opts.out.display());
                 Ok(0)
             });

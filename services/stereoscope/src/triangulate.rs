@@ -2,10 +2,10 @@
 //! the rig's calibrated cameras (CSV `point,camera,u,v`; `camera` is a camera id of the rig).
 //! Uses `stereoscope_geometry::triangulate` (DLT + reprojection refinement, 2–16 cameras).
 
-use crate::csvin;
 use std::io::Write;
 use std::path::PathBuf;
 use stereoscope_geometry::triangulate::{Observation, triangulate};
+use stereoscope_imageio::csv;
 use stereoscope_proto::reports::TriangulatedPoint;
 use stereoscope_rig::Rig;
 
@@ -27,7 +27,7 @@ pub fn run(
     let rig = Rig::load(&opts.rig)?;
     let scale = rig.metres_per_unit();
     let cams = rig.cameras();
-    let rows = csvin::read(&opts.points, &["point", "camera", "u", "v"])?;
+    let rows = csv::read(&opts.points, &["point", "camera", "u", "v"])?;
     let pfile = opts.points.display();
     // Group by point label, in order of first appearance.
     let mut labels: Vec<String> = Vec::new();

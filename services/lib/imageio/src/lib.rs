@@ -1,8 +1,11 @@
-//! Grey image files: PGM (P2 ASCII and P5 binary, 8- and 16-bit) and PNG (grey, grey+alpha,
-//! RGB, RGBA, palette; 8- and 16-bit; colour is converted to luma with the Rec. 601 weights).
+//! The files the commands read and write: grey images — PGM (P2 ASCII and P5 binary, 8- and
+//! 16-bit) and PNG (grey, grey+alpha, RGB, RGBA, palette; 8- and 16-bit; colour is converted to
+//! luma with the Rec. 601 weights) — and, in [`csv`], the commands' CSV inputs.
 //!
 //! Not a thesis algorithm: the thesis grabbed frames from a board. Errors say what is wrong
 //! with the file (the caller adds the path).
+
+pub mod csv;
 
 use std::io::Read;
 use std::path::Path;
