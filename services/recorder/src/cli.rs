@@ -19,12 +19,25 @@ pub struct Args {
     /// Also record these cameras' raw frames (on this PC) as Y4M, comma-separated.
     #[arg(long, value_delimiter = ',')]
     pub frames: Vec<String>,
+    /// Stop by itself after this many seconds (default: until Ctrl-C).
+    #[arg(long)]
+    pub seconds: Option<f64>,
 }
 
 /// Records until SIGINT/SIGTERM.
 pub fn main(args: Args) -> anyhow::Result<()> {
     init_logging("recorder");
     let shutdown = Shutdown::on_signals()?;
+    if let Some(s) = args.seconds {
+        if !(s.is_finite() && s > 0.0 && s <= 1e9) {
+            anyhow::bail!("--seconds {s} must be a number of seconds above zero");
+        }
+        let stop = shutdown.clone();
+        std::thread::spawn(move || {
+            stop.sleep(std::time::Duration::from_secs_f64(s));
+            stop.request();
+        });
+    }
     let (p, o) = run(
         RecorderConfig {
             ctx: args.common.resolve()?,

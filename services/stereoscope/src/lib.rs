@@ -7,5 +7,6 @@ pub mod calibrate;
 pub mod example;
 pub mod fitdepth;
 pub mod live;
+pub mod progress;
 
 pub mod triangulate;

@@ -1,6 +1,7 @@
 //! `stereoscope run` and `stereoscope demo`: the live system from the command line (the
 //! launcher and the demo are `stereoscope_launcher`'s).
 
+use crate::progress::Progress;
 use anyhow::Context as _;
 use std::path::PathBuf;
 use stereoscope_launcher::demo::{DemoConfig, DemoSummary};
@@ -202,7 +203,6 @@ pub fn replay(
     max_speed: bool,
     json: bool,
 ) -> anyhow::Result<usize> {
-    use std::io::Write as _;
     use stereoscope_recorder::replay::{refuse, schedule};
     use stereoscope_recorder::session::Session;
     let s = Session::read(&session)?;
@@ -217,6 +217,7 @@ pub fn replay(
         let start = std::time::Instant::now();
         let plan = schedule(&s);
         let total = plan.len();
+        let mut progress = Progress::new();
         for (i, (delay_ns, o)) in plan.into_iter().enumerate() {
             if !max_speed {
                 let due = std::time::Duration::from_nanos(delay_ns);
@@ -231,21 +232,22 @@ pub fn replay(
             if let Some(p) = pubs.get(&o.camera) {
                 p.put_bytes(o.to_json())?;
             }
-            if i % 50 == 0 || i + 1 == total {
-                eprint!("\rpublishing observations {}/{total}", i + 1);
-                let _ = std::io::stderr().flush();
-            }
+            progress.update(
+                &format!("publishing observations {}/{total}", i + 1),
+                i + 1 == total,
+            );
         }
-        eprintln!();
+        progress.finish();
     }
+    let mut progress = Progress::new();
     let r = refuse(&s, |done, total| {
-        if done % 100 == 0 || done == total {
-            eprint!("\rre-fusing pose frames {done}/{total}");
-            let _ = std::io::stderr().flush();
-        }
+        progress.update(
+            &format!("re-fusing pose frames {done}/{total}"),
+            done == total,
+        );
     })
     .map_err(anyhow::Error::msg)?;
-    eprintln!();
+    progress.finish();
     if json {
         println!(
             "{{\"frames\":{},\"identical\":{},\"incomplete\":{},\"first_difference\":{}}}",
@@ -284,7 +286,6 @@ pub fn replay_frames(
             "--speed {speed}: must be a number above zero"
         ));
     }
-    use std::io::Write as _;
     use std::sync::{Arc, Mutex};
     use stereoscope_proto::messages::{Message, PoseFrame};
     use stereoscope_recorder::replay::{compare_frames, frames_rig};
@@ -365,13 +366,20 @@ pub fn replay_frames(
         }
     };
     let total = s.poses.len();
-    while !launcher.is_finished() {
+    let mut progress = Progress::new();
+    loop {
+        let done = launcher.is_finished();
         let n = replayed.lock().map(|v| v.len()).unwrap_or(0);
-        eprint!("\rreplaying frames: {n} pose frames (recorded: {total})");
-        let _ = std::io::stderr().flush();
+        progress.update(
+            &format!("replaying frames: {n} pose frames (recorded: {total})"),
+            done,
+        );
+        if done {
+            break;
+        }
         std::thread::sleep(std::time::Duration::from_millis(200));
     }
-    eprintln!();
+    progress.finish();
     let result = launcher
         .join()
         .map_err(|_| anyhow::anyhow!("the launcher thread panicked"));

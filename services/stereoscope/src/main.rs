@@ -198,7 +198,7 @@ enum Command {
         out: Option<PathBuf>,
     },
     /// Run one service in the foreground (what `run` starts; for debugging and deployment).
-    #[command(subcommand, hide = true)]
+    #[command(subcommand)]
     Service(ServiceCommand),
     /// Triangulate points seen by a rig's cameras (CSV point,camera,u,v).
     Triangulate {
@@ -216,10 +216,16 @@ enum Command {
 
 #[derive(Subcommand, Debug)]
 enum ServiceCommand {
+    /// Publish one camera's frames (V4L2, Y4M, images or the synthetic scene) into shared
+    /// memory.
     Capture(stereoscope_capture::cli::Args),
+    /// Track one camera's blobs (moments, tracking windows, heading) and publish observations.
     Moments(stereoscope_moments::cli::Args),
+    /// Fuse every camera's observations into 3D poses with stable ids and publish them.
     Fusion(stereoscope_fusion::cli::Args),
+    /// Send the pose stream to a serial port (the thesis's packet or the framed one).
     Serial(stereoscope_serial::cli::Args),
+    /// Record poses, observations and optionally raw frames into a session folder.
     Recorder(stereoscope_recorder::cli::Args),
 }
 
@@ -388,6 +394,7 @@ fn main() -> ExitCode {
                 noise_sigma: noise,
                 noise_sweep: !no_noise_table,
                 rig,
+                progress: true,
                 ..stereoscope_reproduce::ReproduceOptions::realistic(out)
             };
             let result = stereoscope_reproduce::run(&opts).and_then(|r| {

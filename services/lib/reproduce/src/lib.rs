@@ -74,9 +74,17 @@ pub struct ReproduceOptions {
     /// Another lab: a rig file whose first two cameras look down at the floor (z = 0), like
     /// `deploy/rigs/thesis-lab.toml`. `None`: the thesis's lab.
     pub rig: Option<PathBuf>,
+    /// Say on standard error which step is running (the whole run takes minutes).
+    pub progress: bool,
 }
 
 impl ReproduceOptions {
+    fn step(&self, what: &str) {
+        if self.progress {
+            eprintln!("reproduce: {what}");
+        }
+    }
+
     pub fn realistic(out: PathBuf) -> Self {
         ReproduceOptions {
             out,
@@ -88,6 +96,7 @@ impl ReproduceOptions {
             plots: true,
             noise_sweep: true,
             rig: None,
+            progress: false,
         }
     }
 }
@@ -219,6 +228,7 @@ pub fn run(opts: &ReproduceOptions) -> anyhow::Result<Report> {
     };
     let truth: Vec<Camera> = rig.cameras().into_iter().take(2).collect();
     let mut rng = SplitMix64::new(opts.seed);
+    opts.step("calibrating both cameras from rendered dot-grid views");
     let (calibrated, calibration_rms_px, calibration_views) =
         calibrate_lab(&truth, opts, &mut rng)?;
     let mut lab = Lab {
@@ -266,6 +276,7 @@ pub fn run(opts: &ReproduceOptions) -> anyhow::Result<Report> {
             &fit_three,
         ),
     ] {
+        opts.step(&format!("{title}: 21 heights × {} readings", opts.readings));
         let rows = sweep(21, opts.readings, |h| {
             let img = lab.frame(0, under0.x, under0.y, h)?;
             let (area, c) = measure(&img, opts.contrast)
@@ -294,6 +305,7 @@ pub fn run(opts: &ReproduceOptions) -> anyhow::Result<Report> {
             0.15,
         ),
     ] {
+        opts.step(&format!("{title}: 16 heights × {} readings", opts.readings));
         let rows = sweep(16, opts.readings, |h| {
             let mut obs = Vec::new();
             for c in 0..2 {
@@ -342,12 +354,15 @@ pub fn run(opts: &ReproduceOptions) -> anyhow::Result<Report> {
         }
     }
     // The height error over the whole board, measured as the live fusion would.
+    opts.step("the height error over the whole board");
     let heat = heat_map(&mut lab, &fit_three, opts)?;
     // The same four experiments at other noise levels (fewer readings, no further sweep).
     let mut noise = Vec::new();
     if opts.noise_sweep {
         for sigma in [0.0, 1.0, 2.0, 4.0, 8.0] {
+            opts.step(&format!("the four experiments again at noise σ = {sigma}"));
             let sub = ReproduceOptions {
+                progress: false,
                 noise_sigma: sigma,
                 readings: opts.readings.min(10),
                 noise_sweep: false,

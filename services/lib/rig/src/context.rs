@@ -9,7 +9,7 @@ use stereoscope_transport::net::{ZenohMode, ZenohSpec};
 /// Default iceoryx2 file prefix.
 pub const DEFAULT_IOX_PREFIX: &str = "stsc_";
 
-/// The flags every service binary takes.
+// No doc comment here: clap would give it to every service as its description.
 #[derive(Debug, Clone, clap::Args)]
 pub struct CommonArgs {
     /// The rig file.
@@ -25,8 +25,10 @@ pub struct CommonArgs {
     /// endpoints when the rig lists no hosts).
     #[arg(long)]
     pub zenoh_mode: Option<String>,
+    /// A Zenoh endpoint to connect to (`tcp/127.0.0.1:7447`); repeat for several.
     #[arg(long)]
     pub zenoh_connect: Vec<String>,
+    /// A Zenoh endpoint to listen on; repeat for several.
     #[arg(long)]
     pub zenoh_listen: Vec<String>,
 }
