@@ -140,6 +140,19 @@ pub fn run(
     let cal = calibrate_camera(size.0, size.1, &views, opts.distortion)
         .map_err(|e| anyhow::anyhow!("calibration failed: {e}"))?;
     let report = report(&cal, &labels, size, opts.units, scale, &opts.id)?;
+    // A target measured in one unit and read in another puts the camera absurdly near or far.
+    for v in &report.views {
+        let t = v.translation;
+        let metres = (t[0] * t[0] + t[1] * t[1] + t[2] * t[2]).sqrt() * scale;
+        if !(0.05..=1000.0).contains(&metres) {
+            writeln!(
+                err,
+                "warning: view {}: the camera is {metres:.3} m from the target; are the target's coordinates (or --spacing) in --units {}?",
+                v.view, opts.units
+            )?;
+            break;
+        }
+    }
     if let Some(path) = &opts.out {
         std::fs::write(path, &report.camera_toml)
             .map_err(|e| anyhow::anyhow!("{}: cannot write: {e}", path.display()))?;
@@ -173,7 +186,7 @@ fn report(
         cam_from_world: world_from,
     };
     let spec = camera_spec(id, &camera, units);
-    let camera_toml = spec.to_toml_table()?;
+    let camera_toml = spec.to_toml_table(units)?;
     let views = cal
         .cam0_from_target
         .iter()

@@ -80,6 +80,16 @@ pub fn run(opts: &FitDepthOptions, out: &mut impl Write) -> anyhow::Result<()> {
             )?,
         }
         writeln!(out, "  RMS distance error {:.4}", r.rms)?;
+        // Ready to paste into the camera's table of a rig file (distances in the samples' unit).
+        let (model, c) = match r.c {
+            Some(c) => ("three_parameter", format!(", c = {c:?}")),
+            None => ("two_parameter", String::new()),
+        };
+        writeln!(
+            out,
+            "  depth_from_area = {{ model = \"{model}\", a = {:?}, b = {:?}{c}, range = [{:?}, {:?}] }}",
+            r.a, r.b, r.range[0], r.range[1]
+        )?;
     }
     writeln!(
         out,

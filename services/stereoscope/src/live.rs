@@ -408,47 +408,57 @@ pub fn replay_frames(
 
 /// `stereoscope export --format csv|c3d`.
 pub fn export(session: PathBuf, format: &str, out: Option<PathBuf>) -> anyhow::Result<usize> {
+    if format != "csv" && format != "c3d" {
+        anyhow::bail!("--format {format}: csv or c3d");
+    }
+    if format == "c3d" && out.is_none() {
+        anyhow::bail!("--format c3d needs --out FILE (it is binary)");
+    }
     let s = stereoscope_recorder::session::Session::read(&session)?;
     for w in &s.warnings {
         eprintln!("warning: {w}");
     }
-    let bytes = match format {
-        "csv" => stereoscope_recorder::replay::export_csv(&s).into_bytes(),
-        "c3d" => {
-            let e = stereoscope_recorder::replay::export_c3d(&s)
-                .map_err(|e| anyhow::anyhow!("{}: {e}", session.display()))?;
-            let bytes = stereoscope_recorder::c3d::write(&e.trial)
-                .map_err(|e| anyhow::anyhow!("{}: {e}", session.display()))?;
-            eprintln!(
-                "{} frames at {:.3} Hz, {} markers, from {} pose frames{}",
-                e.trial.frames.len(),
-                e.trial.frame_rate_hz,
-                e.trial.labels.len(),
-                e.pose_frames,
-                if e.merged > 0 {
-                    format!(
-                        " ({} poses closer than half a frame to another dropped)",
-                        e.merged
-                    )
-                } else {
-                    String::new()
-                }
-            );
-            bytes
-        }
-        other => return Err(anyhow::anyhow!("--format {other}: csv or c3d")),
+    // The summary is said only once the file is written: a failed --out prints no success.
+    let (bytes, summary) = if format == "c3d" {
+        let e = stereoscope_recorder::replay::export_c3d(&s)
+            .map_err(|e| anyhow::anyhow!("{}: {e}", session.display()))?;
+        let bytes = stereoscope_recorder::c3d::write(&e.trial)
+            .map_err(|e| anyhow::anyhow!("{}: {e}", session.display()))?;
+        let summary = format!(
+            "{} frames at {:.3} Hz, {} markers, from {} pose frames{}",
+            e.trial.frames.len(),
+            e.trial.frame_rate_hz,
+            e.trial.labels.len(),
+            e.pose_frames,
+            if e.merged > 0 {
+                format!(
+                    " ({} poses closer than half a frame to another dropped)",
+                    e.merged
+                )
+            } else {
+                String::new()
+            }
+        );
+        (bytes, Some(summary))
+    } else {
+        (
+            stereoscope_recorder::replay::export_csv(&s).into_bytes(),
+            None,
+        )
     };
     match out {
         Some(p) => write_whole(&p, &bytes)?,
-        None if format == "c3d" => {
-            return Err(anyhow::anyhow!(
-                "--format c3d needs --out FILE (it is binary)"
-            ));
-        }
         None => {
             use std::io::Write;
-            std::io::stdout().write_all(&bytes)?;
+            match std::io::stdout().lock().write_all(&bytes) {
+                // `export … | head`: the reader has all it wanted; end quietly.
+                Err(e) if e.kind() == std::io::ErrorKind::BrokenPipe => return Ok(0),
+                r => r?,
+            }
         }
+    }
+    if let Some(summary) = summary {
+        eprintln!("{summary}");
     }
     Ok(0)
 }

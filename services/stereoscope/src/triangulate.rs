@@ -66,10 +66,15 @@ pub fn run(
     }
     let mut failed = 0;
     if !opts.json {
+        let u = rig.spec.units;
         writeln!(
             out,
-            "{:<10} {:>12} {:>12} {:>12} {:>9}  cameras ({})",
-            "point", "X", "Y", "Z", "rms_px", rig.spec.units
+            "{:<10} {:>12} {:>12} {:>12} {:>9}  cameras",
+            "point",
+            format!("X ({u})"),
+            format!("Y ({u})"),
+            format!("Z ({u})"),
+            "rms_px"
         )?;
     }
     for (label, group) in labels.iter().zip(&groups) {

@@ -558,13 +558,23 @@ impl RigFile {
 }
 
 impl CameraSpec {
-    /// One camera as TOML (a `[[camera]]` table), e.g. for a calibration's output.
-    pub fn to_toml_table(&self) -> Result<String, toml::ser::Error> {
-        #[derive(Serialize)]
-        struct One<'a> {
-            camera: [&'a CameraSpec; 1],
+    /// One camera as TOML, a `[[camera]]` table whose nested values (`pose`, `distortion`, …)
+    /// are inline tables: a user can append keys (`source = …`, `host = …`) below it and they
+    /// stay in this camera's table. Lengths are in `units`, said in a comment above it.
+    pub fn to_toml_table(&self, units: Units) -> Result<String, toml::ser::Error> {
+        let table = toml::Table::try_from(self)?;
+        let mut out = format!(
+            "# lengths in {units}: paste into a rig file whose `units = \"{units}\"`\n[[camera]]\n"
+        );
+        // The id first, then the rest in the order the table keeps them.
+        for (k, v) in table
+            .iter()
+            .filter(|(k, _)| *k == "id")
+            .chain(table.iter().filter(|(k, _)| *k != "id"))
+        {
+            out.push_str(&format!("{k} = {v}\n"));
         }
-        toml::to_string(&One { camera: [self] })
+        Ok(out)
     }
 }
 
@@ -600,8 +610,16 @@ depth_from_area = { model = "three_parameter", a = 1.0e6, b = 0.0, c = -4.0, ran
         assert_eq!(rig.cameras[1].distortion.unwrap().k1, -0.1);
         let back = RigFile::from_toml(&rig.to_toml().unwrap()).unwrap();
         assert_eq!(back, rig);
-        let one = rig.cameras[0].to_toml_table().unwrap();
-        assert!(one.contains("[[camera]]"), "{one}");
+        let one = rig.cameras[1].to_toml_table(Units::Centimetres).unwrap();
+        assert!(one.contains("[[camera]]") && one.contains("in cm"), "{one}");
+        // Nested values are inline: keys appended below stay in the camera's table.
+        let appended = format!(
+            "name = \"x\"\nunits = \"cm\"\n{one}host = \"pc1\"\n[[host]]\nname = \"pc1\"\n"
+        );
+        let back = RigFile::from_toml(&appended).unwrap();
+        assert_eq!(back.cameras[0].host.as_deref(), Some("pc1"));
+        assert_eq!(back.cameras[0].pose, rig.cameras[1].pose);
+        assert_eq!(back.cameras[0].distortion, rig.cameras[1].distortion);
     }
 
     #[test]
