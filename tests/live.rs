@@ -724,7 +724,6 @@ fn status_lists_every_service_and_flags_a_stalled_camera() {
     let launcher = Proc::start(&["run", &path]);
     let watcher = PoseWatcher::new(&format!("tcp/127.0.0.1:{port}"), "demo");
     watcher.until(Duration::from_secs(40), "three objects", both_cameras);
-    std::thread::sleep(Duration::from_millis(1500));
     let status = |extra: &[&str]| -> serde_json::Value {
         let mut args = vec!["status", path.as_str(), "--json"];
         args.extend_from_slice(extra);
@@ -732,7 +731,49 @@ fn status_lists_every_service_and_flags_a_stalled_camera() {
         assert!(out.status.success(), "{}", stderr(&out));
         serde_json::from_str(String::from_utf8_lossy(&out.stdout).trim()).unwrap()
     };
-    let v = status(&[]);
+    // Asks for the status until `ready` holds (bounded), instead of sleeping for it.
+    let status_when = |extra: &[&str], what: &str, ready: &dyn Fn(&serde_json::Value) -> bool| {
+        let end = Instant::now() + Duration::from_secs(30);
+        loop {
+            let v = status(extra);
+            if ready(&v) {
+                return v;
+            }
+            assert!(Instant::now() < end, "no status with {what} in 30 s: {v}");
+            std::thread::sleep(Duration::from_millis(200));
+        }
+    };
+    let reported = |v: &serde_json::Value, s: &str| {
+        v["services"].as_array().is_some_and(|a| {
+            a.iter().any(|x| {
+                x["service"] == s && x["alive"] == true && x["health"]["rate_hz"].as_f64().is_some()
+            })
+        })
+    };
+    let all = [
+        "capture/cam0",
+        "capture/cam1",
+        "moments/cam0",
+        "moments/cam1",
+        "fusion",
+    ];
+    // Every service has reported a rate (its second health report) and fusion hears both.
+    let v = status_when(&[], "every service reporting", &|v| {
+        all.iter().all(|s| reported(v, s))
+            && v["services"].as_array().is_some_and(|a| {
+                a.iter().any(|x| {
+                    x["service"] == "fusion"
+                        && x["health"]["detail"]["cameras_live"] == "cam0,cam1"
+                        && x["health"]["rate_hz"].as_f64().is_some_and(|r| r > 10.0)
+                })
+            })
+            && v["services"].as_array().is_some_and(|a| {
+                a.iter().any(|x| {
+                    x["service"] == "capture/cam0"
+                        && x["health"]["rate_hz"].as_f64().is_some_and(|r| r > 10.0)
+                })
+            })
+    });
     let services = v["services"].as_array().unwrap();
     let names: Vec<&str> = services
         .iter()
@@ -769,8 +810,17 @@ fn status_lists_every_service_and_flags_a_stalled_camera() {
     let pid = pid_of(&launcher.output(), "capture/cam1");
     // SAFETY: signals to a process this test started (through the launcher).
     unsafe { libc::kill(pid, libc::SIGSTOP) };
-    std::thread::sleep(Duration::from_millis(2500));
-    let v = status(&["--stall-ms", "1000"]);
+    let cam1_stalled = |v: &serde_json::Value| {
+        v["services"].as_array().is_some_and(|a| {
+            a.iter()
+                .any(|x| x["service"] == "capture/cam1" && x["stalled"] == true)
+        })
+    };
+    let v = status_when(
+        &["--stall-ms", "1000"],
+        "capture/cam1 stalled",
+        &cam1_stalled,
+    );
     unsafe { libc::kill(pid, libc::SIGCONT) };
     let services = v["services"].as_array().unwrap();
     let cam1 = services
@@ -855,7 +905,20 @@ fn a_recording_replays_to_the_same_poses_and_survives_sigkill() {
     ]);
     let watcher = PoseWatcher::new(&endpoint, "demo");
     watcher.until(Duration::from_secs(30), "three objects", both_cameras);
-    std::thread::sleep(Duration::from_secs(3));
+    // Until the recorder has written 60 pose frames (bounded), not for a guessed while.
+    let end = Instant::now() + Duration::from_secs(60);
+    while std::fs::read_to_string(session.join("poses.jsonl"))
+        .map(|t| t.lines().count())
+        .unwrap_or(0)
+        < 60
+    {
+        assert!(
+            Instant::now() < end,
+            "fewer than 60 pose frames recorded in 60 s:\n{}",
+            recorder.output()
+        );
+        std::thread::sleep(Duration::from_millis(100));
+    }
     // A power cut, as far as the recorder can tell.
     // SAFETY: killing our own child.
     unsafe { libc::kill(recorder.child.id() as libc::pid_t, libc::SIGKILL) };
@@ -1273,6 +1336,8 @@ fn check_c3d_export(session: &std::path::Path, out: &std::path::Path) {
 
 #[test]
 fn a_long_session_exports_to_c3d_with_every_frame() {
+    // One at a time like the others: its export and its Python readers load the machine.
+    let _serial = serial();
     // 70 000 frames at 120 Hz (more than C3D's 16-bit header counts): one object circling.
     let dir = TempDir::new("c3dlong");
     let session = dir.0.join("session");

@@ -129,15 +129,13 @@ struct Acc {
 
 /// Runs the demo until `seconds` of poses were measured or shutdown.
 pub fn run(cfg: DemoConfig, shutdown: Shutdown) -> Result<DemoSummary, LaunchError> {
-    let setup = |m: String| LaunchError::Setup(m);
-    let port = net::free_loopback_port()
-        .map_err(|e| LaunchError::Setup(format!("finding a free port: {e}")))?;
+    let port = net::free_loopback_port().map_err(LaunchError::NoPort)?;
     let prefix = format!("stsc_demo{}_", std::process::id());
     let base = cfg.rig_text.clone().unwrap_or_else(|| DEMO_RIG.to_string());
     let text = format!(
         "{base}\n[[host]]\nname = \"demo\"\nzenoh_listen = [\"tcp/127.0.0.1:{port}\"]\niceoryx2_prefix = \"{prefix}\"\n"
     );
-    let rig = Rig::from_toml(&text).map_err(|e| setup(format!("demo rig: {e}")))?;
+    let rig = Rig::from_toml(&text)?;
     // The demo scores against the synthetic scene's truth: every camera must render it.
     if let Some((i, c)) = rig.spec.cameras.iter().enumerate().find(|(_, c)| {
         !matches!(
@@ -145,15 +143,20 @@ pub fn run(cfg: DemoConfig, shutdown: Shutdown) -> Result<DemoSummary, LaunchErr
             Some(stereoscope_rig::schema::SourceSpec::Synthetic { .. })
         )
     }) {
-        return Err(setup(format!(
-            "demo rig: camera[{i}] ({:?}) has no synthetic source; the demo scores synthetic cameras against their scene's truth (run a rig of real sources with `stereoscope run`)",
-            c.id
-        )));
+        return Err(LaunchError::NotSynthetic {
+            index: i,
+            id: c.id.clone(),
+        });
     }
-    std::fs::create_dir_all(&cfg.work_dir)
-        .map_err(|e| setup(format!("{}: {e}", cfg.work_dir.display())))?;
+    std::fs::create_dir_all(&cfg.work_dir).map_err(|source| LaunchError::DemoFile {
+        path: cfg.work_dir.clone(),
+        source,
+    })?;
     let rig_path = cfg.work_dir.join("demo-rig.toml");
-    std::fs::write(&rig_path, &text).map_err(|e| setup(format!("{}: {e}", rig_path.display())))?;
+    std::fs::write(&rig_path, &text).map_err(|source| LaunchError::DemoFile {
+        path: rig_path.clone(),
+        source,
+    })?;
     let client = ZenohSpec::client_of(&format!("tcp/127.0.0.1:{port}"));
     let ctx = Context {
         rig_path: rig_path.clone(),
@@ -166,7 +169,12 @@ pub fn run(cfg: DemoConfig, shutdown: Shutdown) -> Result<DemoSummary, LaunchErr
         .cameras
         .first()
         .map(|c| c.id.clone())
-        .ok_or_else(|| setup("the demo rig has no cameras".into()))?;
+        .ok_or(LaunchError::DemoRig(stereoscope_rig::RigError {
+            kind: stereoscope_rig::RigErrorKind::Value,
+            file: None,
+            key: "camera".into(),
+            message: "the demo rig has no cameras".into(),
+        }))?;
     let launch_stop = Shutdown::new();
     let launcher = {
         let stop = launch_stop.clone();
@@ -184,7 +192,7 @@ pub fn run(cfg: DemoConfig, shutdown: Shutdown) -> Result<DemoSummary, LaunchErr
     let restarts = match launcher.join() {
         Ok(Ok(r)) => r,
         Ok(Err(e)) => return Err(e),
-        Err(_) => return Err(setup("the launcher thread panicked".into())),
+        Err(_) => return Err(LaunchError::LauncherPanicked),
     };
     let _ = std::fs::remove_file(&rig_path);
     let mut s = result?;
@@ -200,36 +208,34 @@ fn watch(
     truth_cam: &str,
     iox_prefix: &str,
 ) -> Result<DemoSummary, LaunchError> {
-    let setup = |m: String| LaunchError::Setup(m);
     // The router starts in the launcher thread: give it a moment, then connect.
     let mut session = None;
     let deadline = Instant::now() + Duration::from_secs(10);
     while session.is_none() {
         match net::open(client) {
             Ok(s) => session = Some(s),
-            Err(e) if Instant::now() > deadline => return Err(setup(e.to_string())),
+            Err(e) if Instant::now() > deadline => return Err(e.into()),
             Err(_) => std::thread::sleep(Duration::from_millis(100)),
         }
         if shutdown.requested() {
             return Ok(DemoSummary::default());
         }
     }
-    let session = session.ok_or_else(|| setup("no zenoh session".into()))?;
+    let Some(session) = session else {
+        return Ok(DemoSummary::default());
+    };
     let (tx, rx) = mpsc::sync_channel::<Event>(1024);
     let _poses = net::subscribe(&session, &keys::poses(rig), move |_, b| {
         if let Ok(p) = PoseFrame::from_json(b) {
             let _ = tx.try_send(Event::Poses(p));
         }
-    })
-    .map_err(|e| setup(e.to_string()))?;
+    })?;
     // Ground truth comes from the synthetic camera on this PC, through shared memory.
-    let node = stereoscope_transport::iox::node(iox_prefix, "demo-watcher")
-        .map_err(|e| setup(e.to_string()))?;
+    let node = stereoscope_transport::iox::node(iox_prefix, "demo-watcher")?;
     let truth_sub = stereoscope_transport::iox::MessageSubscriber::new(
         &node,
         &stereoscope_proto::names::iox::truth(rig, truth_cam),
-    )
-    .map_err(|e| setup(e.to_string()))?;
+    )?;
 
     let startup_deadline = Instant::now() + Duration::from_secs(30);
     let mut first: Option<Instant> = None;
@@ -253,9 +259,7 @@ fn watch(
             break;
         }
         if first.is_none() && Instant::now() > startup_deadline {
-            return Err(setup(
-                "no poses within 30 s of starting: see the services' log lines above".into(),
-            ));
+            return Err(LaunchError::NoPoses);
         }
         match rx.recv_timeout(Duration::from_millis(50)) {
             Ok(Event::Poses(p)) => {

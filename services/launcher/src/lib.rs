@@ -55,8 +55,37 @@ pub const DRAIN_AFTER_SOURCES_END: Duration = Duration::from_millis(1500);
 
 #[derive(Debug, thiserror::Error)]
 pub enum LaunchError {
-    #[error("launcher: {0}")]
-    Setup(String),
+    #[error("launcher: {} assigns no service to host {host:?}", .rig.display())]
+    NothingHere {
+        rig: std::path::PathBuf,
+        host: String,
+    },
+    #[error("launcher: starting {service}")]
+    Spawn {
+        service: String,
+        #[source]
+        source: std::io::Error,
+    },
+    #[error("launcher")]
+    Transport(#[from] stereoscope_transport::TransportError),
+    #[error("demo: the demo rig")]
+    DemoRig(#[from] stereoscope_rig::RigError),
+    #[error(
+        "demo: camera[{index}] ({id:?}) has no synthetic source; the demo scores synthetic cameras against their scene's truth (run a rig of real sources with `stereoscope run`)"
+    )]
+    NotSynthetic { index: usize, id: String },
+    #[error("demo: {}", .path.display())]
+    DemoFile {
+        path: std::path::PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
+    #[error("demo: no free loopback port for the router")]
+    NoPort(#[source] std::io::Error),
+    #[error("demo: no poses within 30 s of starting: see the services' log lines above")]
+    NoPoses,
+    #[error("demo: the launcher thread panicked")]
+    LauncherPanicked,
     /// A service refused its configuration: no restart would mend it, so the rig stopped.
     #[error(
         "{service} refused its configuration (exit status {}): {message}; stopped the rig",
@@ -245,7 +274,7 @@ pub fn run(cfg: LaunchConfig, shutdown: Shutdown) -> Result<u32, LaunchError> {
     };
     let _router = match &router {
         Some(r) => {
-            let s = net::open(r).map_err(|e| LaunchError::Setup(e.to_string()))?;
+            let s = net::open(r)?;
             tracing::info!("zenoh router listening on {:?}", r.listen);
             Some(s)
         }
@@ -253,22 +282,27 @@ pub fn run(cfg: LaunchConfig, shutdown: Shutdown) -> Result<u32, LaunchError> {
     };
     let specs = services_here(ctx, &service_zenoh);
     if specs.is_empty() {
-        return Err(LaunchError::Setup(format!(
-            "{} assigns no service to host {:?}",
-            ctx.rig_path.display(),
-            ctx.host
-        )));
+        return Err(LaunchError::NothingHere {
+            rig: ctx.rig_path.clone(),
+            host: ctx.host.clone(),
+        });
     }
     match iox::cleanup_dead_nodes(&ctx.iox_prefix) {
         Ok(n) if n > 0 => tracing::info!("removed the leftovers of {n} dead iceoryx2 nodes"),
         Ok(_) => {}
-        Err(e) => tracing::warn!("cleaning dead iceoryx2 nodes: {e}"),
+        Err(e) => tracing::warn!(
+            "cleaning dead iceoryx2 nodes: {}",
+            stereoscope_transport::error_chain(&e)
+        ),
     }
     let mut running: Vec<Running> = Vec::new();
     for spec in specs {
         let last_error_line = Arc::new(Mutex::new(String::new()));
-        let (child, stderr_copier) = spawn(&cfg, &spec, &last_error_line)
-            .map_err(|e| LaunchError::Setup(format!("starting {}: {e}", spec.name)))?;
+        let (child, stderr_copier) =
+            spawn(&cfg, &spec, &last_error_line).map_err(|source| LaunchError::Spawn {
+                service: spec.name.clone(),
+                source,
+            })?;
         tracing::info!("started {} (pid {})", spec.name, child.id());
         running.push(Running {
             spec,
@@ -328,7 +362,10 @@ pub fn run(cfg: LaunchConfig, shutdown: Shutdown) -> Result<u32, LaunchError> {
                 && Instant::now() >= at
             {
                 if let Err(e) = iox::cleanup_dead_nodes(&ctx.iox_prefix) {
-                    tracing::warn!("cleaning dead iceoryx2 nodes: {e}");
+                    tracing::warn!(
+                        "cleaning dead iceoryx2 nodes: {}",
+                        stereoscope_transport::error_chain(&e)
+                    );
                 }
                 match spawn(&cfg, &r.spec, &r.last_error_line) {
                     Ok((c, copier)) => {

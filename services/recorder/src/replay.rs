@@ -12,16 +12,125 @@ use stereoscope_fusion::fuser::Fuser;
 use stereoscope_proto::messages::{Observation, PoseFrame};
 use stereoscope_rig::Rig;
 
+/// Why a session cannot be replayed or exported.
+#[derive(Debug, thiserror::Error)]
+pub enum ReplayError {
+    #[error("session.json rig_file")]
+    Rig(#[from] stereoscope_rig::RigError),
+    #[error("pose frame {sequence}: camera {camera:?} is not in the rig")]
+    UnknownCamera { sequence: u64, camera: String },
+    #[error(
+        "poses.jsonl: {0} pose frame time(s); a C3D file needs at least two to have a frame rate"
+    )]
+    TooFewTimes(usize),
+    #[error(
+        "poses.jsonl: {frames} frames of {period_ns} ns: the session's times are too far apart for one C3D file"
+    )]
+    TooLong { frames: usize, period_ns: u64 },
+    #[error(
+        "no recorded frames: {} (record with --frames and every camera; without --frames, replay re-fuses the recorded observations)",
+        .0.join(", ")
+    )]
+    NoFrames(Vec<String>),
+    #[error("the replay rig")]
+    Encode(#[from] toml::ser::Error),
+}
+
 /// What re-fusing a session gave.
 #[derive(Debug, Clone, PartialEq, Default)]
 pub struct Refused {
     pub frames: usize,
-    /// Pose frames whose every pose came out identical (ids, positions, headings, methods).
+    /// Pose frames whose every pose came out identical (positions, velocities, headings,
+    /// methods, cameras, residuals), objects paired by position and their ids by one
+    /// consistent renumbering.
     pub identical: usize,
-    /// The first difference, described.
+    /// The last re-fused frames that are all identical: where a replay of a recording that
+    /// began mid-run (fusion's state starts afresh) has converged to the live system.
+    pub identical_last_frames: usize,
+    /// Recorded object id → re-fused id, where they differ (a recording that began mid-run:
+    /// fusion numbers its objects afresh).
+    pub renumbered: Vec<(u32, u32)>,
+    /// The first difference, in words.
     pub first_difference: Option<String>,
     /// Pose frames whose observations the session lacks (recorded after the frame).
     pub incomplete: usize,
+}
+
+/// Compares a re-fused pose frame with the recorded one: objects paired by position, ids
+/// through `ids` (recorded → re-fused, extended on first sight). `None` when identical, else
+/// what differs, in words.
+fn differs(
+    recorded: &PoseFrame,
+    replayed: &[stereoscope_proto::messages::Pose],
+    ids: &mut HashMap<u32, u32>,
+) -> Option<String> {
+    let at = |p: &[f64; 3]| format!("[{:.4}, {:.4}, {:.4}] m", p[0], p[1], p[2]);
+    let frame = format!(
+        "pose frame {} (t = {} ns)",
+        recorded.sequence, recorded.timestamp_ns
+    );
+    if recorded.poses.len() != replayed.len() {
+        return Some(format!(
+            "{frame}: {} objects recorded, {} re-fused",
+            recorded.poses.len(),
+            replayed.len()
+        ));
+    }
+    let dist = |a: &[f64; 3], b: &[f64; 3]| {
+        ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt()
+    };
+    let mut used = vec![false; replayed.len()];
+    for r in &recorded.poses {
+        let Some((j, p)) = replayed
+            .iter()
+            .enumerate()
+            .filter(|(j, _)| !used[*j])
+            .min_by(|a, b| {
+                dist(&a.1.position_m, &r.position_m)
+                    .total_cmp(&dist(&b.1.position_m, &r.position_m))
+            })
+        else {
+            return Some(format!(
+                "{frame}: object {} has no re-fused counterpart",
+                r.object_id
+            ));
+        };
+        used[j] = true;
+        let mapped = *ids.entry(r.object_id).or_insert(p.object_id);
+        let who = format!(
+            "{frame}: object {} (re-fused as {})",
+            r.object_id, p.object_id
+        );
+        if mapped != p.object_id {
+            return Some(format!(
+                "{who}: earlier frames re-fused it as object {mapped}"
+            ));
+        }
+        if p.position_m != r.position_m {
+            return Some(format!(
+                "{who}: at {} recorded, {} re-fused ({:.3} mm apart)",
+                at(&r.position_m),
+                at(&p.position_m),
+                dist(&r.position_m, &p.position_m) * 1e3
+            ));
+        }
+        if p.heading_deg != r.heading_deg || p.heading_directed != r.heading_directed {
+            return Some(format!(
+                "{who}: heading {:?}° recorded, {:?}° re-fused",
+                r.heading_deg, p.heading_deg
+            ));
+        }
+        let same_id = stereoscope_proto::messages::Pose {
+            object_id: r.object_id,
+            ..p.clone()
+        };
+        if &same_id != r {
+            return Some(format!(
+                "{who}: same position and heading, but velocity, method, cameras or residual differ"
+            ));
+        }
+    }
+    None
 }
 
 /// Re-fuses `session` and compares with its recorded poses; `progress(done, total)` is called
@@ -29,9 +138,8 @@ pub struct Refused {
 pub fn refuse(
     session: &Session,
     mut progress: impl FnMut(usize, usize),
-) -> Result<Refused, String> {
-    let rig = Rig::from_recording(&session.info.rig_file)
-        .map_err(|e| format!("session.json rig_file: {e}"))?;
+) -> Result<Refused, ReplayError> {
+    let rig = Rig::from_recording(&session.info.rig_file)?;
     let (_, fuser_cfg, _) = stereoscope_fusion::settings(&rig.spec);
     let mut fuser = Fuser::new(&rig, fuser_cfg);
     let mut by_key: HashMap<(String, u64), &Observation> = HashMap::new();
@@ -43,16 +151,17 @@ pub fn refuse(
         by_camera.entry(o.camera.as_str()).or_default().push(o);
     }
     let mut out = Refused::default();
+    let mut ids: HashMap<u32, u32> = HashMap::new();
     let total = session.poses.len();
     for (i, pf) in session.poses.iter().enumerate() {
         progress(i, total);
         let mut set = Vec::new();
         for cam in &pf.cameras {
             let Some(ci) = rig.camera_index(cam) else {
-                return Err(format!(
-                    "pose frame {}: camera {cam:?} is not in the rig",
-                    pf.sequence
-                ));
+                return Err(ReplayError::UnknownCamera {
+                    sequence: pf.sequence,
+                    camera: cam.clone(),
+                });
             };
             // The set's time is its earliest frame; the others are the closest after it.
             let o = by_key
@@ -78,16 +187,20 @@ pub fn refuse(
         set.sort_by_key(|(c, _)| *c);
         let poses = fuser.fuse(&set, pf.timestamp_ns);
         out.frames += 1;
-        if poses == pf.poses {
-            out.identical += 1;
-        } else if out.first_difference.is_none() {
-            out.first_difference = Some(format!(
-                "pose frame {}: recorded {:?}, replayed {:?}",
-                pf.sequence, pf.poses, poses
-            ));
+        match differs(pf, &poses, &mut ids) {
+            None => {
+                out.identical += 1;
+                out.identical_last_frames += 1;
+            }
+            Some(d) => {
+                out.identical_last_frames = 0;
+                out.first_difference.get_or_insert(d);
+            }
         }
     }
     progress(total, total);
+    out.renumbered = ids.into_iter().filter(|(r, p)| r != p).collect();
+    out.renumbered.sort_unstable();
     Ok(out)
 }
 
@@ -137,29 +250,26 @@ pub struct C3dExport {
 /// in the horizontal plane; millimetres, world frame. The frame rate is the pose frames' median
 /// spacing; each pose frame goes to the C3D frame nearest its timestamp, frames without one
 /// have every marker missing.
-pub fn export_c3d(session: &Session) -> Result<C3dExport, String> {
+pub fn export_c3d(session: &Session) -> Result<C3dExport, ReplayError> {
     use crate::c3d::{C3dPoint, C3dTrial};
     use std::collections::BTreeMap;
-    let rig = Rig::from_recording(&session.info.rig_file)
-        .map_err(|e| format!("session.json rig_file: {e}"))?;
+    let rig = Rig::from_recording(&session.info.rig_file)?;
     let mut times: Vec<u64> = session.poses.iter().map(|p| p.timestamp_ns).collect();
     times.sort_unstable();
     times.dedup();
     let mut gaps: Vec<u64> = times.windows(2).map(|w| w[1] - w[0]).collect();
     gaps.sort_unstable();
     let Some(&period_ns) = gaps.get(gaps.len() / 2) else {
-        return Err(format!(
-            "poses.jsonl: {} pose frame time(s); a C3D file needs at least two to have a frame rate",
-            times.len()
-        ));
+        return Err(ReplayError::TooFewTimes(times.len()));
     };
     let t0 = times[0];
     let slot = |t: u64| ((t - t0) as f64 / period_ns as f64).round() as usize;
     let n_frames = slot(times[times.len() - 1]) + 1;
     if n_frames > 50_000_000 {
-        return Err(format!(
-            "poses.jsonl: {n_frames} frames of {period_ns} ns: the session's times are too far apart for one C3D file"
-        ));
+        return Err(ReplayError::TooLong {
+            frames: n_frames,
+            period_ns,
+        });
     }
     // Markers: every object in the session, in id order.
     let mut objects: BTreeMap<u32, bool> = BTreeMap::new();
@@ -250,10 +360,9 @@ pub fn frames_rig(
     speed: f64,
     listen: &str,
     iox_prefix: &str,
-) -> Result<String, String> {
-    use stereoscope_rig::schema::{HostSpec, ReplayClock, RigFile, SourceSpec};
-    let mut file = RigFile::from_toml(&session.info.rig_file)
-        .map_err(|e| format!("session.json rig_file: {e}"))?;
+) -> Result<String, ReplayError> {
+    use stereoscope_rig::schema::{HostSpec, ReplayClock, SourceSpec};
+    let mut file = Rig::from_recording(&session.info.rig_file)?.spec;
     let missing: Vec<String> = file
         .cameras
         .iter()
@@ -262,11 +371,7 @@ pub fn frames_rig(
         .map(|p| p.display().to_string())
         .collect();
     if !missing.is_empty() {
-        return Err(format!(
-            "no recorded frames: {} (record with --frames and every camera; without --frames, \
-             replay re-fuses the recorded observations)",
-            missing.join(", ")
-        ));
+        return Err(ReplayError::NoFrames(missing));
     }
     for c in &mut file.cameras {
         let path = frames_file(session_dir, &c.id);
@@ -285,6 +390,11 @@ pub fn frames_rig(
     }
     if let Some(f) = &mut file.fusion {
         f.host = None;
+        // Sets as they were recorded, not as frames happen to arrive on a loaded machine: wait
+        // for every camera's frame of a set (a set still goes out at once when a camera has
+        // moved past it), and never count a camera as gone while the files run.
+        f.max_wait_ms = Some(2_000.0);
+        f.camera_timeout_ms = Some(10_000.0);
     }
     file.serial.clear();
     file.hosts = vec![HostSpec {
@@ -293,7 +403,7 @@ pub fn frames_rig(
         zenoh_connect: Vec::new(),
         iceoryx2_prefix: Some(iox_prefix.to_string()),
     }];
-    file.to_toml().map_err(|e| format!("the replay rig: {e}"))
+    Ok(file.to_toml()?)
 }
 
 /// Replayed poses against the recorded ones.

@@ -246,24 +246,37 @@ pub fn replay(
             done == total,
         );
     })
-    .map_err(anyhow::Error::msg)?;
+    .with_context(|| session.display().to_string())?;
     progress.finish();
     if json {
-        println!(
-            "{{\"frames\":{},\"identical\":{},\"incomplete\":{},\"first_difference\":{}}}",
-            r.frames,
-            r.identical,
-            r.incomplete,
-            r.first_difference
-                .as_ref()
-                .map(|d| format!("{d:?}"))
-                .unwrap_or_else(|| "null".into())
-        );
+        let v = serde_json::json!({
+            "frames": r.frames,
+            "identical": r.identical,
+            "identical_last_frames": r.identical_last_frames,
+            "incomplete": r.incomplete,
+            "renumbered": r.renumbered,
+            "first_difference": r.first_difference,
+        });
+        println!("{v}");
     } else {
         println!(
-            "{} of {} pose frames reproduced exactly ({} lacked recorded observations)",
-            r.identical, r.frames, r.incomplete
+            "{} of {} pose frames reproduced exactly ({} lacked recorded observations); the last {} all identical",
+            r.identical, r.frames, r.incomplete, r.identical_last_frames
         );
+        if !r.renumbered.is_empty() {
+            let pairs: Vec<String> = r
+                .renumbered
+                .iter()
+                .take(8)
+                .map(|(a, b)| format!("{a} as {b}"))
+                .collect();
+            println!(
+                "object ids renumbered ({} objects: the recording began after fusion started): {}{}",
+                r.renumbered.len(),
+                pairs.join(", "),
+                if r.renumbered.len() > 8 { ", …" } else { "" }
+            );
+        }
         if let Some(d) = &r.first_difference {
             println!("first difference: {d}");
         }
@@ -304,7 +317,7 @@ pub fn replay_frames(
     // The services take a second or two to start: the session's start replays 3 s from now.
     let start_wall_ns = stereoscope_proto::messages::now_ns() + 3_000_000_000;
     let text = frames_rig(&s, &session, start_wall_ns, speed, &listen, &prefix)
-        .map_err(|e| anyhow::anyhow!("{}: {e}", session.display()))?;
+        .with_context(|| session.display().to_string())?;
     let work = std::env::temp_dir().join(format!("stereoscope-replay-{}", std::process::id()));
     std::fs::create_dir_all(&work).with_context(|| work.display().to_string())?;
     let rig_path = work.join("replay-rig.toml");
@@ -421,7 +434,7 @@ pub fn export(session: PathBuf, format: &str, out: Option<PathBuf>) -> anyhow::R
     // The summary is said only once the file is written: a failed --out prints no success.
     let (bytes, summary) = if format == "c3d" {
         let e = stereoscope_recorder::replay::export_c3d(&s)
-            .map_err(|e| anyhow::anyhow!("{}: {e}", session.display()))?;
+            .with_context(|| session.display().to_string())?;
         let bytes = stereoscope_recorder::c3d::write(&e.trial)
             .map_err(|e| anyhow::anyhow!("{}: {e}", session.display()))?;
         let summary = format!(

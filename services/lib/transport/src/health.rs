@@ -108,7 +108,7 @@ impl HealthReporter {
             detail: c.detail.clone(),
         };
         if let Err(e) = self.publisher.put(&h) {
-            tracing::warn!("health report: {e}");
+            tracing::warn!("health report: {}", crate::error_chain(&e));
         }
     }
 }

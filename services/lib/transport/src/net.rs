@@ -35,12 +35,29 @@ impl ZenohMode {
     }
 }
 
-/// A TCP port on 127.0.0.1 free right now (for a router or a test's endpoint; another
-/// process could take it before it is used, so callers that bind it must report failure).
+/// A TCP port on 127.0.0.1 free right now, for a router or a test's endpoint. It comes from
+/// 20000–32767, below Linux's ephemeral range (32768 on), so the kernel does not hand the same
+/// port to another socket (an outgoing connection, a `bind` to port 0) between this call and
+/// its use; successive calls in one process never return the same port (a counter walks the
+/// range from a start derived from the process id); a port in use is skipped. Another process
+/// can still take it in between, so a caller that binds it must report failure.
 pub fn free_loopback_port() -> std::io::Result<u16> {
-    Ok(std::net::TcpListener::bind("127.0.0.1:0")?
-        .local_addr()?
-        .port())
+    use std::sync::atomic::{AtomicU32, Ordering};
+    const LOW: u32 = 20_000;
+    const SPAN: u32 = 32_768 - LOW;
+    static NEXT: AtomicU32 = AtomicU32::new(u32::MAX);
+    let start = (std::process::id() % 64) * (SPAN / 64);
+    let _ = NEXT.compare_exchange(u32::MAX, start, Ordering::SeqCst, Ordering::SeqCst);
+    for _ in 0..SPAN {
+        let port = (LOW + NEXT.fetch_add(1, Ordering::SeqCst) % SPAN) as u16;
+        if std::net::TcpListener::bind(("127.0.0.1", port)).is_ok() {
+            return Ok(port);
+        }
+    }
+    Err(std::io::Error::new(
+        std::io::ErrorKind::AddrInUse,
+        "no free loopback port in 20000–32767",
+    ))
 }
 
 /// How to join the Zenoh network.

@@ -1,0 +1,2 @@
+//! Empty: its build-dependencies only unify features (see Cargo.toml).
+fn main() {}
