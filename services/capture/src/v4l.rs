@@ -194,12 +194,34 @@ impl FrameSource for V4lSource {
             self.stride,
             out,
         )
-        .map_err(|m| SourceError::BadFrame(format!("{}: {m}", self.device)))?;
+        .map_err(|e| {
+            SourceError::BadFrame(format!(
+                "{}: {}",
+                self.device,
+                stereoscope_transport::error_chain(&e)
+            ))
+        })?;
         Ok(Read::Frame {
             timestamp_ns: Some(timestamp_ns),
             sequence: None,
         })
     }
+}
+
+/// Why a camera buffer is not a frame.
+#[derive(Debug, thiserror::Error)]
+enum ConvertError {
+    #[error("frame of {got} bytes, {need} expected")]
+    Short { got: usize, need: usize },
+    #[error("MJPEG frame")]
+    Jpeg(#[source] jpeg_decoder::Error),
+    #[error("MJPEG frame is {got_w}×{got_h}, the stream {w}×{h}")]
+    JpegSize {
+        got_w: u16,
+        got_h: u16,
+        w: usize,
+        h: usize,
+    },
 }
 
 /// One camera buffer (`stride` bytes per row as the driver gives them) into tight grey rows.
@@ -210,8 +232,11 @@ fn convert(
     h: usize,
     stride: usize,
     out: &mut [u8],
-) -> Result<(), String> {
-    let short = |need: usize| format!("frame of {} bytes, {need} expected", data.len());
+) -> Result<(), ConvertError> {
+    let short = |need: usize| ConvertError::Short {
+        got: data.len(),
+        need,
+    };
     match wire {
         Wire::Grey | Wire::Y16 => {
             let bpp = if wire == Wire::Y16 { 2 } else { 1 };
@@ -235,13 +260,15 @@ fn convert(
         }
         Wire::Mjpg => {
             let mut dec = jpeg_decoder::Decoder::new(data);
-            let pixels = dec.decode().map_err(|e| format!("MJPEG frame: {e}"))?;
+            let pixels = dec.decode().map_err(ConvertError::Jpeg)?;
             let info = dec.info().ok_or_else(|| short(w * h))?;
             if info.width as usize != w || info.height as usize != h {
-                return Err(format!(
-                    "MJPEG frame is {}×{}, the stream {w}×{h}",
-                    info.width, info.height
-                ));
+                return Err(ConvertError::JpegSize {
+                    got_w: info.width,
+                    got_h: info.height,
+                    w,
+                    h,
+                });
             }
             match pixels.len() / (w * h).max(1) {
                 1 => out.copy_from_slice(&pixels[..w * h]),
@@ -280,17 +307,15 @@ mod tests {
         convert(Wire::Yuyv, &data, 2, 2, 4, &mut out).unwrap();
         assert_eq!(out, [10, 11, 12, 13]);
         // Short buffers and broken JPEG are bad frames, not panics.
-        assert!(
-            convert(Wire::Grey, &[1, 2], 3, 2, 3, &mut [0; 6])
-                .unwrap_err()
-                .contains("2 bytes")
-        );
+        assert!(matches!(
+            convert(Wire::Grey, &[1, 2], 3, 2, 3, &mut [0; 6]),
+            Err(ConvertError::Short { got: 2, .. })
+        ));
         assert!(convert(Wire::Yuyv, &[1; 7], 2, 2, 4, &mut [0; 4]).is_err());
-        assert!(
-            convert(Wire::Mjpg, &[0xff, 0xd8, 0, 1], 2, 2, 2, &mut [0; 4])
-                .unwrap_err()
-                .contains("MJPEG")
-        );
+        assert!(matches!(
+            convert(Wire::Mjpg, &[0xff, 0xd8, 0, 1], 2, 2, 2, &mut [0; 4]),
+            Err(ConvertError::Jpeg(_))
+        ));
         assert_eq!(wire_of("Y16 "), Some(Wire::Y16));
         assert_eq!(wire_of("NV12"), None);
     }

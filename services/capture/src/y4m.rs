@@ -31,39 +31,51 @@ fn fatal(path: &str, msg: impl std::fmt::Display) -> SourceError {
     SourceError::Fatal(format!("{path}: {msg}"))
 }
 
+/// What is wrong with a YUV4MPEG2 stream header.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum Y4mHeaderError {
+    #[error("not a YUV4MPEG2 stream (the first word must be YUV4MPEG2)")]
+    NotY4m,
+    #[error("{field} {value:?} is not a number")]
+    NotANumber { field: &'static str, value: String },
+    #[error("frame rate {0:?} is not N:D")]
+    Rate(String),
+    #[error("frame size {width}×{height} is outside 1–16384")]
+    Size { width: u32, height: u32 },
+    #[error("the header has no W or H")]
+    NoSize,
+    #[error("colour space C{0} is not supported (420, 422, 444, mono, mono16)")]
+    Colour(String),
+}
+
 /// Header fields: (width, height, fps, format, chroma bytes per frame).
-pub fn parse_header(line: &str) -> Result<(u32, u32, Option<f64>, PixelFormat, usize), String> {
+pub fn parse_header(
+    line: &str,
+) -> Result<(u32, u32, Option<f64>, PixelFormat, usize), Y4mHeaderError> {
     let mut words = line.split_ascii_whitespace();
     if words.next() != Some("YUV4MPEG2") {
-        return Err("not a YUV4MPEG2 stream (the first word must be YUV4MPEG2)".into());
+        return Err(Y4mHeaderError::NotY4m);
     }
+    let number = |field: &'static str, value: &str| {
+        value
+            .parse::<u32>()
+            .map_err(|_| Y4mHeaderError::NotANumber {
+                field,
+                value: value.to_string(),
+            })
+    };
     let (mut w, mut h, mut fps, mut colour) = (None, None, None, "420jpeg".to_string());
     for word in words {
         let (tag, value) = word.split_at(1);
         match tag {
-            "W" => {
-                w = Some(
-                    value
-                        .parse::<u32>()
-                        .map_err(|_| format!("width {value:?} is not a number"))?,
-                )
-            }
-            "H" => {
-                h = Some(
-                    value
-                        .parse::<u32>()
-                        .map_err(|_| format!("height {value:?} is not a number"))?,
-                )
-            }
+            "W" => w = Some(number("width", value)?),
+            "H" => h = Some(number("height", value)?),
             "F" => {
-                let (n, d) = value
-                    .split_once(':')
-                    .ok_or_else(|| format!("frame rate {value:?} is not N:D"))?;
+                let rate = || Y4mHeaderError::Rate(value.to_string());
+                let (n, d) = value.split_once(':').ok_or_else(rate)?;
                 let (n, d): (f64, f64) = (
-                    n.parse()
-                        .map_err(|_| format!("frame rate {value:?} is not N:D"))?,
-                    d.parse()
-                        .map_err(|_| format!("frame rate {value:?} is not N:D"))?,
+                    n.parse().map_err(|_| rate())?,
+                    d.parse().map_err(|_| rate())?,
                 );
                 if n > 0.0 && d > 0.0 {
                     fps = Some(n / d);
@@ -75,8 +87,8 @@ pub fn parse_header(line: &str) -> Result<(u32, u32, Option<f64>, PixelFormat, u
     }
     let (w, h) = match (w, h) {
         (Some(w), Some(h)) if w > 0 && h > 0 && w <= 16384 && h <= 16384 => (w, h),
-        (Some(w), Some(h)) => return Err(format!("frame size {w}×{h} is outside 1–16384")),
-        _ => return Err("the header has no W or H".into()),
+        (Some(width), Some(height)) => return Err(Y4mHeaderError::Size { width, height }),
+        _ => return Err(Y4mHeaderError::NoSize),
     };
     let luma = w as usize * h as usize;
     let cw = (w as usize).div_ceil(2);
@@ -87,11 +99,7 @@ pub fn parse_header(line: &str) -> Result<(u32, u32, Option<f64>, PixelFormat, u
         "444" => (PixelFormat::Gray8, 2 * luma),
         "mono" => (PixelFormat::Gray8, 0),
         "mono16" => (PixelFormat::Gray16, 0),
-        other => {
-            return Err(format!(
-                "colour space C{other} is not supported (420, 422, 444, mono, mono16)"
-            ));
-        }
+        other => return Err(Y4mHeaderError::Colour(other.to_string())),
     };
     Ok((w, h, fps, format, chroma))
 }
@@ -305,18 +313,25 @@ mod tests {
             parse_header("YUV4MPEG2 W3 H3 Cmono16").unwrap().3,
             PixelFormat::Gray16
         );
-        assert!(
-            parse_header("YUV4MPEG2 W3 H3 C411")
-                .unwrap_err()
-                .contains("C411")
+        assert_eq!(
+            parse_header("YUV4MPEG2 W3 H3 C411").unwrap_err(),
+            Y4mHeaderError::Colour("411".into())
         );
-        assert!(parse_header("YUV4MPEG W3 H3").is_err());
-        assert!(parse_header("YUV4MPEG2 W0 H3").is_err());
-        assert!(
-            parse_header("YUV4MPEG2 Wx H3")
-                .unwrap_err()
-                .contains("width")
+        assert_eq!(
+            parse_header("YUV4MPEG W3 H3").unwrap_err(),
+            Y4mHeaderError::NotY4m
         );
+        assert_eq!(
+            parse_header("YUV4MPEG2 W0 H3").unwrap_err(),
+            Y4mHeaderError::Size {
+                width: 0,
+                height: 3
+            }
+        );
+        assert!(matches!(
+            parse_header("YUV4MPEG2 Wx H3").unwrap_err(),
+            Y4mHeaderError::NotANumber { field: "width", .. }
+        ));
     }
 
     #[test]

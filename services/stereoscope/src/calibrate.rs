@@ -46,12 +46,17 @@ type Views = (
     Vec<Vec<(nalgebra::Point3<f64>, nalgebra::Point2<f64>)>>,
 );
 
-fn views_from_csv(path: &std::path::Path, scale: f64) -> Result<Views, String> {
-    let rows = csv::read(path, &["view", "X", "Y", "Z", "u", "v"]).map_err(|e| e.to_string())?;
+fn views_from_csv(path: &std::path::Path, scale: f64) -> Result<Views, csv::CsvError> {
+    let rows = csv::read(path, &["view", "X", "Y", "Z", "u", "v"])?;
     let (mut labels, mut views): Views = (Vec::new(), Vec::new());
-    let file = path.display();
+    let file = path.display().to_string();
     for r in &rows {
-        let num = |k: usize, name: &str| r.number(k, name).map_err(|e| format!("{file}: {e}"));
+        let num = |k: usize, name: &str| {
+            r.number(k, name).map_err(|problem| csv::CsvError {
+                file: file.clone(),
+                problem,
+            })
+        };
         let (x, y, z, u, v) = (
             num(1, "X")?,
             num(2, "Y")?,
@@ -90,7 +95,7 @@ pub fn run(
             let size = opts
                 .image_size
                 .ok_or_else(|| anyhow::anyhow!("--image-size WxH is needed with --points"))?;
-            let (labels, views) = views_from_csv(path, scale).map_err(anyhow::Error::msg)?;
+            let (labels, views) = views_from_csv(path, scale)?;
             (labels, views, size)
         }
         Source::DotGrid {

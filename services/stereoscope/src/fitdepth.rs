@@ -41,7 +41,7 @@ pub fn run(opts: &FitDepthOptions, out: &mut impl Write) -> anyhow::Result<()> {
     let samples = rows
         .iter()
         .map(|r| Ok((r.number(0, "area_px")?, r.number(1, "distance")?)))
-        .collect::<Result<Vec<(f64, f64)>, String>>()
+        .collect::<Result<Vec<(f64, f64)>, stereoscope_imageio::csv::CsvProblem>>()
         .map_err(|e| anyhow::anyhow!("{file}: {e}"))?;
     let mut reports = Vec::new();
     let two = fit_two_parameter(&samples).map_err(|e| anyhow::anyhow!("{file}: {e}"))?;
