@@ -335,5 +335,6 @@ pub fn run(cfg: CaptureConfig, shutdown: Shutdown) -> Result<CaptureSummary, Cap
         node.counters.processed = summary.frames;
         node.tick();
     }
+    node.finish();
     Ok(summary)
 }

@@ -233,6 +233,7 @@ pub fn run(cfg: FusionConfig, shutdown: Shutdown) -> Result<u64, FusionError> {
         }
         node.tick();
     }
+    node.finish();
     Ok(sequence)
 }
 

@@ -377,6 +377,7 @@ pub fn run(cfg: MomentsConfig, shutdown: Shutdown) -> Result<u64, MomentsError> 
         }
         node.tick();
     }
+    node.finish();
     Ok(processed)
 }
 

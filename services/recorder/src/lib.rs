@@ -331,5 +331,6 @@ pub fn run(cfg: RecorderConfig, shutdown: Shutdown) -> Result<(u64, u64), Record
             break;
         }
     }
+    node.finish();
     Ok((n_poses, n_obs))
 }

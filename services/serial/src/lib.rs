@@ -266,6 +266,7 @@ pub fn run(cfg: SerialConfig, shutdown: Shutdown) -> Result<u64, SerialServiceEr
             None => {}
         }
     }
+    node.finish();
     Ok(packets)
 }
 

@@ -358,6 +358,28 @@ pub fn replay_frames(
             }
         }
     };
+    // Every service's last health report: what each dropped, rejected or got late, so a
+    // mismatch can be traced to the frame losses behind it.
+    let health: Arc<
+        Mutex<std::collections::BTreeMap<String, stereoscope_proto::messages::Health>>,
+    > = Arc::default();
+    let _health_sub = match &zs {
+        Some(z) => {
+            let sink = health.clone();
+            Some(net::subscribe(
+                z,
+                &stereoscope_proto::names::zenoh::all_health(&rig.name),
+                move |_, b| {
+                    if let Ok(h) = stereoscope_proto::messages::Health::from_json(b)
+                        && let Ok(mut m) = sink.lock()
+                    {
+                        m.insert(h.service.clone(), h);
+                    }
+                },
+            )?)
+        }
+        None => None,
+    };
     let _sub = match &zs {
         Some(z) => {
             let sink = replayed.clone();
@@ -400,8 +422,11 @@ pub fn replay_frames(
     result??;
     let replayed = replayed.lock().map(|v| v.clone()).unwrap_or_default();
     let c = compare_frames(&s.poses, &replayed);
+    let losses = health.lock().map(|h| losses(&h)).unwrap_or_default();
     if json {
-        println!("{}", serde_json::to_string(&c)?);
+        let mut v = serde_json::to_value(&c)?;
+        v["losses"] = serde_json::json!(losses);
+        println!("{v}");
     } else {
         println!(
             "{} pose frames from the replayed frames, {} at the time of a recorded one ({} recorded); {} objects compared, {} unmatched, {} identical; position difference RMS {:.3} mm, largest {:.3} mm; the last {} frames identical",
@@ -415,8 +440,32 @@ pub fn replay_frames(
             c.position_max_mm,
             c.identical_last_frames
         );
+        for l in &losses {
+            println!("lost in the replay: {l}");
+        }
     }
     Ok(if c.matched_frames > 0 { 0 } else { 1 })
+}
+
+/// What the services' last health reports say was lost: frames a worker or the recorder
+/// dropped, messages rejected, observations fusion got too late for their set.
+fn losses(
+    health: &std::collections::BTreeMap<String, stereoscope_proto::messages::Health>,
+) -> Vec<String> {
+    let mut out = Vec::new();
+    for (service, h) in health {
+        if h.dropped > 0 {
+            out.push(format!("{service}: {} dropped", h.dropped));
+        }
+        if h.rejected > 0 {
+            let why = h.last_error.as_deref().unwrap_or("");
+            out.push(format!("{service}: {} rejected (last: {why})", h.rejected));
+        }
+        if let Some(late) = h.detail.get("late").filter(|l| l.as_str() != "0") {
+            out.push(format!("{service}: {late} observations late for their set"));
+        }
+    }
+    out
 }
 
 /// `stereoscope export --format csv|c3d`.

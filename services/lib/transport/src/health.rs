@@ -85,10 +85,14 @@ impl HealthReporter {
 
     /// Publishes a report when the interval has passed.
     pub fn tick(&mut self, c: &Counters) {
-        let elapsed = self.last.elapsed();
-        if elapsed < self.interval {
-            return;
+        if self.last.elapsed() >= self.interval {
+            self.report(c);
         }
+    }
+
+    /// Publishes a report now (a service's last, as it stops: its final counts).
+    pub fn report(&mut self, c: &Counters) {
+        let elapsed = self.last.elapsed().max(Duration::from_millis(1));
         let rate = (c.processed.saturating_sub(self.last_processed)) as f64 / elapsed.as_secs_f64();
         self.last = Instant::now();
         self.last_processed = c.processed;

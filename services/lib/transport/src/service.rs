@@ -85,6 +85,11 @@ impl ServiceNode {
     pub fn tick(&mut self) {
         self.health.tick(&self.counters);
     }
+
+    /// Reports health now: a service's last report as it stops, with its final counts.
+    pub fn finish(&mut self) {
+        self.health.report(&self.counters);
+    }
 }
 
 /// One kind of message published both on this PC (iceoryx2) and on the network (Zenoh).

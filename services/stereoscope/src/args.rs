@@ -1,0 +1,330 @@
+//! The options of each `stereoscope` command, one `clap::Args` struct per subcommand (the
+//! services' own are in their crates' `cli` modules).
+
+use std::path::PathBuf;
+use stereoscope_geometry::calibrate::DistortionModel;
+use stereoscope_vision::{Connectivity, ThresholdMethod};
+
+use std::process::ExitCode;
+use stereoscope::blobs::{self, BlobsOptions};
+use stereoscope::calibrate::{self, CalibrateOptions, Source};
+
+use crate::{finish, parse_connectivity, parse_distortion, parse_size, parse_threshold};
+
+/// `stereoscope blobs`: its options.
+#[derive(clap::Args, Debug)]
+pub struct BlobsArgs {
+    /// Image files.
+    #[arg(required = true)]
+    pub images: Vec<PathBuf>,
+    /// Foreground is pixel >= threshold: a number, `auto` (halfway from the histogram's background knee to the targets), `triangle` or `otsu`.
+    #[arg(long, default_value = "auto", value_parser = parse_threshold)]
+    pub threshold: ThresholdMethod,
+    /// Pixel aspect ratio, pixel width / pixel height (the thesis's cameras: 0.86).
+    #[arg(long, default_value_t = 1.0)]
+    pub par: f64,
+    /// 4 or 8.
+    #[arg(long, default_value = "8", value_parser = parse_connectivity)]
+    pub connectivity: Connectivity,
+    /// Smallest blob reported, pixels.
+    #[arg(long, default_value_t = 1)]
+    pub min_area: u64,
+    /// One JSON object per image per line instead of a table (docs/protocol.md).
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// `stereoscope calibrate`: its options.
+#[derive(clap::Args, Debug)]
+pub struct CalibrateArgs {
+    /// CSV with the header view,X,Y,Z,u,v: target coordinates and pixels, one row per point.
+    #[arg(long, conflicts_with = "dot_grid")]
+    pub points: Option<PathBuf>,
+    /// Image size WxH (needed with --points; read from the images otherwise).
+    #[arg(long, value_parser = parse_size)]
+    pub image_size: Option<(u32, u32)>,
+    /// Calibrate from images of a COLSxROWS dot grid (docs/geometry.md, the dot-grid target).
+    #[arg(long, value_parser = parse_size, requires = "spacing")]
+    pub dot_grid: Option<(u32, u32)>,
+    /// Dot spacing, in --units.
+    #[arg(long)]
+    pub spacing: Option<f64>,
+    /// Images of the dot grid.
+    pub images: Vec<PathBuf>,
+    /// Unit of target coordinates and of the output translations: m, cm or mm.
+    #[arg(long, default_value = "m")]
+    pub units: stereoscope_rig::Units,
+    /// Distortion terms to estimate: none, radial (k1 k2) or full (k1 k2 p1 p2 k3).
+    #[arg(long, default_value = "full", value_parser = parse_distortion)]
+    pub distortion: DistortionModel,
+    /// Camera id in the written camera table.
+    #[arg(long, default_value = "camera")]
+    pub id: String,
+    /// Also write the camera table (rig file format) to this file.
+    #[arg(long)]
+    pub out: Option<PathBuf>,
+    /// One JSON object instead of the report (docs/protocol.md).
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// `stereoscope fit-depth`: its options.
+#[derive(clap::Args, Debug)]
+pub struct FitDepthArgs {
+    /// CSV with the header area_px,distance.
+    #[arg(long)]
+    pub samples: PathBuf,
+    /// One JSON object per model per line.
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// `stereoscope reproduce`: its options.
+#[derive(clap::Args, Debug)]
+pub struct ReproduceArgs {
+    /// Folder for the tables, plots and summary (replaced as a whole).
+    #[arg(long, default_value = "reproduce")]
+    pub out: PathBuf,
+    #[arg(long, default_value_t = 1994)]
+    pub seed: u64,
+    /// Readings per height (the thesis took 25).
+    #[arg(long, default_value_t = 25)]
+    pub readings: usize,
+    /// Gaussian noise, grey levels.
+    #[arg(long, default_value_t = 2.0)]
+    pub noise: f64,
+    /// Skip the table of results at other noise levels (five more runs).
+    #[arg(long)]
+    pub no_noise_table: bool,
+    /// Another lab: a rig file whose first two cameras look down at the floor.
+    #[arg(long)]
+    pub rig: Option<PathBuf>,
+}
+
+/// `stereoscope demo`: its options.
+#[derive(clap::Args, Debug)]
+pub struct DemoArgs {
+    /// How long to measure, seconds from the first pose.
+    #[arg(long, default_value_t = 10.0)]
+    pub seconds: f64,
+    /// Run this rig file instead of the built-in one (synthetic cameras, no [[host]]).
+    #[arg(long)]
+    pub rig: Option<PathBuf>,
+    /// No live table, only the summary.
+    #[arg(long)]
+    pub quiet: bool,
+    /// The summary as one JSON object.
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// `stereoscope run`: its options.
+#[derive(clap::Args, Debug)]
+pub struct RunArgs {
+    /// The rig file.
+    pub rig: PathBuf,
+    /// This PC's name in the rig's [[host]] list (the only one if omitted).
+    #[arg(long)]
+    pub host: Option<String>,
+    /// Prefix of iceoryx2's files (default: the host's iceoryx2_prefix).
+    #[arg(long)]
+    pub iox_prefix: Option<String>,
+    /// Do not run a Zenoh router here (one runs already).
+    #[arg(long)]
+    pub no_router: bool,
+}
+
+/// `stereoscope status`: its options.
+#[derive(clap::Args, Debug)]
+pub struct StatusArgs {
+    /// The rig file (its first host's router is asked; else give --connect and --rig-name).
+    pub rig: Option<PathBuf>,
+    /// A Zenoh router endpoint to ask (default: the rig's, else tcp/127.0.0.1:7447).
+    #[arg(long)]
+    pub connect: Option<String>,
+    /// The rig's name, without a rig file.
+    #[arg(long)]
+    pub rig_name: Option<String>,
+    /// Refresh every second until Ctrl-C.
+    #[arg(long)]
+    pub watch: bool,
+    /// One JSON object.
+    #[arg(long)]
+    pub json: bool,
+    /// Flag a camera with no processed frame for this long, milliseconds.
+    #[arg(long, default_value_t = 2000)]
+    pub stall_ms: u64,
+}
+
+/// `stereoscope replay`: its options.
+#[derive(clap::Args, Debug)]
+pub struct ReplayArgs {
+    /// The session folder.
+    pub session: PathBuf,
+    /// Publish the recorded observations on Zenoh through this router endpoint (with
+    /// --frames: the replay's own router listens there, for clients).
+    #[arg(long)]
+    pub publish: Option<String>,
+    /// With --publish: as fast as possible instead of at the recorded pace.
+    #[arg(long)]
+    pub max_speed: bool,
+    /// Feed the recorded frames (frames-<camera>.y4m) through capture, moment workers and
+    /// fusion at the recorded pace, and compare the poses with the recorded ones.
+    #[arg(long, conflicts_with = "max_speed")]
+    pub frames: bool,
+    /// With --frames: this many times the recorded pace (frames are dropped if a moment
+    /// worker cannot keep up).
+    #[arg(long, default_value_t = 1.0, requires = "frames")]
+    pub speed: f64,
+    /// The comparison as one JSON object.
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// `stereoscope export`: its options.
+#[derive(clap::Args, Debug)]
+pub struct ExportArgs {
+    /// The session folder.
+    pub session: PathBuf,
+    /// csv (one row per object per pose frame) or c3d (markers per object, for
+    /// biomechanics and animation tools; docs/recording.md).
+    #[arg(long, value_parser = ["csv", "c3d"])]
+    pub format: String,
+    /// Output file (standard output if absent; required for c3d). Written whole or not at
+    /// all.
+    #[arg(long)]
+    pub out: Option<PathBuf>,
+}
+
+/// `stereoscope triangulate`: its options.
+#[derive(clap::Args, Debug)]
+pub struct TriangulateArgs {
+    /// The rig file (docs/rig.md).
+    #[arg(long)]
+    pub rig: PathBuf,
+    /// CSV with the header point,camera,u,v (camera = a camera id of the rig).
+    #[arg(long)]
+    pub points: PathBuf,
+    /// One JSON object per point per line.
+    #[arg(long)]
+    pub json: bool,
+}
+
+impl BlobsArgs {
+    /// Runs the command; the process's exit status.
+    pub fn run(self) -> ExitCode {
+        let BlobsArgs {
+            images,
+            threshold,
+            par,
+            connectivity,
+            min_area,
+            json,
+        } = self;
+        let opts = BlobsOptions {
+            images,
+            threshold,
+            par,
+            connectivity,
+            min_area_px: min_area,
+            json,
+        };
+        let (stdout, stderr) = (std::io::stdout(), std::io::stderr());
+        match blobs::run(&opts, &mut stdout.lock(), &mut stderr.lock()) {
+            Ok(0) => ExitCode::SUCCESS,
+            Ok(_) => ExitCode::from(1),
+            Err(e) => {
+                eprintln!("error: writing output: {e}");
+                ExitCode::from(2)
+            }
+        }
+    }
+}
+
+impl CalibrateArgs {
+    /// Runs the command; the process's exit status.
+    pub fn run(self) -> ExitCode {
+        let CalibrateArgs {
+            points,
+            image_size,
+            dot_grid,
+            spacing,
+            images,
+            units,
+            distortion,
+            id,
+            out,
+            json,
+        } = self;
+        let source = match (points, dot_grid, spacing) {
+            (Some(p), None, _) if images.is_empty() => Source::Points(p),
+            (Some(_), None, _) => {
+                eprintln!(
+                    "error: images are only read with --dot-grid (got --points and {} image(s))",
+                    images.len()
+                );
+                return ExitCode::from(2);
+            }
+            (None, Some((cols, rows)), Some(spacing)) if !images.is_empty() => Source::DotGrid {
+                images,
+                cols: cols as usize,
+                rows: rows as usize,
+                spacing,
+            },
+            (None, Some(_), _) => {
+                eprintln!("error: --dot-grid needs --spacing and at least one image");
+                return ExitCode::from(2);
+            }
+            _ => {
+                eprintln!(
+                    "error: give --points FILE.csv, or --dot-grid COLSxROWS --spacing S IMAGE..."
+                );
+                return ExitCode::from(2);
+            }
+        };
+        let opts = CalibrateOptions {
+            source,
+            image_size,
+            units,
+            distortion,
+            id,
+            json,
+            out,
+        };
+        finish(calibrate::run(
+            &opts,
+            &mut std::io::stdout().lock(),
+            &mut std::io::stderr().lock(),
+        ))
+    }
+}
+
+impl ReproduceArgs {
+    /// Runs the command; the process's exit status.
+    pub fn run(self) -> ExitCode {
+        let ReproduceArgs {
+            out,
+            seed,
+            readings,
+            noise,
+            no_noise_table,
+            rig,
+        } = self;
+        let opts = stereoscope_reproduce::ReproduceOptions {
+            seed,
+            readings: readings.max(1),
+            noise_sigma: noise,
+            noise_sweep: !no_noise_table,
+            rig,
+            progress: true,
+            ..stereoscope_reproduce::ReproduceOptions::realistic(out)
+        };
+        let result = stereoscope_reproduce::run(&opts).and_then(|r| {
+            stereoscope_reproduce::write(&r, &opts)?;
+            print!("{}", stereoscope_reproduce::summary_md(&r, &opts));
+            println!("\nTables and plots in {}", opts.out.display());
+            Ok(0)
+        });
+        finish(result)
+    }
+}
