@@ -17,8 +17,6 @@
 
 use std::fmt;
 
-/// A pose as the serial link carries it: position in metres, heading in degrees.
-
 /// Which packet a serial link carries: the rig file's `mode`, the serial service's `--mode`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
 #[serde(rename_all = "snake_case")]
@@ -68,6 +66,7 @@ impl std::str::FromStr for SerialMode {
     }
 }
 
+/// A pose as the serial link carries it: position in metres, heading in degrees.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct SerialPose {
     pub object_id: u16,

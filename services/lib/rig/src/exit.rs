@@ -27,7 +27,7 @@ pub fn exit_code(result: anyhow::Result<()>) -> ExitCode {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
             eprintln!("error: {e:#}");
-            if e.chain().any(|c| is_config_error(c)) {
+            if e.chain().any(is_config_error) {
                 ExitCode::from(CONFIG_EXIT_STATUS)
             } else {
                 ExitCode::from(1)
@@ -49,8 +49,8 @@ mod tests {
         let rig = crate::error::err("camera[0].moments.max_objects", "0 is not between 1 and 64");
         assert!(is_config_error(&Wrapper(rig.clone())));
         let wrapped = anyhow::Error::new(rig).context("starting moments/cam0");
-        assert!(wrapped.chain().any(|c| is_config_error(c)));
+        assert!(wrapped.chain().any(is_config_error));
         let other = anyhow::anyhow!("iceoryx2 said no");
-        assert!(!other.chain().any(|c| is_config_error(c)));
+        assert!(!other.chain().any(is_config_error));
     }
 }
