@@ -60,9 +60,9 @@ impl HealthReporter {
             .liveliness()
             .declare_token(keys::alive(rig, host, service))
             .wait()
-            .map_err(|source| TransportError::Zenoh {
+            .map_err(|e| TransportError::Zenoh {
                 what: format!("liveliness token for {service}"),
-                source,
+                source: crate::ZenohCause(e),
             })?;
         Ok(HealthReporter {
             publisher,

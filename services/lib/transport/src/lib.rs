@@ -111,7 +111,7 @@ pub enum TransportError {
     Zenoh {
         what: String,
         #[source]
-        source: zenoh::Error,
+        source: ZenohCause,
     },
     /// Not `client`, `peer` or `router`.
     #[error("zenoh mode {0:?} is not client, peer or router")]
@@ -119,6 +119,28 @@ pub enum TransportError {
     /// An iceoryx2 file prefix iceoryx2 does not take.
     #[error("iceoryx2 prefix {0:?} is not a valid file name prefix")]
     BadPrefix(String),
+}
+
+/// Zenoh's own error, kept whole but said without the trailing "at <source file>:<line>."
+/// that Zenoh appends (a user has no use for a path inside a dependency).
+#[derive(Debug)]
+pub struct ZenohCause(pub zenoh::Error);
+
+impl std::fmt::Display for ZenohCause {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let text = self.0.to_string();
+        let text = match text.rfind(" at ") {
+            Some(i) if text[i..].contains(".rs:") => &text[..i],
+            _ => text.as_str(),
+        };
+        f.write_str(text.trim_end_matches('.'))
+    }
+}
+
+impl std::error::Error for ZenohCause {
+    fn source(&self) -> Option<&(dyn std::error::Error + 'static)> {
+        self.0.source()
+    }
 }
 
 /// An error and its sources, joined by ": " (what `{:#}` prints for an `anyhow::Error`): for
@@ -135,4 +157,25 @@ pub fn error_chain(e: &(dyn std::error::Error + 'static)) -> String {
         cur = c.source();
     }
     s
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn zenoh_causes_are_said_without_a_dependency_source_path() {
+        let e = ZenohCause("Unable to connect. Timeout! at /root/.cargo/registry/src/zenoh-1.10.2/src/net/x.rs:388.".into());
+        assert_eq!(e.to_string(), "Unable to connect. Timeout!");
+        let plain = ZenohCause("no path here".into());
+        assert_eq!(plain.to_string(), "no path here");
+        let t = TransportError::Zenoh {
+            what: "open client session".into(),
+            source: e,
+        };
+        assert_eq!(
+            error_chain(&t),
+            "zenoh open client session: Unable to connect. Timeout!"
+        );
+    }
 }

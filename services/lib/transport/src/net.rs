@@ -98,7 +98,7 @@ impl ZenohSpec {
 fn zerr(what: impl Into<String>, e: impl Into<zenoh::Error>) -> TransportError {
     TransportError::Zenoh {
         what: what.into(),
-        source: e.into(),
+        source: crate::ZenohCause(e.into()),
     }
 }
 
