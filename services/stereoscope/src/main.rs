@@ -85,28 +85,38 @@ fn service_program() -> anyhow::Result<Vec<String>> {
     Ok(vec![exe.display().to_string(), "service".into()])
 }
 
-fn parse_size(s: &str) -> Result<(u32, u32), String> {
-    let (w, h) = s
-        .split_once(['x', 'X'])
-        .ok_or_else(|| format!("{s:?} is not WxH (e.g. 640x480)"))?;
+/// A command-line value that is not one of its kind (clap names the flag).
+#[derive(Debug, thiserror::Error)]
+enum BadValue {
+    #[error("{0:?} is not WxH with positive whole numbers (e.g. 640x480)")]
+    Size(String),
+    #[error("{0:?} is not a distortion model: give none, radial or full")]
+    Distortion(String),
+    #[error("{0:?} is not a threshold: give a number, auto, triangle or otsu")]
+    Threshold(String),
+    #[error("{0:?} is not a connectivity: give 4 or 8")]
+    Connectivity(String),
+}
+
+fn parse_size(s: &str) -> Result<(u32, u32), BadValue> {
+    let bad = || BadValue::Size(s.to_string());
+    let (w, h) = s.split_once(['x', 'X']).ok_or_else(bad)?;
     let p = |v: &str| {
         v.trim()
             .parse::<u32>()
             .ok()
             .filter(|&n| n > 0)
-            .ok_or_else(|| format!("{s:?} is not WxH with positive whole numbers"))
+            .ok_or_else(bad)
     };
     Ok((p(w)?, p(h)?))
 }
 
-fn parse_distortion(s: &str) -> Result<DistortionModel, String> {
+fn parse_distortion(s: &str) -> Result<DistortionModel, BadValue> {
     match s {
         "none" => Ok(DistortionModel::None),
         "radial" => Ok(DistortionModel::Radial),
         "full" => Ok(DistortionModel::Full),
-        _ => Err(format!(
-            "{s:?} is not a distortion model: give none, radial or full"
-        )),
+        _ => Err(BadValue::Distortion(s.to_string())),
     }
 }
 
@@ -123,16 +133,15 @@ fn finish(result: anyhow::Result<usize>) -> ExitCode {
     }
 }
 
-fn parse_threshold(s: &str) -> Result<ThresholdMethod, String> {
-    ThresholdMethod::parse(s)
-        .ok_or_else(|| format!("{s:?} is not a threshold: give a number, auto, triangle or otsu"))
+fn parse_threshold(s: &str) -> Result<ThresholdMethod, BadValue> {
+    ThresholdMethod::parse(s).ok_or_else(|| BadValue::Threshold(s.to_string()))
 }
 
-fn parse_connectivity(s: &str) -> Result<Connectivity, String> {
+fn parse_connectivity(s: &str) -> Result<Connectivity, BadValue> {
     match s {
         "4" => Ok(Connectivity::Four),
         "8" => Ok(Connectivity::Eight),
-        _ => Err(format!("{s:?} is not a connectivity: give 4 or 8")),
+        _ => Err(BadValue::Connectivity(s.to_string())),
     }
 }
 
