@@ -14,9 +14,9 @@ use stereoscope_geometry::depth::{on_axis_area, point_from_depth};
 use stereoscope_geometry::world_heading::{AxisView, fuse};
 use stereoscope_numeric::angle::wrap_half_turn_deg;
 use stereoscope_numeric::assign::Assigner;
+use stereoscope_numeric::heading::{HeadingConfig, HeadingTracker};
 use stereoscope_proto::messages::{BlobObservation, Observation, Pose, PoseMethod, TrackState};
 use stereoscope_rig::Rig;
-use stereoscope_vision::{HeadingConfig, HeadingTracker};
 
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct FuserConfig {

@@ -16,6 +16,7 @@
 pub mod cli;
 
 use std::time::Duration;
+use stereoscope_numeric::heading::HeadingStatus;
 use stereoscope_proto::frame::{FrameHeader, PixelFormat};
 use stereoscope_proto::messages::{
     BlobObservation, Observation, SCHEMA_VERSION, TrackState, now_ns,
@@ -27,9 +28,7 @@ use stereoscope_rig::schema::WeightingSpec;
 use stereoscope_transport::iox::FrameSubscriber;
 use stereoscope_transport::{Outlet, ServiceNode, Shutdown};
 use stereoscope_vision::extract::{BlobFlags, Weighting};
-use stereoscope_vision::{
-    GrayView, HeadingStatus, Histogram, Pixel, TrackStatus, Tracker, VisionError,
-};
+use stereoscope_vision::{GrayView, Histogram, Pixel, TrackStatus, Tracker, VisionError};
 
 /// Most blobs one observation carries.
 pub const MAX_REPORTED_BLOBS: usize = 64;

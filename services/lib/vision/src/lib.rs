@@ -16,7 +16,6 @@
 
 pub mod error;
 pub mod extract;
-pub mod heading;
 pub mod histogram;
 pub mod image;
 pub mod moments;
@@ -27,7 +26,6 @@ pub use error::VisionError;
 pub use extract::{
     Blob, BlobFlags, Connectivity, ExtractConfig, ExtractStats, Extractor, Weighting, Window,
 };
-pub use heading::{HeadingConfig, HeadingStatus, HeadingTracker, HeadingUpdate};
 pub use histogram::{Histogram, ThresholdMethod};
 pub use image::{GrayImage, GrayView, Pixel, PixelRect};
 pub use moments::{CentralMoments, RawMoments};

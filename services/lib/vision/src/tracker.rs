@@ -24,11 +24,11 @@
 
 use crate::error::VisionError;
 use crate::extract::{Blob, BlobFlags, ExtractConfig, ExtractStats, Extractor, Window};
-use crate::heading::{HeadingConfig, HeadingTracker, HeadingUpdate};
 use crate::histogram::{Histogram, ThresholdMethod};
 use crate::image::{GrayView, Pixel, PixelRect};
 use crate::moments::{directed_angle_deg, validate_par};
 use stereoscope_numeric::Assigner;
+use stereoscope_numeric::heading::{HeadingConfig, HeadingTracker, HeadingUpdate};
 
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct TrackerConfig {
@@ -431,9 +431,9 @@ fn heading_of(ht: &mut HeadingTracker, b: &Blob, par: f64, min_skew: Option<f64>
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::heading::HeadingStatus;
     use crate::image::GrayImage;
     use crate::raster::{Ellipse, draw_ellipse};
+    use stereoscope_numeric::heading::HeadingStatus;
 
     fn frame(objs: &[(f64, f64, f64)]) -> GrayImage<u8> {
         let mut img = GrayImage::filled(320, 240, 10u8).unwrap();

@@ -16,7 +16,7 @@
 //!
 //! Angles are degrees, counter-clockwise as seen on screen (`docs/conventions.md`).
 
-use stereoscope_numeric::angle::{wrap, wrap_half_turn_deg, wrap_turn_deg};
+use crate::angle::{wrap, wrap_half_turn_deg, wrap_turn_deg};
 
 /// An angle in [0, 360).
 fn to_turn(d: f64) -> f64 {
