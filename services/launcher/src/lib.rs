@@ -10,9 +10,6 @@
 //! Children die with the launcher (PR_SET_PDEATHSIG), so nothing is left running if it is
 //! killed outright.
 
-pub mod demo;
-pub mod status;
-
 use std::io::{BufRead, BufReader};
 use std::process::{Child, Command, Stdio};
 use std::sync::{Arc, Mutex};
@@ -68,24 +65,7 @@ pub enum LaunchError {
     },
     #[error("launcher")]
     Transport(#[from] stereoscope_transport::TransportError),
-    #[error("demo: the demo rig")]
-    DemoRig(#[from] stereoscope_rig::RigError),
-    #[error(
-        "demo: camera[{index}] ({id:?}) has no synthetic source; the demo scores synthetic cameras against their scene's truth (run a rig of real sources with `stereoscope run`)"
-    )]
-    NotSynthetic { index: usize, id: String },
-    #[error("demo: {}", .path.display())]
-    DemoFile {
-        path: std::path::PathBuf,
-        #[source]
-        source: std::io::Error,
-    },
-    #[error("demo: no free loopback port for the router")]
-    NoPort(#[source] std::io::Error),
-    #[error("demo: no poses within 30 s of starting: see the services' log lines above")]
-    NoPoses,
-    #[error("demo: the launcher thread panicked")]
-    LauncherPanicked,
+
     /// A service refused its configuration: no restart would mend it, so the rig stopped.
     #[error(
         "{service} refused its configuration (exit status {}): {message}; stopped the rig",
@@ -408,6 +388,8 @@ pub fn run(cfg: LaunchConfig, shutdown: Shutdown) -> Result<u32, LaunchError> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    const DEMO_RIG: &str = include_str!("../../../deploy/rigs/demo.toml");
     use stereoscope_rig::Rig;
 
     fn ctx(text: &str, host: &str) -> Context {
@@ -433,7 +415,7 @@ mod tests {
         std::fs::create_dir_all(&dir).unwrap();
         let count = dir.join("starts");
         let _ = std::fs::remove_file(&count);
-        let mut c = ctx(demo::DEMO_RIG, "local");
+        let mut c = ctx(DEMO_RIG, "local");
         c.iox_prefix = format!("stsc_l{}_{}_", std::process::id(), script.len());
         let cfg = LaunchConfig {
             ctx: c,
@@ -506,7 +488,7 @@ mod tests {
 
     #[test]
     fn each_host_runs_its_own_services() {
-        let text = demo::DEMO_RIG
+        let text = DEMO_RIG
             .replacen("id = \"cam0\"", "id = \"cam0\"\nhost = \"a\"", 1)
             .replacen("id = \"cam1\"", "id = \"cam1\"\nhost = \"b\"", 1)
             .replacen("[fusion]\n", "[fusion]\nhost = \"b\"\n", 1)

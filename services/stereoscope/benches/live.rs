@@ -13,7 +13,7 @@ use std::sync::mpsc;
 use std::time::{Duration, Instant};
 use stereoscope_capture::source::FrameSource;
 use stereoscope_capture::synthetic::SyntheticSource;
-use stereoscope_launcher::demo::{DEMO_RIG, DemoConfig};
+use stereoscope_demo::{DEMO_RIG, DemoConfig};
 use stereoscope_moments::Worker;
 use stereoscope_proto::frame::{FrameHeader, PixelFormat};
 use stereoscope_proto::messages::now_ns;
@@ -237,7 +237,7 @@ fn main() {
     println!("\n## Capture → pose, two 640×480 cameras at 120 fps, 4 objects, as processes");
     let seconds = if quick { 3.0 } else { 10.0 };
     let work_dir = std::env::temp_dir().join(format!("stereoscope-bench-{}", std::process::id()));
-    let s = stereoscope_launcher::demo::run(
+    let s = stereoscope_demo::run(
         DemoConfig {
             seconds,
             program: vec![

@@ -4,7 +4,7 @@
 use crate::progress::Progress;
 use anyhow::Context as _;
 use std::path::PathBuf;
-use stereoscope_launcher::demo::{DemoConfig, DemoSummary};
+use stereoscope_demo::{DemoConfig, DemoSummary};
 use stereoscope_launcher::{LaunchConfig, run};
 use stereoscope_rig::CommonArgs;
 use stereoscope_transport::{Shutdown, init_logging};
@@ -118,7 +118,7 @@ pub fn demo(
         None => None,
     };
     let work_dir = std::env::temp_dir().join(format!("stereoscope-demo-{}", std::process::id()));
-    let summary = stereoscope_launcher::demo::run(
+    let summary = stereoscope_demo::run(
         DemoConfig {
             seconds,
             program: program?,
@@ -147,8 +147,8 @@ pub fn status(
     json: bool,
     stall_ms: u64,
 ) -> anyhow::Result<usize> {
-    use stereoscope_launcher::status::{Monitor, StatusConfig, to_json, to_text};
     use stereoscope_rig::context::local_endpoint;
+    use stereoscope_status::{Monitor, StatusConfig, to_json, to_text};
     use stereoscope_transport::net::ZenohSpec;
     let (name, endpoint) = match &rig {
         Some(p) => {

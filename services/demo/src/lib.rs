@@ -4,7 +4,34 @@
 //! against the synthetic cameras' ground truth (read from shared memory on this PC), live, then a summary (poses/s, capture→pose
 //! latency, position and heading error, identity switches).
 
-use crate::{LaunchConfig, LaunchError};
+use stereoscope_launcher::{LaunchConfig, LaunchError};
+
+/// Why the demo could not run.
+#[derive(Debug, thiserror::Error)]
+pub enum DemoError {
+    #[error("demo: the demo rig")]
+    Rig(#[from] stereoscope_rig::RigError),
+    #[error(
+        "demo: camera[{index}] ({id:?}) has no synthetic source; the demo scores synthetic cameras against their scene's truth (run a rig of real sources with `stereoscope run`)"
+    )]
+    NotSynthetic { index: usize, id: String },
+    #[error("demo: {}", .path.display())]
+    File {
+        path: std::path::PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
+    #[error("demo: no free loopback port for the router")]
+    NoPort(#[source] std::io::Error),
+    #[error("demo: no poses within 30 s of starting: see the services' log lines above")]
+    NoPoses,
+    #[error("demo: the launcher thread panicked")]
+    LauncherPanicked,
+    #[error("demo")]
+    Launch(#[from] LaunchError),
+    #[error("demo")]
+    Transport(#[from] stereoscope_transport::TransportError),
+}
 use std::collections::{BTreeMap, VecDeque};
 use std::io::Write;
 use std::sync::mpsc;
@@ -128,8 +155,8 @@ struct Acc {
 }
 
 /// Runs the demo until `seconds` of poses were measured or shutdown.
-pub fn run(cfg: DemoConfig, shutdown: Shutdown) -> Result<DemoSummary, LaunchError> {
-    let port = net::free_loopback_port().map_err(LaunchError::NoPort)?;
+pub fn run(cfg: DemoConfig, shutdown: Shutdown) -> Result<DemoSummary, DemoError> {
+    let port = net::free_loopback_port().map_err(DemoError::NoPort)?;
     let prefix = format!("stsc_demo{}_", std::process::id());
     let base = cfg.rig_text.clone().unwrap_or_else(|| DEMO_RIG.to_string());
     let text = format!(
@@ -143,17 +170,17 @@ pub fn run(cfg: DemoConfig, shutdown: Shutdown) -> Result<DemoSummary, LaunchErr
             Some(stereoscope_rig::schema::SourceSpec::Synthetic { .. })
         )
     }) {
-        return Err(LaunchError::NotSynthetic {
+        return Err(DemoError::NotSynthetic {
             index: i,
             id: c.id.clone(),
         });
     }
-    std::fs::create_dir_all(&cfg.work_dir).map_err(|source| LaunchError::DemoFile {
+    std::fs::create_dir_all(&cfg.work_dir).map_err(|source| DemoError::File {
         path: cfg.work_dir.clone(),
         source,
     })?;
     let rig_path = cfg.work_dir.join("demo-rig.toml");
-    std::fs::write(&rig_path, &text).map_err(|source| LaunchError::DemoFile {
+    std::fs::write(&rig_path, &text).map_err(|source| DemoError::File {
         path: rig_path.clone(),
         source,
     })?;
@@ -169,7 +196,7 @@ pub fn run(cfg: DemoConfig, shutdown: Shutdown) -> Result<DemoSummary, LaunchErr
         .cameras
         .first()
         .map(|c| c.id.clone())
-        .ok_or(LaunchError::DemoRig(stereoscope_rig::RigError {
+        .ok_or(DemoError::Rig(stereoscope_rig::RigError {
             kind: stereoscope_rig::RigErrorKind::Value,
             file: None,
             key: "camera".into(),
@@ -185,14 +212,14 @@ pub fn run(cfg: DemoConfig, shutdown: Shutdown) -> Result<DemoSummary, LaunchErr
             router: true,
             until_sources_end: false,
         };
-        std::thread::spawn(move || crate::run(lc, stop))
+        std::thread::spawn(move || stereoscope_launcher::run(lc, stop))
     };
     let result = watch(&cfg, &shutdown, &client, &rig.name, &first_cam, &prefix);
     launch_stop.request();
     let restarts = match launcher.join() {
         Ok(Ok(r)) => r,
-        Ok(Err(e)) => return Err(e),
-        Err(_) => return Err(LaunchError::LauncherPanicked),
+        Ok(Err(e)) => return Err(e.into()),
+        Err(_) => return Err(DemoError::LauncherPanicked),
     };
     let _ = std::fs::remove_file(&rig_path);
     let mut s = result?;
@@ -207,7 +234,7 @@ fn watch(
     rig: &str,
     truth_cam: &str,
     iox_prefix: &str,
-) -> Result<DemoSummary, LaunchError> {
+) -> Result<DemoSummary, DemoError> {
     // The router starts in the launcher thread: give it a moment, then connect.
     let mut session = None;
     let deadline = Instant::now() + Duration::from_secs(10);
@@ -259,7 +286,7 @@ fn watch(
             break;
         }
         if first.is_none() && Instant::now() > startup_deadline {
-            return Err(LaunchError::NoPoses);
+            return Err(DemoError::NoPoses);
         }
         match rx.recv_timeout(Duration::from_millis(50)) {
             Ok(Event::Poses(p)) => {
