@@ -40,6 +40,10 @@ fn in_range(key: &str, v: f64, lo: f64, hi: f64, what: &str) -> Result<(), RigEr
     }
 }
 
+fn fps_in_range(key: &str, fps: f64) -> Result<(), RigError> {
+    in_range(key, fps, FPS_RANGE.0, FPS_RANGE.1, "frames per second")
+}
+
 fn positive_at_most(key: &str, v: f64, hi: f64, what: &str) -> Result<(), RigError> {
     if v.is_finite() && v > 0.0 && v <= hi {
         Ok(())
@@ -218,13 +222,7 @@ pub(crate) fn check(file: &RigFile, base: Option<&Path>, sources: bool) -> Resul
                 loop_frames,
                 bit_depth,
             }) => {
-                in_range(
-                    &fps_key,
-                    *fps,
-                    FPS_RANGE.0,
-                    FPS_RANGE.1,
-                    "frames per second",
-                )?;
+                fps_in_range(&fps_key, *fps)?;
                 if file.synthetic.is_none() {
                     return Err(err(
                         format!("{key}.source"),
@@ -256,13 +254,7 @@ pub(crate) fn check(file: &RigFile, base: Option<&Path>, sources: bool) -> Resul
                 }
             }
             Some(SourceSpec::Images { fps, path, .. }) => {
-                in_range(
-                    &fps_key,
-                    *fps,
-                    FPS_RANGE.0,
-                    FPS_RANGE.1,
-                    "frames per second",
-                )?;
+                fps_in_range(&fps_key, *fps)?;
                 if sources {
                     readable_source(&format!("{key}.source.path"), &resolve(base, path), true)?;
                 }
@@ -284,7 +276,7 @@ pub(crate) fn check(file: &RigFile, base: Option<&Path>, sources: bool) -> Resul
             }
             Some(SourceSpec::V4l { fps, device, .. }) => {
                 if let Some(f) = fps {
-                    in_range(&fps_key, *f, FPS_RANGE.0, FPS_RANGE.1, "frames per second")?;
+                    fps_in_range(&fps_key, *f)?;
                 }
                 if !devices.insert((c.host.as_deref(), device.as_str())) {
                     return Err(err(
