@@ -428,7 +428,12 @@ fn every_rig_rule_is_refused_at_start_with_its_key() {
     for (name, text, wanted) in cases {
         let path = dir.file(&format!("{name}.toml"), &text);
         let out = run_with_limit(&["run", &path], Duration::from_secs(10));
-        assert!(!out.status.success(), "{name}: the rig was accepted");
+        assert_eq!(
+            out.status.code(),
+            Some(78),
+            "{name}: not refused as a configuration error: {}",
+            stderr(&out)
+        );
         let e = stderr(&out);
         assert!(
             e.contains(&format!("{name}.toml")),

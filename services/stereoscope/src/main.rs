@@ -164,13 +164,27 @@ fn main() -> ExitCode {
             host,
             iox_prefix,
             no_router,
-        }) => finish(stereoscope::live::run_rig(
-            rig,
-            host,
-            iox_prefix,
-            !no_router,
-            service_program(),
-        )),
+        }) => {
+            // Like a service: a rig it refuses (or a service refused) ends with the
+            // configuration status, so whatever supervises `run` does not restart it.
+            let result =
+                stereoscope::live::run_rig(rig, host, iox_prefix, !no_router, service_program());
+            let refused = result.as_ref().err().is_some_and(|e| {
+                e.chain().any(|c| {
+                    matches!(
+                        c.downcast_ref::<stereoscope_launcher::LaunchError>(),
+                        Some(stereoscope_launcher::LaunchError::ServiceConfig { .. })
+                    )
+                })
+            });
+            match result {
+                Err(e) if refused => {
+                    eprintln!("error: {e:#}");
+                    ExitCode::from(stereoscope_rig::exit::CONFIG_EXIT_STATUS)
+                }
+                r => stereoscope_rig::exit::exit_code(r.map(|_| ())),
+            }
+        }
         Command::Status(args::StatusArgs {
             rig,
             connect,
