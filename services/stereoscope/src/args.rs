@@ -123,12 +123,8 @@ pub struct DemoArgs {
 pub struct RunArgs {
     /// The rig file.
     pub rig: PathBuf,
-    /// This PC's name in the rig's [[host]] list (the only one if omitted).
-    #[arg(long)]
-    pub host: Option<String>,
-    /// Prefix of iceoryx2's files (default: the host's iceoryx2_prefix).
-    #[arg(long)]
-    pub iox_prefix: Option<String>,
+    #[command(flatten)]
+    pub place: stereoscope_rig::HostArgs,
     /// Do not run a Zenoh router here (one runs already).
     #[arg(long)]
     pub no_router: bool,

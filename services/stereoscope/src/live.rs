@@ -12,8 +12,7 @@ use stereoscope_transport::{Shutdown, init_logging};
 /// Runs this host's services of `rig` until Ctrl-C.
 pub fn run_rig(
     rig: PathBuf,
-    host: Option<String>,
-    iox_prefix: Option<String>,
+    place: stereoscope_rig::HostArgs,
     router: bool,
     program: anyhow::Result<Vec<String>>,
 ) -> anyhow::Result<usize> {
@@ -21,8 +20,7 @@ pub fn run_rig(
     let shutdown = Shutdown::on_signals()?;
     let ctx = CommonArgs {
         rig,
-        host,
-        iox_prefix,
+        place,
         zenoh_mode: None,
         zenoh_connect: Vec::new(),
         zenoh_listen: Vec::new(),

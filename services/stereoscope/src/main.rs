@@ -161,14 +161,12 @@ fn main() -> ExitCode {
         Command::Service(cmd) => stereoscope_rig::exit::exit_code(service(cmd)),
         Command::Run(args::RunArgs {
             rig,
-            host,
-            iox_prefix,
+            place,
             no_router,
         }) => {
             // Like a service: a rig it refuses (or a service refused) ends with the
             // configuration status, so whatever supervises `run` does not restart it.
-            let result =
-                stereoscope::live::run_rig(rig, host, iox_prefix, !no_router, service_program());
+            let result = stereoscope::live::run_rig(rig, place, !no_router, service_program());
             let refused = result.as_ref().err().is_some_and(|e| {
                 e.chain().any(|c| {
                     matches!(

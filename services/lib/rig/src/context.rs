@@ -9,18 +9,26 @@ use stereoscope_transport::net::{ZenohMode, ZenohSpec};
 /// Default iceoryx2 file prefix.
 pub const DEFAULT_IOX_PREFIX: &str = "stsc_";
 
-// No doc comment here: clap would give it to every service as its description.
-#[derive(Debug, Clone, clap::Args)]
-pub struct CommonArgs {
-    /// The rig file.
-    #[arg(long)]
-    pub rig: PathBuf,
+// No doc comment here: clap would give it to every command as its description.
+#[derive(Debug, Clone, Default, clap::Args)]
+pub struct HostArgs {
     /// This PC's name in the rig file's `[[host]]` list (the only one if omitted).
     #[arg(long)]
     pub host: Option<String>,
     /// Prefix of iceoryx2's files (default: the host's `iceoryx2_prefix`, else "stsc_").
     #[arg(long)]
     pub iox_prefix: Option<String>,
+}
+
+// No doc comment here: clap would give it to every service as its description.
+#[derive(Debug, Clone, clap::Args)]
+pub struct CommonArgs {
+    /// The rig file.
+    #[arg(long)]
+    pub rig: PathBuf,
+    /// Which PC this is, and its iceoryx2 prefix (shared with `stereoscope run`).
+    #[command(flatten)]
+    pub place: HostArgs,
     /// client, peer or router (default: client of this host's router, or a peer with no
     /// endpoints when the rig lists no hosts).
     #[arg(long)]
@@ -53,7 +61,7 @@ impl CommonArgs {
             key: key.to_string(),
             message,
         };
-        let host = match (&self.host, rig.spec.hosts.as_slice()) {
+        let host = match (&self.place.host, rig.spec.hosts.as_slice()) {
             (Some(h), []) if h == "local" => h.clone(),
             (Some(h), []) => {
                 return Err(args(
@@ -84,6 +92,7 @@ impl CommonArgs {
         };
         let host_spec = rig.spec.hosts.iter().find(|h| h.name == host).cloned();
         let iox_prefix = self
+            .place
             .iox_prefix
             .clone()
             .or_else(|| host_spec.as_ref().and_then(|h| h.iceoryx2_prefix.clone()))
