@@ -26,7 +26,7 @@ use stereoscope_proto::names::{iox as iox_names, zenoh as keys};
 use stereoscope_rig::Context;
 use stereoscope_rig::schema::SourceSpec;
 use stereoscope_transport::iox::{FramePublisher, FrameStamp};
-use stereoscope_transport::{Outlet, ServiceNode, Shutdown};
+use stereoscope_transport::{Flow, Outlet, Service, ServiceNode, Shutdown, drive};
 
 /// What to run.
 #[derive(Debug, Clone)]
@@ -205,92 +205,169 @@ pub fn open_source(ctx: &Context, camera: &str) -> Result<Box<dyn FrameSource>, 
 
 /// Runs until the source ends, `max_frames`, or shutdown.
 pub fn run(cfg: CaptureConfig, shutdown: Shutdown) -> Result<CaptureSummary, CaptureError> {
-    let cam = cfg.camera.clone();
-    let transport = |source| CaptureError::Transport {
-        camera: cam.clone(),
-        source,
-    };
-    let ctx = &cfg.ctx;
-    let rig = &ctx.rig.name;
-    let mut source = open_source(ctx, &cam)?;
-    let (w, h) = source.size();
-    let format = source.format();
-    let header0 = FrameHeader::new(&cam, format, w, h).map_err(|source| CaptureError::Header {
-        camera: cam.clone(),
-        source,
-    })?;
-    let mut node =
-        ServiceNode::start(ctx.node_spec(&format!("capture/{cam}"))).map_err(transport)?;
-    let frames = FramePublisher::new(
-        &node.iox,
-        &iox_names::frames(rig, &cam),
-        header0.payload_len() as usize,
-    )
-    .map_err(transport)?;
-    let mut truth_outlet: Option<Outlet<Truth>> = match source.truth() {
-        Some(_) => Some(
-            node.outlet(&iox_names::truth(rig, &cam), &[], &keys::truth(rig, &cam))
-                .map_err(transport)?,
-        ),
-        None => None,
-    };
-    tracing::info!(camera = %cam, "capturing from {}", source.describe());
+    drive(Capture::setup(cfg)?, &shutdown)
+}
 
-    let realtime = cfg.realtime.unwrap_or(source.realtime());
-    let period_ns = source
-        .fps()
-        .filter(|f| *f > 0.0 && f.is_finite())
-        .map(|f| (1e9 / f).round().max(1.0) as u64);
-    // Real-time frames sit on a grid shared by every camera of the same rate: slot n is due
-    // at n · period since the Unix epoch, so cameras on one clock expose "together" and a
-    // synthetic scene is rendered at the same instant in every camera.
-    let start = Instant::now();
-    let start_ns = now_ns();
-    let first_slot = period_ns.map(|p| start_ns / p + 1).unwrap_or(0);
-    node.counters
-        .detail
-        .insert("source".into(), source.describe());
-    let mut summary = CaptureSummary::default();
-    let mut index: u64 = 0;
-    let mut next_slot = first_slot;
-    while !shutdown.requested() && cfg.max_frames.is_none_or(|m| index < m) {
-        let (slot, scene_time_s, nominal_ns) = match (realtime, period_ns) {
+/// A running capture: its source, its frame publisher and truth outlet, and the pacing grid.
+pub struct Capture {
+    cfg: CaptureConfig,
+    node: ServiceNode,
+    source: Box<dyn FrameSource>,
+    frames: FramePublisher,
+    truth: Option<Outlet<Truth>>,
+    header0: FrameHeader,
+    realtime: bool,
+    period_ns: Option<u64>,
+    start: Instant,
+    start_ns: u64,
+    first_slot: u64,
+    next_slot: u64,
+    /// Frames read or skipped as bad so far (the source's frame index).
+    index: u64,
+    summary: CaptureSummary,
+}
+
+impl std::fmt::Debug for Capture {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "Capture({}, {})",
+            self.cfg.camera,
+            self.source.describe()
+        )
+    }
+}
+
+impl Capture {
+    /// Opens the source, checks its size against the rig, and joins the rig.
+    pub fn setup(cfg: CaptureConfig) -> Result<Self, CaptureError> {
+        let cam = cfg.camera.clone();
+        let transport = |source| CaptureError::Transport {
+            camera: cam.clone(),
+            source,
+        };
+        let ctx = &cfg.ctx;
+        let rig = &ctx.rig.name;
+        let source = open_source(ctx, &cam)?;
+        let (w, h) = source.size();
+        let header0 = FrameHeader::new(&cam, source.format(), w, h).map_err(|source| {
+            CaptureError::Header {
+                camera: cam.clone(),
+                source,
+            }
+        })?;
+        let mut node =
+            ServiceNode::start(ctx.node_spec(&format!("capture/{cam}"))).map_err(transport)?;
+        let frames = FramePublisher::new(
+            &node.iox,
+            &iox_names::frames(rig, &cam),
+            header0.payload_len() as usize,
+        )
+        .map_err(transport)?;
+        let truth = match source.truth() {
+            Some(_) => Some(
+                node.outlet(&iox_names::truth(rig, &cam), &[], &keys::truth(rig, &cam))
+                    .map_err(transport)?,
+            ),
+            None => None,
+        };
+        tracing::info!(camera = %cam, "capturing from {}", source.describe());
+        node.counters
+            .detail
+            .insert("source".into(), source.describe());
+        let realtime = cfg.realtime.unwrap_or(source.realtime());
+        let period_ns = source
+            .fps()
+            .filter(|f| *f > 0.0 && f.is_finite())
+            .map(|f| (1e9 / f).round().max(1.0) as u64);
+        // Real-time frames sit on a grid shared by every camera of the same rate: slot n is
+        // due at n · period since the Unix epoch, so cameras on one clock expose "together"
+        // and a synthetic scene is rendered at the same instant in every camera.
+        let start_ns = now_ns();
+        let first_slot = period_ns.map(|p| start_ns / p + 1).unwrap_or(0);
+        Ok(Capture {
+            cfg,
+            node,
+            source,
+            frames,
+            truth,
+            header0,
+            realtime,
+            period_ns,
+            start: Instant::now(),
+            start_ns,
+            first_slot,
+            next_slot: first_slot,
+            index: 0,
+            summary: CaptureSummary::default(),
+        })
+    }
+
+    /// The next slot to fill, its scene time and its nominal timestamp, after waiting for it
+    /// on the real-time grid; `None` when shutdown came while waiting.
+    fn next_slot(&mut self, shutdown: &Shutdown) -> Option<(u64, f64, u64)> {
+        match (self.realtime, self.period_ns) {
             (true, Some(p)) => {
                 // More than a period behind (a source slower than its rate): skip to the
                 // current slot rather than publish ever older frames; the gap shows in the
                 // sequence numbers and is counted as dropped.
-                let now_slot = (start_ns + start.elapsed().as_nanos() as u64) / p;
-                if now_slot > next_slot + 1 {
-                    node.counters.dropped += now_slot - next_slot;
-                    next_slot = now_slot;
+                let now_slot = (self.start_ns + self.start.elapsed().as_nanos() as u64) / p;
+                if now_slot > self.next_slot + 1 {
+                    self.node.counters.dropped += now_slot - self.next_slot;
+                    self.next_slot = now_slot;
                 }
-                let slot = next_slot;
-                next_slot += 1;
+                let slot = self.next_slot;
+                self.next_slot += 1;
                 let due_ns = slot * p;
-                let wait_ns = due_ns.saturating_sub(start_ns);
-                let due = Duration::from_nanos(wait_ns);
-                let now = start.elapsed();
+                let due = Duration::from_nanos(due_ns.saturating_sub(self.start_ns));
+                let now = self.start.elapsed();
                 if due > now && shutdown.sleep(due - now) {
-                    break;
+                    return None;
                 }
-                (slot, due_ns as f64 / 1e9, due_ns)
+                Some((slot, due_ns as f64 / 1e9, due_ns))
             }
-            (_, p) => (
-                index,
-                p.map(|p| (index * p) as f64 / 1e9).unwrap_or(0.0),
+            (_, p) => Some((
+                self.index,
+                p.map(|p| (self.index * p) as f64 / 1e9).unwrap_or(0.0),
                 now_ns(),
-            ),
+            )),
+        }
+    }
+}
+
+impl Service for Capture {
+    type Summary = CaptureSummary;
+    type Error = CaptureError;
+
+    fn node(&mut self) -> &mut ServiceNode {
+        &mut self.node
+    }
+
+    /// Reads one frame from the source into a loaned shared-memory frame and publishes it
+    /// (with the scene's truth, for a synthetic source).
+    fn step(&mut self, shutdown: &Shutdown) -> Result<Flow, CaptureError> {
+        if self.cfg.max_frames.is_some_and(|m| self.index >= m) {
+            return Ok(Flow::Stop);
+        }
+        let Some((slot, scene_time_s, nominal_ns)) = self.next_slot(shutdown) else {
+            return Ok(Flow::Stop);
         };
-        let mut header = header0;
+        let cam = &self.cfg.camera;
+        let transport = |source| CaptureError::Transport {
+            camera: cam.clone(),
+            source,
+        };
+        let mut header = self.header0;
         // Real-time frames are numbered by their slot, so skipped slots leave a gap.
-        header.sequence = if realtime && period_ns.is_some() {
-            slot - first_slot
+        header.sequence = if self.realtime && self.period_ns.is_some() {
+            slot - self.first_slot
         } else {
-            index
+            self.index
         };
         header.timestamp_ns = nominal_ns;
-        let mut loan = frames.loan(header).map_err(transport)?;
-        match source.read(slot, scene_time_s, loan.pixels_mut()) {
+        let mut loan = self.frames.loan(header).map_err(transport)?;
+        self.index += 1;
+        match self.source.read(slot, scene_time_s, loan.pixels_mut()) {
             Ok(Read::Frame {
                 timestamp_ns,
                 sequence,
@@ -302,25 +379,24 @@ pub fn run(cfg: CaptureConfig, shutdown: Shutdown) -> Result<CaptureSummary, Cap
                 .map_err(transport)?;
             }
             Ok(Read::End) => {
-                tracing::info!(camera = %cam, frames = index, "end of source");
-                break;
+                tracing::info!(camera = %cam, frames = self.index - 1, "end of source");
+                return Ok(Flow::Stop);
             }
             Err(SourceError::BadFrame(m)) => {
                 tracing::warn!(camera = %cam, "skipped a frame: {m}");
-                node.counters.rejected += 1;
-                node.counters.last_error = Some(m);
-                summary.bad_frames += 1;
-                index += 1;
-                continue;
+                self.node.counters.rejected += 1;
+                self.node.counters.last_error = Some(m);
+                self.summary.bad_frames += 1;
+                return Ok(Flow::Continue);
             }
-            Err(e) => {
+            Err(source) => {
                 return Err(CaptureError::Source {
                     camera: cam.clone(),
-                    source: e,
+                    source,
                 });
             }
         }
-        if let (Some(truth), Some(outlet)) = (source.truth(), &mut truth_outlet) {
+        if let (Some(truth), Some(outlet)) = (self.source.truth(), &mut self.truth) {
             let t = Truth {
                 schema: SCHEMA_VERSION,
                 camera: cam.clone(),
@@ -328,13 +404,14 @@ pub fn run(cfg: CaptureConfig, shutdown: Shutdown) -> Result<CaptureSummary, Cap
                 timestamp_ns: nominal_ns,
                 targets: truth,
             };
-            outlet.publish(&t, &mut node.counters);
+            outlet.publish(&t, &mut self.node.counters);
         }
-        index += 1;
-        summary.frames += 1;
-        node.counters.processed = summary.frames;
-        node.tick();
+        self.summary.frames += 1;
+        self.node.counters.processed = self.summary.frames;
+        Ok(Flow::Continue)
     }
-    node.finish();
-    Ok(summary)
+
+    fn summary(&self) -> CaptureSummary {
+        self.summary
+    }
 }

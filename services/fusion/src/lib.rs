@@ -16,6 +16,8 @@ pub mod pairing;
 
 use fuser::{Fuser, FuserConfig};
 use pairing::{Pairer, PairingConfig};
+use std::sync::Arc;
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::mpsc;
 use std::time::Duration;
 use stereoscope_geometry::correspond::CorrespondConfig;
@@ -27,7 +29,7 @@ use stereoscope_rig::Context;
 use stereoscope_rig::schema::{ObservationRoute, RigFile};
 use stereoscope_transport::iox::{MessageSubscriber, Waker};
 use stereoscope_transport::net::KeyedPublisher;
-use stereoscope_transport::{Counters, Outlet, ServiceNode, Shutdown, net};
+use stereoscope_transport::{Counters, Flow, Outlet, Service, ServiceNode, Shutdown, drive, net};
 
 #[derive(Debug, Clone)]
 pub struct FusionConfig {
@@ -76,84 +78,130 @@ enum Input {
 
 /// Runs until shutdown (or `max_sets`); returns the number of pose frames published.
 pub fn run(cfg: FusionConfig, shutdown: Shutdown) -> Result<u64, FusionError> {
-    let ctx = &cfg.ctx;
-    let rig = ctx.rig.spec.name.clone();
-    let (pair_cfg, fuser_cfg, all_zenoh) = settings(&ctx.rig.spec);
-    let n = ctx.rig.cameras.len();
-    if n == 0 {
-        return Err(FusionError::NoCameras);
-    }
-    let mut node = ServiceNode::start(ctx.node_spec("fusion"))?;
-    let here = ctx.cameras_here();
-    let mut local: Vec<(usize, MessageSubscriber)> = Vec::new();
-    let (tx, rx) = mpsc::sync_channel::<Input>(256);
-    // Network messages the loop had no room for (it fell behind by 256).
-    let overflow = std::sync::Arc::new(std::sync::atomic::AtomicU64::new(0));
-    let mut remote_subs = Vec::new();
-    for (i, c) in ctx.rig.cameras.iter().enumerate() {
-        if !all_zenoh && here.contains(&c.id) {
-            let sub = MessageSubscriber::new(&node.iox, &iox_names::observations(&rig, &c.id))?;
-            local.push((i, sub));
-        } else {
-            let tx = tx.clone();
-            let key = keys::observations(&rig, &c.id);
-            let expected_rig = rig.clone();
-            let cam_id = c.id.clone();
-            let overflow = overflow.clone();
-            let sub = net::subscribe(&node.session, &key, move |k, bytes| {
-                let input = match Observation::from_json(bytes) {
-                    Ok(o) if o.rig == expected_rig && o.camera == cam_id => Input::Obs(i, o),
-                    Ok(o) => Input::Bad(format!(
-                        "{k}: observation of rig {:?} camera {:?} on this camera's key",
-                        o.rig, o.camera
-                    )),
-                    Err(e) => Input::Bad(format!("{k}: {e}")),
-                };
-                if tx.try_send(input).is_err() {
-                    overflow.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
-                }
-            })?;
-            remote_subs.push(sub);
-        }
-    }
-    drop(tx);
-    let waker = Waker::new(&node.iox, &iox_names::observations_ready(&rig))?;
-    let mut poses: Outlet<PoseFrame> =
-        node.outlet(&iox_names::poses(&rig), &[], &keys::poses(&rig))?;
-    let mut per_object = KeyedPublisher::new(&node.session);
-    tracing::info!(
-        local = local.len(),
-        remote = remote_subs.len(),
-        "fusion ready for {n} cameras"
-    );
+    drive(FusionService::setup(cfg)?, &shutdown)
+}
 
-    let mut pairer = Pairer::new(n, pair_cfg);
-    let mut fuser = Fuser::new(&ctx.rig, fuser_cfg);
-    let mut sequence = 0u64;
-    // With remote cameras, poll the network channel often; with local ones only, sleep on
-    // the iceoryx2 event until a worker notifies.
-    let wait = if remote_subs.is_empty() {
-        Duration::from_millis(50)
-    } else {
-        Duration::from_micros(500)
-    };
-    while !shutdown.requested() && cfg.max_sets.is_none_or(|m| sequence < m) {
-        if !local.is_empty() {
-            waker.wait(wait);
-        } else if let Ok(input) = rx.recv_timeout(Duration::from_millis(50)) {
-            handle(input, &mut pairer, &mut node.counters);
+/// A running fusion: its inputs (iceoryx2 subscribers for this PC's workers, a channel fed by
+/// Zenoh subscribers for the others), the pairer and fuser, and its outlets.
+pub struct FusionService {
+    cfg: FusionConfig,
+    node: ServiceNode,
+    local: Vec<(usize, MessageSubscriber)>,
+    remote: mpsc::Receiver<Input>,
+    /// Kept alive: dropping a subscriber undeclares it.
+    _remote_subs: Vec<net::NetSubscriber>,
+    /// Network messages the loop had no room for (it fell behind by 256).
+    overflow: Arc<AtomicU64>,
+    waker: Waker,
+    wait: Duration,
+    poses: Outlet<PoseFrame>,
+    per_object: KeyedPublisher,
+    pairer: Pairer,
+    fuser: Fuser,
+    sequence: u64,
+}
+
+impl std::fmt::Debug for FusionService {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "FusionService({}, {} sets)",
+            self.cfg.ctx.rig.name, self.sequence
+        )
+    }
+}
+
+impl FusionService {
+    /// Subscribes to every camera's observations (iceoryx2 for this PC's cameras unless the
+    /// rig routes them all over Zenoh) and declares the pose outlets.
+    pub fn setup(cfg: FusionConfig) -> Result<Self, FusionError> {
+        let ctx = &cfg.ctx;
+        let rig = ctx.rig.spec.name.clone();
+        let (pair_cfg, fuser_cfg, all_zenoh) = settings(&ctx.rig.spec);
+        let n = ctx.rig.cameras.len();
+        if n == 0 {
+            return Err(FusionError::NoCameras);
         }
-        let counters = &mut node.counters;
-        for (i, sub) in &local {
+        let node = ServiceNode::start(ctx.node_spec("fusion"))?;
+        let here = ctx.cameras_here();
+        let mut local = Vec::new();
+        let (tx, rx) = mpsc::sync_channel::<Input>(256);
+        let overflow = Arc::new(AtomicU64::new(0));
+        let mut remote_subs = Vec::new();
+        for (i, c) in ctx.rig.cameras.iter().enumerate() {
+            if !all_zenoh && here.contains(&c.id) {
+                let sub = MessageSubscriber::new(&node.iox, &iox_names::observations(&rig, &c.id))?;
+                local.push((i, sub));
+            } else {
+                let tx = tx.clone();
+                let key = keys::observations(&rig, &c.id);
+                let expected_rig = rig.clone();
+                let cam_id = c.id.clone();
+                let overflow = overflow.clone();
+                let sub = net::subscribe(&node.session, &key, move |k, bytes| {
+                    let input = match Observation::from_json(bytes) {
+                        Ok(o) if o.rig == expected_rig && o.camera == cam_id => Input::Obs(i, o),
+                        Ok(o) => Input::Bad(format!(
+                            "{k}: observation of rig {:?} camera {:?} on this camera's key",
+                            o.rig, o.camera
+                        )),
+                        Err(e) => Input::Bad(format!("{k}: {e}")),
+                    };
+                    if tx.try_send(input).is_err() {
+                        overflow.fetch_add(1, Ordering::Relaxed);
+                    }
+                })?;
+                remote_subs.push(sub);
+            }
+        }
+        let waker = Waker::new(&node.iox, &iox_names::observations_ready(&rig))?;
+        let poses = node.outlet(&iox_names::poses(&rig), &[], &keys::poses(&rig))?;
+        let per_object = KeyedPublisher::new(&node.session);
+        tracing::info!(
+            local = local.len(),
+            remote = remote_subs.len(),
+            "fusion ready for {n} cameras"
+        );
+        // With remote cameras, poll the network channel often; with local ones only, sleep
+        // on the iceoryx2 event until a worker notifies.
+        let wait = if remote_subs.is_empty() {
+            Duration::from_millis(50)
+        } else {
+            Duration::from_micros(500)
+        };
+        let fuser = Fuser::new(&ctx.rig, fuser_cfg);
+        Ok(FusionService {
+            node,
+            local,
+            remote: rx,
+            _remote_subs: remote_subs,
+            overflow,
+            waker,
+            wait,
+            poses,
+            per_object,
+            pairer: Pairer::new(n, pair_cfg),
+            fuser,
+            sequence: 0,
+            cfg,
+        })
+    }
+
+    /// Takes every observation waiting, local and remote, into the pairer.
+    fn take_inputs(&mut self) {
+        if !self.local.is_empty() {
+            self.waker.wait(self.wait);
+        } else if let Ok(input) = self.remote.recv_timeout(Duration::from_millis(50)) {
+            handle(input, &mut self.pairer, &mut self.node.counters);
+        }
+        let counters = &mut self.node.counters;
+        for (i, sub) in &self.local {
             loop {
                 match sub.try_next::<Observation>() {
-                    Ok(Some(Ok(o))) => {
-                        let now = now_ns();
-                        pairer.push(*i, o, now);
-                    }
+                    Ok(Some(Ok(o))) => self.pairer.push(*i, o, now_ns()),
                     Ok(Some(Err(e))) => handle(
                         Input::Bad(format!("{}: {e}", sub.name())),
-                        &mut pairer,
+                        &mut self.pairer,
                         counters,
                     ),
                     Ok(None) => break,
@@ -164,77 +212,107 @@ pub fn run(cfg: FusionConfig, shutdown: Shutdown) -> Result<u64, FusionError> {
                 }
             }
         }
-        while let Ok(input) = rx.try_recv() {
-            handle(input, &mut pairer, counters);
+        while let Ok(input) = self.remote.try_recv() {
+            handle(input, &mut self.pairer, counters);
         }
-        while let Some(set) = pairer.pop(now_ns()) {
-            if set.is_empty() {
-                continue;
-            }
-            let timestamp_ns = set.iter().map(|(_, o)| o.timestamp_ns).min().unwrap_or(0);
-            let frame_published_ns = set
-                .iter()
-                .map(|(_, o)| o.frame_published_ns)
-                .max()
-                .unwrap_or(0);
-            let cameras: Vec<String> = set
-                .iter()
-                .map(|(c, _)| ctx.rig.cameras[*c].id.clone())
-                .collect();
-            let fused = fuser.fuse(&set, timestamp_ns);
-            let published_ns = now_ns();
-            let frame = PoseFrame {
+    }
+
+    /// Fuses one complete (or timed-out) set of observations and publishes its pose frame,
+    /// on both transports, and each object's pose on its own key.
+    fn publish_set(&mut self, set: &[(usize, Observation)]) {
+        let rig = &self.cfg.ctx.rig;
+        let timestamp_ns = set.iter().map(|(_, o)| o.timestamp_ns).min().unwrap_or(0);
+        let frame_published_ns = set
+            .iter()
+            .map(|(_, o)| o.frame_published_ns)
+            .max()
+            .unwrap_or(0);
+        let cameras: Vec<String> = set
+            .iter()
+            .map(|(c, _)| rig.cameras[*c].id.clone())
+            .collect();
+        let fused = self.fuser.fuse(set, timestamp_ns);
+        let published_ns = now_ns();
+        let frame = PoseFrame {
+            schema: SCHEMA_VERSION,
+            rig: rig.name.clone(),
+            sequence: self.sequence,
+            timestamp_ns,
+            frame_published_ns,
+            published_ns,
+            cameras,
+            poses: fused,
+        };
+        let counters = &mut self.node.counters;
+        self.poses.publish(&frame, counters);
+        for p in &frame.poses {
+            let u = PoseUpdate {
                 schema: SCHEMA_VERSION,
-                rig: rig.clone(),
-                sequence,
+                rig: rig.name.clone(),
+                sequence: self.sequence,
                 timestamp_ns,
                 frame_published_ns,
                 published_ns,
-                cameras,
-                poses: fused,
+                pose: p.clone(),
             };
-            poses.publish(&frame, counters);
-            for p in &frame.poses {
-                let u = PoseUpdate {
-                    schema: SCHEMA_VERSION,
-                    rig: rig.clone(),
-                    sequence,
-                    timestamp_ns,
-                    frame_published_ns,
-                    published_ns,
-                    pose: p.clone(),
-                };
-                counters.note(per_object.put_bytes(&keys::pose(&rig, p.object_id), u.to_json()));
+            counters.note(
+                self.per_object
+                    .put_bytes(&keys::pose(&rig.name, p.object_id), u.to_json()),
+            );
+        }
+        self.sequence += 1;
+        counters.processed = self.sequence;
+    }
+
+    fn report_detail(&mut self) {
+        let rig = &self.cfg.ctx.rig;
+        let counters = &mut self.node.counters;
+        let now = now_ns();
+        counters.dropped = self.pairer.discarded + self.overflow.load(Ordering::Relaxed);
+        let live: Vec<&str> = (0..rig.cameras.len())
+            .filter(|&c| self.pairer.live(c, now))
+            .map(|c| rig.cameras[c].id.as_str())
+            .collect();
+        let detail = &mut counters.detail;
+        detail.insert("cameras_live".into(), live.join(","));
+        detail.insert("late".into(), self.pairer.late.to_string());
+        detail.insert("objects".into(), self.fuser.objects().to_string());
+    }
+}
+
+impl Service for FusionService {
+    type Summary = u64;
+    type Error = FusionError;
+
+    fn node(&mut self) -> &mut ServiceNode {
+        &mut self.node
+    }
+
+    /// Waits (bounded) for observations, then fuses every set the pairer has ready.
+    fn step(&mut self, _shutdown: &Shutdown) -> Result<Flow, FusionError> {
+        let done = |s: &Self| s.cfg.max_sets.is_some_and(|m| s.sequence >= m);
+        if done(self) {
+            return Ok(Flow::Stop);
+        }
+        self.take_inputs();
+        while let Some(set) = self.pairer.pop(now_ns()) {
+            if set.is_empty() {
+                continue;
             }
-            sequence += 1;
-            counters.processed = sequence;
-            if cfg.max_sets.is_some_and(|m| sequence >= m) {
+            self.publish_set(&set);
+            if done(self) {
                 break;
             }
         }
-        if node.report_due() {
-            let counters = &mut node.counters;
-            let now = now_ns();
-            counters.dropped =
-                pairer.discarded + overflow.load(std::sync::atomic::Ordering::Relaxed);
-            let live: Vec<&str> = (0..n)
-                .filter(|&c| pairer.live(c, now))
-                .map(|c| ctx.rig.cameras[c].id.as_str())
-                .collect();
-            counters
-                .detail
-                .insert("cameras_live".into(), live.join(","));
-            counters
-                .detail
-                .insert("late".into(), pairer.late.to_string());
-            counters
-                .detail
-                .insert("objects".into(), fuser.objects().to_string());
+        if self.node.report_due() {
+            self.report_detail();
         }
-        node.tick();
+        Ok(Flow::Continue)
     }
-    node.finish();
-    Ok(sequence)
+
+    fn summary(&self) -> u64 {
+        self.sequence
+    }
 }
 
 fn handle(input: Input, pairer: &mut Pairer, counters: &mut Counters) {

@@ -26,7 +26,7 @@ use stereoscope_rig::Context;
 use stereoscope_rig::moments::WorkerSettings;
 use stereoscope_rig::schema::WeightingSpec;
 use stereoscope_transport::iox::FrameSubscriber;
-use stereoscope_transport::{Outlet, ServiceNode, Shutdown};
+use stereoscope_transport::{Flow, Outlet, Service, ServiceNode, Shutdown, drive};
 use stereoscope_vision::extract::{BlobFlags, Weighting};
 use stereoscope_vision::{GrayView, Histogram, Pixel, TrackStatus, Tracker, VisionError};
 
@@ -279,105 +279,153 @@ impl Worker {
 
 /// Runs until shutdown (or `max_frames`).
 pub fn run(cfg: MomentsConfig, shutdown: Shutdown) -> Result<u64, MomentsError> {
-    let cam = cfg.camera.clone();
-    let transport = |source| MomentsError::Transport {
-        camera: cam.clone(),
-        source,
-    };
-    let ctx = &cfg.ctx;
-    let rig = ctx.rig.name.clone();
-    let index = ctx
-        .rig
-        .camera_index(&cam)
-        .ok_or_else(|| MomentsError::UnknownCamera {
+    drive(MomentsService::setup(cfg)?, &shutdown)
+}
+
+/// A running moment worker: the frames it borrows, the [`Worker`] that tracks them, and the
+/// outlet for its observations.
+#[derive(Debug)]
+pub struct MomentsService {
+    cfg: MomentsConfig,
+    node: ServiceNode,
+    worker: Worker,
+    frames: FrameSubscriber,
+    observations: Outlet<Observation>,
+    last_sequence: Option<u64>,
+    processed: u64,
+}
+
+impl MomentsService {
+    /// Builds the worker from the rig's settings for this camera and joins the rig.
+    pub fn setup(cfg: MomentsConfig) -> Result<Self, MomentsError> {
+        let cam = cfg.camera.clone();
+        let transport = |source| MomentsError::Transport {
             camera: cam.clone(),
-        })?;
-    let settings = ctx
-        .rig
-        .worker_settings(index)
-        .map_err(|source| MomentsError::Rig {
+            source,
+        };
+        let ctx = &cfg.ctx;
+        let rig = &ctx.rig.name;
+        let index = ctx
+            .rig
+            .camera_index(&cam)
+            .ok_or_else(|| MomentsError::UnknownCamera {
+                camera: cam.clone(),
+            })?;
+        let settings = ctx
+            .rig
+            .worker_settings(index)
+            .map_err(|source| MomentsError::Rig {
+                camera: cam.clone(),
+                source,
+            })?;
+        let worker = Worker::new(settings, rig, &cam).map_err(|source| MomentsError::Vision {
             camera: cam.clone(),
             source,
         })?;
-    let mut worker = Worker::new(settings, &rig, &cam).map_err(|source| MomentsError::Vision {
-        camera: cam.clone(),
-        source,
-    })?;
-    let mut node =
-        ServiceNode::start(ctx.node_spec(&format!("moments/{cam}"))).map_err(transport)?;
-    let frames =
-        FrameSubscriber::new(&node.iox, &iox_names::frames(&rig, &cam)).map_err(transport)?;
-    let mut observations: Outlet<Observation> = node
-        .outlet(
-            &iox_names::observations(&rig, &cam),
-            &[&iox_names::observations_ready(&rig)],
-            &keys::observations(&rig, &cam),
-        )
-        .map_err(transport)?;
-    tracing::info!(camera = %cam, "moment worker ready");
+        let node =
+            ServiceNode::start(ctx.node_spec(&format!("moments/{cam}"))).map_err(transport)?;
+        let frames =
+            FrameSubscriber::new(&node.iox, &iox_names::frames(rig, &cam)).map_err(transport)?;
+        let observations = node
+            .outlet(
+                &iox_names::observations(rig, &cam),
+                &[&iox_names::observations_ready(rig)],
+                &keys::observations(rig, &cam),
+            )
+            .map_err(transport)?;
+        tracing::info!(camera = %cam, "moment worker ready");
+        Ok(MomentsService {
+            cfg,
+            node,
+            worker,
+            frames,
+            observations,
+            last_sequence: None,
+            processed: 0,
+        })
+    }
 
-    let mut last_sequence: Option<u64> = None;
-    let mut processed = 0u64;
-    while !shutdown.requested() && cfg.max_frames.is_none_or(|m| processed < m) {
-        let got = frames.next_newest(Duration::from_millis(100));
-        let Some((sample, skipped)) = (match got {
-            Ok(g) => g,
-            Err(e) => {
-                node.counters.note::<(), _>(Err(e));
-                node.tick();
-                continue;
-            }
-        }) else {
-            node.tick();
-            continue;
-        };
-        let counters = &mut node.counters;
+    /// Counts the frames between the last one seen and this one as dropped: those released
+    /// unread (`skipped`) and the gaps in the capture's numbering.
+    fn count_gap(&mut self, sequence: u64, skipped: u64) {
+        let counters = &mut self.node.counters;
         counters.dropped += skipped;
-        let header = *sample.user_header();
-        if let Some(prev) = last_sequence
-            && header.sequence > prev + 1 + skipped
+        if let Some(prev) = self.last_sequence
+            && sequence > prev + 1 + skipped
         {
-            counters.dropped += header.sequence - prev - 1 - skipped;
+            counters.dropped += sequence - prev - 1 - skipped;
         }
-        if last_sequence.is_some_and(|p| header.sequence <= p) {
+        if self.last_sequence.is_some_and(|p| sequence <= p) {
             // Capture restarted: its count starts again.
-            tracing::info!(camera = %cam, "frame sequence restarted at {}", header.sequence);
+            tracing::info!(camera = %self.cfg.camera, "frame sequence restarted at {sequence}");
         }
-        last_sequence = Some(header.sequence);
-        let result = worker.process_frame(&header, sample.payload());
-        drop(sample);
-        match result {
-            Ok(mut obs) => {
-                obs.published_ns = now_ns();
-                observations.publish(&obs, counters);
-                processed += 1;
-                counters.processed = processed;
-            }
+        self.last_sequence = Some(sequence);
+    }
+}
+
+impl Service for MomentsService {
+    type Summary = u64;
+    type Error = MomentsError;
+
+    fn node(&mut self) -> &mut ServiceNode {
+        &mut self.node
+    }
+
+    /// Waits up to 100 ms for the newest frame, tracks it in place and publishes its
+    /// observation; a frame that fails its checks is counted, named and skipped.
+    fn step(&mut self, _shutdown: &Shutdown) -> Result<Flow, MomentsError> {
+        if self.cfg.max_frames.is_some_and(|m| self.processed >= m) {
+            return Ok(Flow::Stop);
+        }
+        let got = match self.frames.next_newest(Duration::from_millis(100)) {
+            Ok(got) => got,
             Err(e) => {
-                let m = format!(
-                    "frame {} of {}: {}",
-                    header.sequence,
-                    header.camera_id(),
-                    stereoscope_transport::error_chain(&e)
-                );
-                tracing::warn!(camera = %cam, "rejected {m}");
-                counters.rejected += 1;
-                counters.last_error = Some(m);
+                self.node.counters.note::<(), _>(Err(e));
+                return Ok(Flow::Continue);
+            }
+        };
+        if let Some((sample, skipped)) = got {
+            let header = *sample.user_header();
+            self.count_gap(header.sequence, skipped);
+            let result = self.worker.process_frame(&header, sample.payload());
+            drop(sample);
+            let counters = &mut self.node.counters;
+            match result {
+                Ok(mut obs) => {
+                    obs.published_ns = now_ns();
+                    self.observations.publish(&obs, counters);
+                    self.processed += 1;
+                    counters.processed = self.processed;
+                }
+                Err(e) => {
+                    let m = format!(
+                        "frame {} of {}: {}",
+                        header.sequence,
+                        header.camera_id(),
+                        stereoscope_transport::error_chain(&e)
+                    );
+                    tracing::warn!(camera = %self.cfg.camera, "rejected {m}");
+                    counters.rejected += 1;
+                    counters.last_error = Some(m);
+                }
             }
         }
-        if node.report_due() {
-            let threshold = worker
+        if self.node.report_due() {
+            let threshold = self
+                .worker
                 .threshold()
                 .map(|t| t.to_string())
                 .unwrap_or_default();
-            let detail = &mut node.counters.detail;
+            let detail = &mut self.node.counters.detail;
             detail.insert("threshold".into(), threshold);
-            detail.insert("tracked".into(), worker.tracked().to_string());
+            detail.insert("tracked".into(), self.worker.tracked().to_string());
         }
-        node.tick();
+        Ok(Flow::Continue)
     }
-    node.finish();
-    Ok(processed)
+
+    fn summary(&self) -> u64 {
+        self.processed
+    }
 }
 
 #[cfg(test)]

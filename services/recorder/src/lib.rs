@@ -24,7 +24,7 @@ use stereoscope_proto::messages::{Message, Observation, PoseFrame, now_ns};
 use stereoscope_proto::names::{iox as iox_names, zenoh as keys};
 use stereoscope_rig::Context;
 use stereoscope_transport::iox::FrameSubscriber;
-use stereoscope_transport::{ServiceNode, Shutdown, net};
+use stereoscope_transport::{Flow, Service, ServiceNode, Shutdown, drive, net};
 
 #[derive(Debug, Clone)]
 pub struct RecorderConfig {
@@ -179,116 +179,174 @@ impl Y4mState {
 
 /// Records until shutdown; returns `(pose frames, observations)` written.
 pub fn run(cfg: RecorderConfig, shutdown: Shutdown) -> Result<(u64, u64), RecorderError> {
-    let ctx = &cfg.ctx;
-    let rig = ctx.rig.name.clone();
-    if cfg.out.exists()
-        && std::fs::read_dir(&cfg.out)
-            .map(|mut d| d.next().is_some())
-            .unwrap_or(true)
-    {
-        return Err(RecorderError::NotEmpty(cfg.out.clone()));
-    }
-    let rig_text =
-        std::fs::read_to_string(&ctx.rig_path).map_err(|source| RecorderError::ReadRig {
-            file: ctx.rig_path.clone(),
-            source,
-        })?;
-    // Connected before anything is written: a recorder that cannot reach the rig leaves no
-    // half-made session folder in the way of the next try.
-    let mut node = ServiceNode::start(ctx.node_spec("recorder"))?;
-    let create = |source| RecorderError::CreateDir {
-        dir: cfg.out.clone(),
-        source,
-    };
-    std::fs::create_dir_all(&cfg.out).map_err(create)?;
-    let info = SessionInfo {
-        schema: SESSION_SCHEMA,
-        rig: rig.clone(),
-        started_ns: now_ns(),
-        rig_file: rig_text,
-    };
-    // session.json whole, through a temporary name.
-    let tmp = cfg.out.join("session.json.tmp");
-    let text = serde_json::to_vec_pretty(&info)?;
-    std::fs::write(&tmp, text)
-        .and_then(|_| std::fs::rename(&tmp, cfg.out.join("session.json")))
-        .map_err(create)?;
-    let mut poses_out = Out::create(&cfg.out, "poses.jsonl")?;
-    let mut obs_out = Out::create(&cfg.out, "observations.jsonl")?;
-    let mut csv_out = Out::create(&cfg.out, "poses.csv")?;
-    csv_out.buf.extend_from_slice(POSES_CSV_HEADER.as_bytes());
+    drive(Recorder::setup(cfg)?, &shutdown)
+}
 
-    // Raw frames, through shared memory — subscribed before the poses, so that every pose
-    // recorded has its frames (a shared-memory subscriber gets every frame published after
-    // it exists; creating one takes a while).
-    let mut frame_subs = Vec::new();
-    for cam in &cfg.frames {
-        let sub = FrameSubscriber::new(&node.iox, &iox_names::frames(&rig, cam))?;
-        let out = Out::create(&cfg.out, &format!("frames-{cam}.y4m"))?;
-        frame_subs.push((cam.clone(), sub, out, Y4mState::default()));
+/// One camera's raw frames being recorded.
+struct FrameTrack {
+    camera: String,
+    sub: FrameSubscriber,
+    out: Out,
+    y4m: Y4mState,
+}
+
+/// A running recorder: its session files and the subscriptions that feed them.
+pub struct Recorder {
+    cfg: RecorderConfig,
+    node: ServiceNode,
+    items: mpsc::Receiver<Item>,
+    /// Kept alive while recording: dropping them ends the subscriptions.
+    subs: Vec<net::NetSubscriber>,
+    poses_out: Out,
+    obs_out: Out,
+    csv_out: Out,
+    frames: Vec<FrameTrack>,
+    n_poses: u64,
+    n_obs: u64,
+    last_flush: Instant,
+}
+
+impl std::fmt::Debug for Recorder {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "Recorder({})", self.cfg.out.display())
     }
-    let (tx, rx) = mpsc::sync_channel::<Item>(4096);
-    let tx2 = tx.clone();
-    let _p = net::subscribe(&node.session, &keys::poses(&rig), move |k, b| {
-        let item = match PoseFrame::from_json(b) {
-            Ok(f) => Item::Poses(b.to_vec(), f),
-            Err(e) => Item::Bad(format!("{k}: {e}")),
+}
+
+impl Recorder {
+    /// Joins the rig, then makes the session folder and its files and subscribes.
+    pub fn setup(cfg: RecorderConfig) -> Result<Self, RecorderError> {
+        let ctx = &cfg.ctx;
+        let rig = ctx.rig.name.clone();
+        if cfg.out.exists()
+            && std::fs::read_dir(&cfg.out)
+                .map(|mut d| d.next().is_some())
+                .unwrap_or(true)
+        {
+            return Err(RecorderError::NotEmpty(cfg.out.clone()));
+        }
+        let rig_text =
+            std::fs::read_to_string(&ctx.rig_path).map_err(|source| RecorderError::ReadRig {
+                file: ctx.rig_path.clone(),
+                source,
+            })?;
+        // Connected before anything is written: a recorder that cannot reach the rig leaves
+        // no half-made session folder in the way of the next try.
+        let node = ServiceNode::start(ctx.node_spec("recorder"))?;
+        let create = |source| RecorderError::CreateDir {
+            dir: cfg.out.clone(),
+            source,
         };
-        let _ = tx.send(item);
-    })?;
-    let _o = net::subscribe(&node.session, &keys::all_observations(&rig), move |k, b| {
-        let item = match Observation::from_json(b) {
-            Ok(_) => Item::Observation(b.to_vec()),
-            Err(e) => Item::Bad(format!("{k}: {e}")),
+        std::fs::create_dir_all(&cfg.out).map_err(create)?;
+        let info = SessionInfo {
+            schema: SESSION_SCHEMA,
+            rig: rig.clone(),
+            started_ns: now_ns(),
+            rig_file: rig_text,
         };
-        let _ = tx2.send(item);
-    })?;
-    tracing::info!(out = %cfg.out.display(), "recording");
-    let (mut n_poses, mut n_obs) = (0u64, 0u64);
-    let mut last_flush = Instant::now();
-    loop {
-        let stopping = shutdown.requested();
-        let wait = if frame_subs.is_empty() { 20 } else { 1 };
-        // Wait for one message, then take whatever else is queued, without waiting: the
-        // frames below must be read at least every frame period.
-        let first = rx.recv_timeout(Duration::from_millis(wait)).ok();
-        let counters = &mut node.counters;
+        // session.json whole, through a temporary name.
+        let tmp = cfg.out.join("session.json.tmp");
+        let text = serde_json::to_vec_pretty(&info)?;
+        std::fs::write(&tmp, text)
+            .and_then(|_| std::fs::rename(&tmp, cfg.out.join("session.json")))
+            .map_err(create)?;
+        let poses_out = Out::create(&cfg.out, "poses.jsonl")?;
+        let obs_out = Out::create(&cfg.out, "observations.jsonl")?;
+        let mut csv_out = Out::create(&cfg.out, "poses.csv")?;
+        csv_out.buf.extend_from_slice(POSES_CSV_HEADER.as_bytes());
+
+        // Raw frames, through shared memory — subscribed before the poses, so that every pose
+        // recorded has its frames (a shared-memory subscriber gets every frame published
+        // after it exists; creating one takes a while).
+        let mut frames = Vec::new();
+        for cam in &cfg.frames {
+            frames.push(FrameTrack {
+                camera: cam.clone(),
+                sub: FrameSubscriber::new(&node.iox, &iox_names::frames(&rig, cam))?,
+                out: Out::create(&cfg.out, &format!("frames-{cam}.y4m"))?,
+                y4m: Y4mState::default(),
+            });
+        }
+        let (tx, rx) = mpsc::sync_channel::<Item>(4096);
+        let tx2 = tx.clone();
+        let poses = net::subscribe(&node.session, &keys::poses(&rig), move |k, b| {
+            let item = match PoseFrame::from_json(b) {
+                Ok(f) => Item::Poses(b.to_vec(), f),
+                Err(e) => Item::Bad(format!("{k}: {e}")),
+            };
+            let _ = tx.send(item);
+        })?;
+        let observations =
+            net::subscribe(&node.session, &keys::all_observations(&rig), move |k, b| {
+                let item = match Observation::from_json(b) {
+                    Ok(_) => Item::Observation(b.to_vec()),
+                    Err(e) => Item::Bad(format!("{k}: {e}")),
+                };
+                let _ = tx2.send(item);
+            })?;
+        tracing::info!(out = %cfg.out.display(), "recording");
+        Ok(Recorder {
+            cfg,
+            node,
+            items: rx,
+            subs: vec![poses, observations],
+            poses_out,
+            obs_out,
+            csv_out,
+            frames,
+            n_poses: 0,
+            n_obs: 0,
+            last_flush: Instant::now(),
+        })
+    }
+
+    /// Takes the messages queued (waiting up to `wait` for the first) into the buffers, until
+    /// a flush is due; how many it took.
+    fn take_messages(&mut self, wait: Duration) -> usize {
+        let mut taken = 0;
+        let first = self.items.recv_timeout(wait).ok();
+        let counters = &mut self.node.counters;
         for item in first
             .into_iter()
-            .chain(std::iter::from_fn(|| rx.try_recv().ok()))
+            .chain(std::iter::from_fn(|| self.items.try_recv().ok()))
         {
             match item {
                 Item::Poses(bytes, f) => {
-                    poses_out.buf.extend_from_slice(&bytes);
-                    poses_out.buf.push(b'\n');
-                    csv_out.buf.extend_from_slice(csv_rows(&f).as_bytes());
-                    n_poses += 1;
+                    self.poses_out.buf.extend_from_slice(&bytes);
+                    self.poses_out.buf.push(b'\n');
+                    self.csv_out.buf.extend_from_slice(csv_rows(&f).as_bytes());
+                    self.n_poses += 1;
                 }
                 Item::Observation(bytes) => {
-                    obs_out.buf.extend_from_slice(&bytes);
-                    obs_out.buf.push(b'\n');
-                    n_obs += 1;
+                    self.obs_out.buf.extend_from_slice(&bytes);
+                    self.obs_out.buf.push(b'\n');
+                    self.n_obs += 1;
                 }
                 Item::Bad(m) => {
                     counters.rejected += 1;
                     counters.last_error = Some(m);
                 }
             }
-            if last_flush.elapsed() >= cfg.flush_interval {
+            taken += 1;
+            if self.last_flush.elapsed() >= self.cfg.flush_interval {
                 break;
             }
         }
-        for (cam, sub, out, state) in frame_subs.iter_mut() {
-            // Every frame waiting, oldest first; a gap in the sequence numbers is a frame the
-            // recorder was too slow for (counted as dropped).
-            while let Ok(Some(s)) = sub.next_oldest() {
+        taken
+    }
+
+    /// Every frame waiting, oldest first, into its camera's Y4M buffer; a gap in the
+    /// sequence numbers is a frame the recorder was too slow for (counted as dropped).
+    fn take_frames(&mut self) {
+        let counters = &mut self.node.counters;
+        for t in self.frames.iter_mut() {
+            while let Ok(Some(s)) = t.sub.next_oldest() {
                 let h = *s.user_header();
-                if let Some(last) = state.last_sequence
+                if let Some(last) = t.y4m.last_sequence
                     && h.sequence > last + 1
                 {
                     counters.dropped += h.sequence - last - 1;
                 }
-                state.last_sequence = Some(h.sequence);
+                t.y4m.last_sequence = Some(h.sequence);
                 match h.validate(s.payload().len()) {
                     Ok(format) => {
                         let mut frame =
@@ -299,38 +357,79 @@ pub fn run(cfg: RecorderConfig, shutdown: Shutdown) -> Result<(u64, u64), Record
                             let start = y * h.stride_bytes as usize;
                             frame.extend_from_slice(&s.payload()[start..start + row]);
                         }
-                        state.push(&mut out.buf, &h, format, frame);
+                        t.y4m.push(&mut t.out.buf, &h, format, frame);
                     }
                     Err(e) => {
                         counters.rejected += 1;
-                        counters.last_error = Some(format!("frame {} of {cam}: {e}", h.sequence));
+                        counters.last_error =
+                            Some(format!("frame {} of {}: {e}", h.sequence, t.camera));
                     }
                 }
             }
         }
-        if last_flush.elapsed() >= cfg.flush_interval || stopping {
-            // Observations before the poses made from them: a crash between the two writes
-            // leaves observations without poses, never poses without their observations.
-            obs_out.flush()?;
-            poses_out.flush()?;
-            csv_out.flush()?;
-            for (_, _, out, state) in frame_subs.iter_mut() {
-                if stopping {
-                    state.finish(&mut out.buf);
-                }
-                out.flush()?;
+    }
+
+    /// Writes and syncs every buffer; `last` also writes a camera's lone first frame.
+    fn flush(&mut self, last: bool) -> Result<(), RecorderError> {
+        // Observations before the poses made from them: a crash between the two writes
+        // leaves observations without poses, never poses without their observations.
+        self.obs_out.flush()?;
+        self.poses_out.flush()?;
+        self.csv_out.flush()?;
+        for t in self.frames.iter_mut() {
+            if last {
+                t.y4m.finish(&mut t.out.buf);
             }
-            last_flush = Instant::now();
+            t.out.flush()?;
         }
-        counters.processed = n_poses;
+        self.last_flush = Instant::now();
+        Ok(())
+    }
+
+    fn count(&mut self) {
+        let counters = &mut self.node.counters;
+        counters.processed = self.n_poses;
         counters
             .detail
-            .insert("observations".into(), n_obs.to_string());
-        node.tick();
-        if stopping {
-            break;
-        }
+            .insert("observations".into(), self.n_obs.to_string());
     }
-    node.finish();
-    Ok((n_poses, n_obs))
+}
+
+impl Service for Recorder {
+    type Summary = (u64, u64);
+    type Error = RecorderError;
+
+    fn node(&mut self) -> &mut ServiceNode {
+        &mut self.node
+    }
+
+    /// Waits for one message (1 ms when recording frames, which must be read at least every
+    /// frame period; 20 ms otherwise), buffers what is queued, and flushes when due.
+    fn step(&mut self, _shutdown: &Shutdown) -> Result<Flow, RecorderError> {
+        let wait = if self.frames.is_empty() { 20 } else { 1 };
+        self.take_messages(Duration::from_millis(wait));
+        self.take_frames();
+        if self.last_flush.elapsed() >= self.cfg.flush_interval {
+            self.flush(false)?;
+        }
+        self.count();
+        Ok(Flow::Continue)
+    }
+
+    /// Takes what is still queued and writes everything.
+    fn stop(&mut self) -> Result<(), RecorderError> {
+        // No more messages after these: the queue below ends.
+        self.subs.clear();
+        while self.take_messages(Duration::ZERO) > 0 {
+            self.flush(false)?;
+        }
+        self.take_frames();
+        self.flush(true)?;
+        self.count();
+        Ok(())
+    }
+
+    fn summary(&self) -> (u64, u64) {
+        (self.n_poses, self.n_obs)
+    }
 }

@@ -25,7 +25,7 @@ use stereoscope_proto::messages::{Message, PoseFrame};
 use stereoscope_proto::names::zenoh as keys;
 use stereoscope_proto::serial::{SerialMode, SerialPose, encode_framed, encode_legacy};
 use stereoscope_rig::Context;
-use stereoscope_transport::{ServiceNode, Shutdown, net};
+use stereoscope_transport::{Flow, Service, ServiceNode, Shutdown, drive, net};
 
 #[derive(Debug, Clone)]
 pub struct SerialConfig {
@@ -127,147 +127,224 @@ struct Latest {
 
 /// Runs until shutdown (or `max_packets`); returns the packets written.
 pub fn run(cfg: SerialConfig, shutdown: Shutdown) -> Result<u64, SerialServiceError> {
-    let ctx = &cfg.ctx;
-    let transport = |source| SerialServiceError::Transport {
-        port: cfg.port.clone(),
-        source,
-    };
-    if cfg.baud == 0 {
-        return Err(SerialServiceError::ZeroBaud {
-            port: cfg.port.clone(),
-        });
-    }
-    let rig = ctx.rig.name.clone();
-    let short = std::path::Path::new(&cfg.port)
-        .file_name()
-        .map(|n| n.to_string_lossy().into_owned())
-        .unwrap_or_else(|| "port".into());
-    let service = format!(
-        "serial/{}",
-        short.replace(|c: char| !c.is_ascii_alphanumeric() && c != '-', "_")
-    );
-    let mut node = ServiceNode::start(ctx.node_spec(&service)).map_err(transport)?;
-    let latest = Arc::new(Mutex::new(Latest::default()));
-    let sink = latest.clone();
-    let expected_rig = rig.clone();
-    let _sub = net::subscribe(&node.session, &keys::poses(&rig), move |k, b| {
-        let mut l = sink.lock().unwrap_or_else(|e| e.into_inner());
-        match PoseFrame::from_json(b) {
-            Ok(f) if f.rig == expected_rig => {
-                l.frame = Some(f);
-                l.generation += 1;
-            }
-            Ok(f) => l.bad = Some(format!("{k}: pose frame of rig {:?}", f.rig)),
-            Err(e) => l.bad = Some(format!("{k}: {e}")),
-        }
-    })
-    .map_err(transport)?;
-    tracing::info!(port = %cfg.port, baud = cfg.baud, mode = ?cfg.mode, "serial output ready");
+    drive(SerialService::setup(cfg)?, &shutdown)
+}
 
-    let mut port: Option<Box<dyn serialport::SerialPort>> = None;
-    let mut next_open = Instant::now();
-    let mut line_free = Instant::now();
-    let mut sent_gen = 0u64;
-    let mut pending: Vec<u32> = Vec::new();
-    let mut sequence: u16 = 0;
-    let mut last_sent: Option<u32> = None;
-    let mut clamped = 0u64;
-    let mut packets = 0u64;
-    while !shutdown.requested() && cfg.max_packets.is_none_or(|m| packets < m) {
-        node.tick();
-        let counters = &mut node.counters;
-        if port.is_none() {
-            if Instant::now() < next_open {
-                shutdown.sleep(Duration::from_millis(20));
-                continue;
+/// A running serial output: the newest pose frame (kept by the Zenoh subscription), the
+/// port (opened again after a failure), and the line's pacing.
+pub struct SerialService {
+    cfg: SerialConfig,
+    node: ServiceNode,
+    latest: Arc<Mutex<Latest>>,
+    /// Kept alive: dropping it ends the subscription.
+    _poses: net::NetSubscriber,
+    port: Option<Box<dyn serialport::SerialPort>>,
+    next_open: Instant,
+    line_free: Instant,
+    sent_generation: u64,
+    /// Objects of the newest frame still to send, the next last.
+    pending: Vec<u32>,
+    sequence: u16,
+    last_sent: Option<u32>,
+    clamped: u64,
+    packets: u64,
+}
+
+impl std::fmt::Debug for SerialService {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "SerialService({}, {} packets)",
+            self.cfg.port, self.packets
+        )
+    }
+}
+
+impl SerialService {
+    /// Joins the rig and subscribes to its pose frames; the port is opened by the first step
+    /// (and again after it fails), so a missing device is reported, never fatal.
+    pub fn setup(cfg: SerialConfig) -> Result<Self, SerialServiceError> {
+        let ctx = &cfg.ctx;
+        let transport = |source| SerialServiceError::Transport {
+            port: cfg.port.clone(),
+            source,
+        };
+        if cfg.baud == 0 {
+            return Err(SerialServiceError::ZeroBaud {
+                port: cfg.port.clone(),
+            });
+        }
+        let rig = ctx.rig.name.clone();
+        let short = std::path::Path::new(&cfg.port)
+            .file_name()
+            .map(|n| n.to_string_lossy().into_owned())
+            .unwrap_or_else(|| "port".into());
+        let service = format!(
+            "serial/{}",
+            short.replace(|c: char| !c.is_ascii_alphanumeric() && c != '-', "_")
+        );
+        let node = ServiceNode::start(ctx.node_spec(&service)).map_err(transport)?;
+        let latest = Arc::new(Mutex::new(Latest::default()));
+        let sink = latest.clone();
+        let poses = net::subscribe(&node.session, &keys::poses(&rig), move |k, b| {
+            let mut l = sink.lock().unwrap_or_else(|e| e.into_inner());
+            match PoseFrame::from_json(b) {
+                Ok(f) if f.rig == rig => {
+                    l.frame = Some(f);
+                    l.generation += 1;
+                }
+                Ok(f) => l.bad = Some(format!("{k}: pose frame of rig {:?}", f.rig)),
+                Err(e) => l.bad = Some(format!("{k}: {e}")),
             }
-            match serialport::new(&cfg.port, cfg.baud)
-                .timeout(Duration::from_millis(200))
-                .open()
-            {
-                Ok(p) => {
-                    tracing::info!(port = %cfg.port, "port open");
-                    counters.detail.insert("port".into(), "open".into());
-                    port = Some(p);
+        })
+        .map_err(transport)?;
+        tracing::info!(port = %cfg.port, baud = cfg.baud, mode = ?cfg.mode, "serial output ready");
+        Ok(SerialService {
+            cfg,
+            node,
+            latest,
+            _poses: poses,
+            port: None,
+            next_open: Instant::now(),
+            line_free: Instant::now(),
+            sent_generation: 0,
+            pending: Vec::new(),
+            sequence: 0,
+            last_sent: None,
+            clamped: 0,
+            packets: 0,
+        })
+    }
+
+    /// Opens the port when it is closed and its retry time has come; whether it is open.
+    fn ensure_open(&mut self, shutdown: &Shutdown) -> bool {
+        if self.port.is_some() {
+            return true;
+        }
+        if Instant::now() < self.next_open {
+            shutdown.sleep(Duration::from_millis(20));
+            return false;
+        }
+        let counters = &mut self.node.counters;
+        match serialport::new(&self.cfg.port, self.cfg.baud)
+            .timeout(Duration::from_millis(200))
+            .open()
+        {
+            Ok(p) => {
+                tracing::info!(port = %self.cfg.port, "port open");
+                counters.detail.insert("port".into(), "open".into());
+                self.port = Some(p);
+                true
+            }
+            Err(e) => {
+                let m = format!("{}: {e}; trying again in 1 s", self.cfg.port);
+                if counters.last_error.as_deref() != Some(&m) {
+                    tracing::warn!("{m}");
                 }
-                Err(e) => {
-                    let m = format!("{}: {e}; trying again in 1 s", cfg.port);
-                    if counters.last_error.as_deref() != Some(&m) {
-                        tracing::warn!("{m}");
-                    }
-                    counters.last_error = Some(m);
-                    counters.detail.insert("port".into(), "closed".into());
-                    next_open = Instant::now() + Duration::from_secs(1);
-                    continue;
-                }
+                counters.last_error = Some(m);
+                counters.detail.insert("port".into(), "closed".into());
+                self.next_open = Instant::now() + Duration::from_secs(1);
+                false
             }
         }
-        // The newest frame; objects still pending from an older one are superseded.
+    }
+
+    /// The newest pose frame, with the objects still to send from it refreshed when it is new
+    /// (those pending from an older frame are superseded and counted as dropped).
+    fn newest_frame(&mut self) -> Option<PoseFrame> {
+        let counters = &mut self.node.counters;
         let (frame, generation) = {
-            let mut l = latest.lock().unwrap_or_else(|e| e.into_inner());
+            let mut l = self.latest.lock().unwrap_or_else(|e| e.into_inner());
             if let Some(b) = l.bad.take() {
                 counters.rejected += 1;
                 counters.last_error = Some(b);
             }
             (l.frame.clone(), l.generation)
         };
-        let Some(frame) = frame else {
-            shutdown.sleep(Duration::from_millis(2));
-            continue;
-        };
-        if generation != sent_gen {
-            counters.dropped += pending.len() as u64;
-            let order: Vec<u32> = selected(&frame, &cfg.objects, cfg.mode)
+        let frame = frame?;
+        if generation != self.sent_generation {
+            counters.dropped += self.pending.len() as u64;
+            let order: Vec<u32> = selected(&frame, &self.cfg.objects, self.cfg.mode)
                 .iter()
                 .map(|p| p.object_id)
                 .collect();
-            pending = round_robin(&order, last_sent);
-            pending.reverse();
-            sent_gen = generation;
+            self.pending = round_robin(&order, self.last_sent);
+            self.pending.reverse();
+            self.sent_generation = generation;
         }
-        let Some(id) = pending.pop() else {
+        Some(frame)
+    }
+}
+
+impl Service for SerialService {
+    type Summary = u64;
+    type Error = SerialServiceError;
+
+    fn node(&mut self) -> &mut ServiceNode {
+        &mut self.node
+    }
+
+    /// Writes at most one packet: the next object's newest pose, when the line is free.
+    fn step(&mut self, shutdown: &Shutdown) -> Result<Flow, SerialServiceError> {
+        if self.cfg.max_packets.is_some_and(|m| self.packets >= m) {
+            return Ok(Flow::Stop);
+        }
+        if !self.ensure_open(shutdown) {
+            return Ok(Flow::Continue);
+        }
+        let Some(frame) = self.newest_frame() else {
+            shutdown.sleep(Duration::from_millis(2));
+            return Ok(Flow::Continue);
+        };
+        let Some(id) = self.pending.pop() else {
             shutdown.sleep(Duration::from_millis(1));
-            continue;
+            return Ok(Flow::Continue);
         };
         let Some(pose) = frame.poses.iter().find(|p| p.object_id == id) else {
-            continue;
+            return Ok(Flow::Continue);
         };
-        let (bytes, c) = packet(pose, cfg.mode, sequence);
-        last_sent = Some(id);
+        let (bytes, clamped) = packet(pose, self.cfg.mode, self.sequence);
+        self.last_sent = Some(id);
         // Wait for the line, then write.
         let now = Instant::now();
-        if line_free > now && shutdown.sleep(line_free - now) {
-            break;
+        if self.line_free > now && shutdown.sleep(self.line_free - now) {
+            return Ok(Flow::Stop);
         }
         // No flush: tcdrain has no timeout, and a stalled receiver must not stall the service
         // (the write itself times out after 200 ms and the port is reopened).
-        let result = port.as_mut().map(|p| p.write_all(&bytes));
-        match result {
-            Some(Ok(())) => {
-                line_free = Instant::now().max(line_free) + line_time(bytes.len(), cfg.baud);
-                sequence = sequence.wrapping_add(1);
-                packets += 1;
-                counters.processed = packets;
-                if c > 0 {
-                    clamped += 1;
+        let Some(port) = self.port.as_mut() else {
+            return Ok(Flow::Continue);
+        };
+        let counters = &mut self.node.counters;
+        match port.write_all(&bytes) {
+            Ok(()) => {
+                self.line_free =
+                    Instant::now().max(self.line_free) + line_time(bytes.len(), self.cfg.baud);
+                self.sequence = self.sequence.wrapping_add(1);
+                self.packets += 1;
+                counters.processed = self.packets;
+                if clamped > 0 {
+                    self.clamped += 1;
                     counters
                         .detail
-                        .insert("clamped".into(), clamped.to_string());
+                        .insert("clamped".into(), self.clamped.to_string());
                 }
             }
-            Some(Err(e)) => {
-                let m = format!("{}: writing: {e}; reopening", cfg.port);
+            Err(e) => {
+                let m = format!("{}: writing: {e}; reopening", self.cfg.port);
                 tracing::warn!("{m}");
                 counters.last_error = Some(m);
                 counters.detail.insert("port".into(), "closed".into());
-                port = None;
-                next_open = Instant::now() + Duration::from_secs(1);
+                self.port = None;
+                self.next_open = Instant::now() + Duration::from_secs(1);
             }
-            None => {}
         }
+        Ok(Flow::Continue)
     }
-    node.finish();
-    Ok(packets)
+
+    fn summary(&self) -> u64 {
+        self.packets
+    }
 }
 
 #[cfg(test)]

@@ -15,7 +15,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 
 pub use health::{Counters, HealthReporter};
 pub use net::{ZenohMode, ZenohSpec};
-pub use service::{NodeSpec, Outlet, ServiceNode};
+pub use service::{Flow, NodeSpec, Outlet, Service, ServiceNode, drive};
 
 /// A shared "please stop" flag: set by SIGINT/SIGTERM ([`Shutdown::on_signals`]) or by a
 /// caller ([`Shutdown::request`]); services poll it between bounded waits.

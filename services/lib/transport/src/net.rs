@@ -207,12 +207,15 @@ impl KeyedPublisher {
     }
 }
 
+/// A Zenoh subscription made by [`subscribe`]: it lasts as long as this value.
+pub type NetSubscriber = zenoh::pubsub::Subscriber<()>;
+
 /// Subscribes to `key` and hands every payload with its key to `f` (on Zenoh's thread).
 pub fn subscribe(
     session: &zenoh::Session,
     key: &str,
     mut f: impl FnMut(&str, &[u8]) + Send + Sync + 'static,
-) -> Result<zenoh::pubsub::Subscriber<()>, TransportError> {
+) -> Result<NetSubscriber, TransportError> {
     session
         .declare_subscriber(key.to_string())
         .callback_mut(move |sample| {

@@ -124,3 +124,58 @@ impl<M: Message> Outlet<M> {
         self.published
     }
 }
+
+/// What a service's step says about the loop.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Flow {
+    /// Step again (after the health tick).
+    Continue,
+    /// The service is done: its source ended, or it reached its `max_*` count.
+    Stop,
+}
+
+/// A service as setup plus step: the setup builds a value of this type (node, inputs,
+/// outlets, state); [`drive`] steps it until shutdown or [`Flow::Stop`].
+pub trait Service {
+    /// What `run` returns when the service stops cleanly (its counts).
+    type Summary;
+    type Error;
+
+    /// The node the service stands on, for the health tick and the last report.
+    fn node(&mut self) -> &mut ServiceNode;
+
+    /// One pass: wait a bounded time for input, handle what came, publish. A step that
+    /// returns an error ends the service (permanent failures only: a bad frame or message is
+    /// counted and skipped inside the step).
+    fn step(&mut self, shutdown: &crate::Shutdown) -> Result<Flow, Self::Error>;
+
+    /// Once after the last step, before the last health report: flush what is buffered.
+    fn stop(&mut self) -> Result<(), Self::Error> {
+        Ok(())
+    }
+
+    fn summary(&self) -> Self::Summary;
+}
+
+/// The loop every service runs: step, report health when due, until shutdown is requested or
+/// a step says stop; then `stop` and a last health report, also when a step failed.
+pub fn drive<S: Service>(
+    mut service: S,
+    shutdown: &crate::Shutdown,
+) -> Result<S::Summary, S::Error> {
+    let stepped = loop {
+        if shutdown.requested() {
+            break Ok(());
+        }
+        match service.step(shutdown) {
+            Ok(Flow::Continue) => service.node().tick(),
+            Ok(Flow::Stop) => break Ok(()),
+            Err(e) => break Err(e),
+        }
+    };
+    let stopped = service.stop();
+    service.node().finish();
+    stepped?;
+    stopped?;
+    Ok(service.summary())
+}
