@@ -1,7 +1,7 @@
 //! A sequence of PGM/PNG files (8- or 16-bit grey), in name order; every file must have the
 //! first file's size and depth. A file that cannot be read, or differs, is skipped and named.
 
-use crate::source::{FrameSource, Read, SourceError};
+use crate::source::{BadFrame, FrameSource, Read, SourceError};
 use std::path::{Path, PathBuf};
 use stereoscope_imageio::{AnyGray, read_gray};
 use stereoscope_proto::frame::PixelFormat;
@@ -19,12 +19,12 @@ pub struct ImageSource {
 }
 
 fn list(path: &Path) -> Result<Vec<PathBuf>, SourceError> {
-    let fatal = |m: String| SourceError::Fatal(format!("{}: {m}", path.display()));
+    let shown = path.display().to_string();
     if path.is_file() {
         return Ok(vec![path.to_path_buf()]);
     }
     let mut files: Vec<PathBuf> = std::fs::read_dir(path)
-        .map_err(|e| fatal(e.to_string()))?
+        .map_err(|e| SourceError::io(&shown, "listing the folder", e))?
         .filter_map(|e| e.ok().map(|e| e.path()))
         .filter(|p| {
             p.extension()
@@ -34,7 +34,7 @@ fn list(path: &Path) -> Result<Vec<PathBuf>, SourceError> {
         .collect();
     files.sort();
     if files.is_empty() {
-        return Err(fatal("no .pgm or .png files".into()));
+        return Err(SourceError::NoImages { path: shown });
     }
     Ok(files)
 }
@@ -42,8 +42,10 @@ fn list(path: &Path) -> Result<Vec<PathBuf>, SourceError> {
 impl ImageSource {
     pub fn open(path: &str, fps: f64, realtime: bool, repeat: bool) -> Result<Self, SourceError> {
         let files = list(Path::new(path))?;
-        let first = read_gray(&files[0])
-            .map_err(|e| SourceError::Fatal(format!("{}: {e}", files[0].display())))?;
+        let first = read_gray(&files[0]).map_err(|source| SourceError::FirstImage {
+            path: files[0].display().to_string(),
+            source,
+        })?;
         let format = match first {
             AnyGray::U8(_) => PixelFormat::Gray8,
             AnyGray::U16 { .. } => PixelFormat::Gray16,
@@ -97,17 +99,18 @@ impl FrameSource for ImageSource {
         }
         let path = &self.files[self.next];
         self.next += 1;
-        let img = read_gray(path)
-            .map_err(|e| SourceError::BadFrame(format!("{}: {e}", path.display())))?;
+        let shown = || path.display().to_string();
+        let img = read_gray(path).map_err(|source| BadFrame::Image {
+            path: shown(),
+            source,
+        })?;
         if img.width() != self.width || img.height() != self.height {
-            return Err(SourceError::BadFrame(format!(
-                "{}: {}×{} differs from the sequence's {}×{}",
-                path.display(),
-                img.width(),
-                img.height(),
-                self.width,
-                self.height
-            )));
+            return Err(BadFrame::SizeChanged {
+                path: shown(),
+                got_px: (img.width(), img.height()),
+                want_px: (self.width, self.height),
+            }
+            .into());
         }
         match (img, self.format) {
             (AnyGray::U8(i), PixelFormat::Gray8) => out.copy_from_slice(i.as_slice()),
@@ -117,15 +120,73 @@ impl FrameSource for ImageSource {
                 }
             }
             _ => {
-                return Err(SourceError::BadFrame(format!(
-                    "{}: bit depth differs from the sequence's first file",
-                    path.display()
-                )));
+                return Err(BadFrame::DepthChanged { path: shown() }.into());
             }
         }
         Ok(Read::Frame {
             timestamp_ns: None,
             sequence: None,
         })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use stereoscope_imageio::{encode_pgm_u8, encode_pgm_u16};
+    use stereoscope_vision::GrayImage;
+
+    /// A sequence whose later files differ from the first is read on, each bad file skipped
+    /// with its reason; an empty folder and an unreadable first file stop the source.
+    #[test]
+    fn bad_files_are_skipped_by_reason_and_a_bad_start_is_fatal() {
+        let dir = std::env::temp_dir().join(format!("images-test-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.to_str().unwrap();
+        let err = ImageSource::open(path, 10.0, false, false).unwrap_err();
+        assert!(matches!(err, SourceError::NoImages { .. }), "{err:?}");
+
+        let img = |w: u32, h: u32| GrayImage::<u8>::filled(w, h, 7).unwrap();
+        std::fs::write(dir.join("a.pgm"), encode_pgm_u8(&img(4, 3))).unwrap();
+        std::fs::write(dir.join("b.pgm"), encode_pgm_u8(&img(5, 3))).unwrap();
+        let wide = GrayImage::<u16>::filled(4, 3, 7).unwrap();
+        std::fs::write(dir.join("c.pgm"), encode_pgm_u16(&wide, 1023)).unwrap();
+        std::fs::write(dir.join("d.pgm"), b"P5 4 3 255\n").unwrap();
+        std::fs::write(dir.join("e.pgm"), encode_pgm_u8(&img(4, 3))).unwrap();
+        let mut s = ImageSource::open(path, 10.0, false, false).unwrap();
+        let mut out = vec![0u8; 12];
+        assert!(matches!(s.read(0, 0.0, &mut out), Ok(Read::Frame { .. })));
+        let err = s.read(1, 0.0, &mut out).unwrap_err();
+        assert!(
+            matches!(
+                &err,
+                SourceError::BadFrame(BadFrame::SizeChanged {
+                    got_px: (5, 3),
+                    want_px: (4, 3),
+                    ..
+                })
+            ),
+            "{err:?}"
+        );
+        assert!(err.to_string().contains("b.pgm"), "{err}");
+        let err = s.read(2, 0.0, &mut out).unwrap_err();
+        assert!(
+            matches!(&err, SourceError::BadFrame(BadFrame::DepthChanged { .. })),
+            "{err:?}"
+        );
+        let err = s.read(3, 0.0, &mut out).unwrap_err();
+        assert!(
+            matches!(&err, SourceError::BadFrame(BadFrame::Image { .. })),
+            "{err:?}"
+        );
+        assert!(matches!(s.read(4, 0.0, &mut out), Ok(Read::Frame { .. })));
+        assert!(matches!(s.read(5, 0.0, &mut out), Ok(Read::End)));
+
+        std::fs::remove_file(dir.join("a.pgm")).unwrap();
+        std::fs::rename(dir.join("d.pgm"), dir.join("a.pgm")).unwrap();
+        let err = ImageSource::open(path, 10.0, false, false).unwrap_err();
+        assert!(matches!(err, SourceError::FirstImage { .. }), "{err:?}");
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 }

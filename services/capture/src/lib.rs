@@ -382,7 +382,8 @@ impl Service for Capture {
                 tracing::info!(camera = %cam, frames = self.index - 1, "end of source");
                 return Ok(Flow::Stop);
             }
-            Err(SourceError::BadFrame(m)) => {
+            Err(SourceError::BadFrame(bad)) => {
+                let m = stereoscope_transport::error_chain(&bad);
                 tracing::warn!(camera = %cam, "skipped a frame: {m}");
                 self.node.counters.rejected += 1;
                 self.node.counters.last_error = Some(m);

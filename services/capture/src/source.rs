@@ -5,14 +5,113 @@
 
 use stereoscope_proto::frame::PixelFormat;
 
+/// Why a source cannot go on. Each names its file or device; [`SourceError::BadFrame`] is the
+/// one a source survives (the frame is skipped and counted).
 #[derive(Debug, thiserror::Error)]
 pub enum SourceError {
-    /// The source cannot be opened or read at all (names the file or device).
-    #[error("{0}")]
-    Fatal(String),
-    /// One frame was bad (named); the source can go on.
-    #[error("{0}")]
-    BadFrame(String),
+    /// Reading or opening failed (`doing` says at what: "opening", "frame 12").
+    #[error("{origin}: {doing}")]
+    Io {
+        origin: String,
+        doing: String,
+        #[source]
+        source: std::io::Error,
+    },
+    #[error("{path}: no .pgm or .png files")]
+    NoImages { path: String },
+    /// The first image of a sequence, which sets its size and depth, does not read.
+    #[error("{path}")]
+    FirstImage {
+        path: String,
+        #[source]
+        source: stereoscope_imageio::ImageIoError,
+    },
+    #[error("{path}: the stream header")]
+    Y4mHeader {
+        path: String,
+        #[source]
+        source: crate::y4m::Y4mHeaderError,
+    },
+    #[error("{path}: frame {frame}: expected a FRAME line, found {found:?}")]
+    NoFrameLine {
+        path: String,
+        frame: u64,
+        found: String,
+    },
+    /// A file that ends inside a frame (what a crash while recording leaves).
+    #[error("{path}: truncated: frame {frame} has {got} of its {want} {plane} bytes")]
+    Truncated {
+        path: String,
+        frame: u64,
+        plane: &'static str,
+        got: u64,
+        want: u64,
+    },
+    /// The V4L2 camera does not give a format the service reads.
+    #[error("{device}: {problem}")]
+    Format {
+        device: String,
+        problem: FormatProblem,
+    },
+    #[error("the rig file has no [synthetic] scene")]
+    NoScene,
+    #[error("rendering the synthetic scene")]
+    Render(#[source] stereoscope_vision::VisionError),
+    /// One frame was bad; the source goes on with the next.
+    #[error(transparent)]
+    BadFrame(#[from] BadFrame),
+}
+
+impl SourceError {
+    pub(crate) fn io(origin: &str, doing: impl Into<String>, source: std::io::Error) -> Self {
+        SourceError::Io {
+            origin: origin.to_string(),
+            doing: doing.into(),
+            source,
+        }
+    }
+}
+
+/// What is wrong with a V4L2 camera's formats.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum FormatProblem {
+    #[error("format {requested:?} is not GREY, Y16, YUYV or MJPG")]
+    Unsupported { requested: String },
+    #[error("the camera does not offer {requested}; it offers {offered:?}")]
+    NotOffered {
+        requested: String,
+        offered: Vec<String>,
+    },
+    #[error("offers none of GREY, Y16, YUYV, MJPG (it offers {offered:?})")]
+    NoneUsable { offered: Vec<String> },
+    #[error("driver chose format {chosen}")]
+    DriverChose { chosen: String },
+}
+
+/// Why one frame was skipped.
+#[derive(Debug, thiserror::Error)]
+pub enum BadFrame {
+    #[error("{path}")]
+    Image {
+        path: String,
+        #[source]
+        source: stereoscope_imageio::ImageIoError,
+    },
+    #[error("{path}: {}×{} differs from the sequence's {}×{}", .got_px.0, .got_px.1, .want_px.0, .want_px.1)]
+    SizeChanged {
+        path: String,
+        got_px: (u32, u32),
+        want_px: (u32, u32),
+    },
+    #[error("{path}: bit depth differs from the sequence's first file")]
+    DepthChanged { path: String },
+    /// A camera buffer that is not a frame (short, or an MJPEG that does not decode).
+    #[error("{device}")]
+    Camera {
+        device: String,
+        #[source]
+        source: Box<dyn std::error::Error + Send + Sync>,
+    },
 }
 
 /// What a frame read produced.

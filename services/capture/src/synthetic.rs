@@ -107,10 +107,7 @@ impl SyntheticSource {
         loop_frames: Option<u32>,
         bit_depth: Option<u32>,
     ) -> Result<Self, SourceError> {
-        let spec = file
-            .synthetic
-            .as_ref()
-            .ok_or_else(|| SourceError::Fatal("the rig file has no [synthetic] scene".into()))?;
+        let spec = file.synthetic.as_ref().ok_or(SourceError::NoScene)?;
         let scale = file.units.metres();
         let (actors, has_axis): (Vec<Actor>, Vec<bool>) = actors(spec, scale).into_iter().unzip();
         let base = Scene {
@@ -163,7 +160,7 @@ impl SyntheticSource {
             seed: self.opts.seed ^ index.wrapping_mul(0xD1B5_4A32_D192_ED03),
             ..self.opts
         };
-        let bad = |e: stereoscope_vision::VisionError| SourceError::Fatal(format!("render: {e}"));
+        let bad = SourceError::Render;
         let truth = match self.format {
             PixelFormat::Gray8 => {
                 let f = render_u8(&self.camera, &scene, &opts).map_err(bad)?;

@@ -4,7 +4,7 @@
 //! the capture parameters. Timestamps are taken when a buffer is dequeued (the driver's are on
 //! the monotonic clock, not the rig's).
 
-use crate::source::{FrameSource, Read, SourceError};
+use crate::source::{BadFrame, FormatProblem, FrameSource, Read, SourceError};
 use stereoscope_proto::frame::PixelFormat;
 use v4l::buffer::Type;
 use v4l::control::{Control, Value};
@@ -61,28 +61,31 @@ impl V4lSource {
         exposure: Option<i64>,
         gain: Option<i64>,
     ) -> Result<Self, SourceError> {
-        let fatal = |m: String| SourceError::Fatal(format!("{device}: {m}"));
-        let dev = Device::with_path(device).map_err(|e| fatal(e.to_string()))?;
-        let mut fmt = dev
-            .format()
-            .map_err(|e| fatal(format!("reading the format: {e}")))?;
+        let io = |doing: &str, e| SourceError::io(device, doing, e);
+        let format_problem = |problem| SourceError::Format {
+            device: device.to_string(),
+            problem,
+        };
+        let dev = Device::with_path(device).map_err(|e| io("opening", e))?;
+        let mut fmt = dev.format().map_err(|e| io("reading the format", e))?;
         let offered: Vec<String> = dev
             .enum_formats()
-            .map_err(|e| fatal(format!("listing formats: {e}")))?
+            .map_err(|e| io("listing formats", e))?
             .iter()
             .filter_map(|d| d.fourcc.str().ok().map(|s| s.to_string()))
             .collect();
         let wanted = match format {
             Some(f) => {
                 if wire_of(f).is_none() {
-                    return Err(fatal(format!(
-                        "format {f:?} is not GREY, Y16, YUYV or MJPG"
-                    )));
+                    return Err(format_problem(FormatProblem::Unsupported {
+                        requested: f.to_string(),
+                    }));
                 }
                 if !offered.iter().any(|o| o.trim_end() == f.trim_end()) {
-                    return Err(fatal(format!(
-                        "the camera does not offer {f}; it offers {offered:?}"
-                    )));
+                    return Err(format_problem(FormatProblem::NotOffered {
+                        requested: f.to_string(),
+                        offered,
+                    }));
                 }
                 f.to_string()
             }
@@ -91,9 +94,9 @@ impl V4lSource {
                 .find(|o| wire_of(o).is_some())
                 .cloned()
                 .ok_or_else(|| {
-                    fatal(format!(
-                        "offers none of GREY, Y16, YUYV, MJPG (it offers {offered:?})"
-                    ))
+                    format_problem(FormatProblem::NoneUsable {
+                        offered: offered.clone(),
+                    })
                 })?,
         };
         let mut code = [b' '; 4];
@@ -103,32 +106,36 @@ impl V4lSource {
         fmt.fourcc = FourCC::new(&code);
         let fmt = dev
             .set_format(&fmt)
-            .map_err(|e| fatal(format!("setting format {wanted}: {e}")))?;
+            .map_err(|e| io(&format!("setting format {wanted}"), e))?;
         let got = fmt.fourcc.str().unwrap_or("????").to_string();
-        let wire = wire_of(&got).ok_or_else(|| fatal(format!("driver chose format {got}")))?;
+        let wire = wire_of(&got).ok_or_else(|| {
+            format_problem(FormatProblem::DriverChose {
+                chosen: got.clone(),
+            })
+        })?;
         if let Some(f) = fps {
             let params = v4l::video::capture::Parameters::with_fps(f.round().max(1.0) as u32);
             dev.set_params(&params)
-                .map_err(|e| fatal(format!("setting {f} fps: {e}")))?;
+                .map_err(|e| io(&format!("setting {f} fps"), e))?;
         }
         if let Some(x) = exposure {
             dev.set_control(Control {
                 id: CID_EXPOSURE_AUTO,
                 value: Value::Integer(EXPOSURE_MANUAL),
             })
-            .map_err(|e| fatal(format!("manual exposure: {e}")))?;
+            .map_err(|e| io("setting manual exposure", e))?;
             dev.set_control(Control {
                 id: CID_EXPOSURE_ABSOLUTE,
                 value: Value::Integer(x),
             })
-            .map_err(|e| fatal(format!("exposure {x}: {e}")))?;
+            .map_err(|e| io(&format!("setting exposure {x}"), e))?;
         }
         if let Some(g) = gain {
             dev.set_control(Control {
                 id: CID_GAIN,
                 value: Value::Integer(g),
             })
-            .map_err(|e| fatal(format!("gain {g}: {e}")))?;
+            .map_err(|e| io(&format!("setting gain {g}"), e))?;
         }
         let params = dev.params().ok();
         let fps = params
@@ -136,7 +143,7 @@ impl V4lSource {
             .map(|p| p.interval.denominator as f64 / p.interval.numerator as f64)
             .or(fps);
         let mut stream = Stream::with_buffers(&dev, Type::VideoCapture, 4)
-            .map_err(|e| fatal(format!("starting the stream: {e}")))?;
+            .map_err(|e| io("starting the stream", e))?;
         stream.set_timeout(std::time::Duration::from_secs(2));
         Ok(V4lSource {
             device: device.to_string(),
@@ -183,7 +190,7 @@ impl FrameSource for V4lSource {
         let (buf, meta) = self
             .stream
             .next()
-            .map_err(|e| SourceError::Fatal(format!("{}: {e}", self.device)))?;
+            .map_err(|e| SourceError::io(&self.device, "reading a frame", e))?;
         let timestamp_ns = stereoscope_proto::messages::now_ns();
         let data = &buf[..(meta.bytesused as usize).min(buf.len())];
         convert(
@@ -194,12 +201,9 @@ impl FrameSource for V4lSource {
             self.stride,
             out,
         )
-        .map_err(|e| {
-            SourceError::BadFrame(format!(
-                "{}: {}",
-                self.device,
-                stereoscope_transport::error_chain(&e)
-            ))
+        .map_err(|e| BadFrame::Camera {
+            device: self.device.clone(),
+            source: Box::new(e),
         })?;
         Ok(Read::Frame {
             timestamp_ns: Some(timestamp_ns),
@@ -324,5 +328,9 @@ mod tests {
     fn a_missing_device_is_named() {
         let e = V4lSource::open("/dev/video-none", None, None, None, None).unwrap_err();
         assert!(e.to_string().contains("/dev/video-none"), "{e}");
+        assert!(
+            matches!(&e, SourceError::Io { source, .. } if source.kind() == std::io::ErrorKind::NotFound),
+            "{e:?}"
+        );
     }
 }

@@ -27,10 +27,6 @@ pub struct Y4mSource {
     replay_clock: Option<ReplayClock>,
 }
 
-fn fatal(path: &str, msg: impl std::fmt::Display) -> SourceError {
-    SourceError::Fatal(format!("{path}: {msg}"))
-}
-
 /// What is wrong with a YUV4MPEG2 stream header.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 pub enum Y4mHeaderError {
@@ -106,14 +102,17 @@ pub fn parse_header(
 
 impl Y4mSource {
     pub fn open(path: &str, realtime: bool, repeat: bool) -> Result<Self, SourceError> {
-        let file = File::open(path).map_err(|e| fatal(path, e))?;
+        let file = File::open(path).map_err(|e| SourceError::io(path, "opening", e))?;
         let mut reader = BufReader::with_capacity(1 << 20, file);
         let mut line = String::new();
         reader
             .read_line(&mut line)
-            .map_err(|e| fatal(path, format!("reading the header: {e}")))?;
+            .map_err(|e| SourceError::io(path, "reading the header", e))?;
         let (width, height, fps, format, chroma_bytes) =
-            parse_header(line.trim_end()).map_err(|e| fatal(path, e))?;
+            parse_header(line.trim_end()).map_err(|source| SourceError::Y4mHeader {
+                path: path.to_string(),
+                source,
+            })?;
         // A pipe cannot seek; repeat is then refused when the end comes.
         let data_start = line.len() as u64;
         Ok(Y4mSource {
@@ -174,29 +173,26 @@ impl FrameSource for Y4mSource {
 
     fn read(&mut self, _index: u64, _t: f64, out: &mut [u8]) -> Result<Read, SourceError> {
         let frame_no = self.frames_read;
+        let path = self.path.as_str();
+        let io = |e| SourceError::io(path, format!("frame {frame_no}"), e);
         let mut line = Vec::new();
-        let n = self
-            .reader
-            .read_until(b'\n', &mut line)
-            .map_err(|e| fatal(&self.path, format!("frame {frame_no}: {e}")))?;
+        let n = self.reader.read_until(b'\n', &mut line).map_err(io)?;
         if n == 0 {
             if self.repeat && frame_no > 0 {
                 self.reader
                     .seek(SeekFrom::Start(self.data_start))
-                    .map_err(|e| fatal(&self.path, format!("cannot start again (a pipe?): {e}")))?;
+                    .map_err(|e| SourceError::io(path, "starting again (a pipe?)", e))?;
                 self.frames_read = 0;
                 return self.read(_index, _t, out);
             }
             return Ok(Read::End);
         }
         if !line.starts_with(b"FRAME") || line.last() != Some(&b'\n') {
-            return Err(fatal(
-                &self.path,
-                format!(
-                    "frame {frame_no}: expected a FRAME line, found {:?}",
-                    String::from_utf8_lossy(&line[..line.len().min(16)])
-                ),
-            ));
+            return Err(SourceError::NoFrameLine {
+                path: path.to_string(),
+                frame: frame_no,
+                found: String::from_utf8_lossy(&line[..line.len().min(16)]).into_owned(),
+            });
         }
         let want = out.len();
         let mut got = 0;
@@ -205,24 +201,29 @@ impl FrameSource for Y4mSource {
                 Ok(0) => break,
                 Ok(k) => got += k,
                 Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
-                Err(e) => return Err(fatal(&self.path, format!("frame {frame_no}: {e}"))),
+                Err(e) => return Err(io(e)),
             }
         }
         if got < want {
-            return Err(fatal(
-                &self.path,
-                format!("truncated: frame {frame_no} has {got} of its {want} luma bytes"),
-            ));
+            return Err(SourceError::Truncated {
+                path: path.to_string(),
+                frame: frame_no,
+                plane: "luma",
+                got: got as u64,
+                want: want as u64,
+            });
         }
-        let mut skip = self.chroma_bytes as u64;
-        let copied = std::io::copy(&mut (&mut self.reader).take(skip), &mut std::io::sink())
-            .map_err(|e| fatal(&self.path, format!("frame {frame_no}: {e}")))?;
-        skip -= copied;
-        if skip > 0 {
-            return Err(fatal(
-                &self.path,
-                format!("truncated: frame {frame_no} lacks {skip} chroma bytes"),
-            ));
+        let skip = self.chroma_bytes as u64;
+        let copied =
+            std::io::copy(&mut (&mut self.reader).take(skip), &mut std::io::sink()).map_err(io)?;
+        if copied < skip {
+            return Err(SourceError::Truncated {
+                path: path.to_string(),
+                frame: frame_no,
+                plane: "chroma",
+                got: copied,
+                want: skip,
+            });
         }
         self.frames_read += 1;
         let timestamp_ns = frame_timestamp(&line);
@@ -360,7 +361,21 @@ mod tests {
         std::fs::write(&cut, &bytes[..bytes.len() - 5]).unwrap();
         let mut s = Y4mSource::open(cut.to_str().unwrap(), false, false).unwrap();
         s.read(0, 0.0, &mut out).unwrap();
-        let e = s.read(1, 0.0, &mut out).unwrap_err().to_string();
+        let err = s.read(1, 0.0, &mut out).unwrap_err();
+        assert!(
+            matches!(
+                err,
+                SourceError::Truncated {
+                    frame: 1,
+                    plane: "luma",
+                    got: 7,
+                    want: 12,
+                    ..
+                }
+            ),
+            "{err:?}"
+        );
+        let e = err.to_string();
         assert!(
             e.contains("cut.y4m") && e.contains("frame 1") && e.contains("7 of its 12"),
             "{e}"

@@ -55,11 +55,26 @@ pub fn csv_rows(f: &PoseFrame) -> String {
 
 /// A problem in a session folder, naming the file and line.
 #[derive(Debug, thiserror::Error)]
-#[error("{}{}: {message}", file.display(), line.map(|l| format!(":{l}")).unwrap_or_default())]
+#[error("{}{}: {problem}", file.display(), line.map(|l| format!(":{l}")).unwrap_or_default())]
 pub struct SessionError {
     pub file: PathBuf,
     pub line: Option<usize>,
-    pub message: String,
+    /// Said in the message (not as a separate cause, so that a chain prints it once).
+    pub problem: SessionProblem,
+}
+
+/// What is wrong at [`SessionError`]'s place.
+#[derive(Debug, thiserror::Error)]
+pub enum SessionProblem {
+    #[error("{0}")]
+    Read(std::io::Error),
+    #[error("{0}")]
+    Info(serde_json::Error),
+    #[error("session schema {found} is not {SESSION_SCHEMA}")]
+    Schema { found: u32 },
+    /// A record that does not decode or fails its checks, before the last line.
+    #[error("{0}")]
+    Record(stereoscope_proto::messages::DecodeError),
 }
 
 /// A session read back.
@@ -76,7 +91,7 @@ fn read_lines<M: Message>(path: &Path, warnings: &mut Vec<String>) -> Result<Vec
     let text = std::fs::read(path).map_err(|e| SessionError {
         file: path.to_path_buf(),
         line: None,
-        message: e.to_string(),
+        problem: SessionProblem::Read(e),
     })?;
     let complete = text.last().is_none_or(|&b| b == b'\n');
     let lines: Vec<&[u8]> = text
@@ -97,7 +112,7 @@ fn read_lines<M: Message>(path: &Path, warnings: &mut Vec<String>) -> Result<Vec
                 return Err(SessionError {
                     file: path.to_path_buf(),
                     line: Some(i + 1),
-                    message: e.to_string(),
+                    problem: SessionProblem::Record(e),
                 });
             }
         }
@@ -111,18 +126,18 @@ impl Session {
         let info_text = std::fs::read(&info_path).map_err(|e| SessionError {
             file: info_path.clone(),
             line: None,
-            message: e.to_string(),
+            problem: SessionProblem::Read(e),
         })?;
         let info: SessionInfo = serde_json::from_slice(&info_text).map_err(|e| SessionError {
             file: info_path.clone(),
             line: Some(e.line()),
-            message: e.to_string(),
+            problem: SessionProblem::Info(e),
         })?;
         if info.schema != SESSION_SCHEMA {
             return Err(SessionError {
                 file: info_path,
                 line: None,
-                message: format!("session schema {} is not {SESSION_SCHEMA}", info.schema),
+                problem: SessionProblem::Schema { found: info.schema },
             });
         }
         let mut warnings = Vec::new();
@@ -207,10 +222,38 @@ mod tests {
         // A bad line in the middle is an error with file and line.
         let bad = format!("{}\nnot json\n{}\n", lines[0], lines[1]);
         std::fs::write(dir.join("poses.jsonl"), bad).unwrap();
-        let e = Session::read(&dir).unwrap_err().to_string();
+        let err = Session::read(&dir).unwrap_err();
+        assert!(
+            matches!(
+                err,
+                SessionError {
+                    line: Some(2),
+                    problem: SessionProblem::Record(_),
+                    ..
+                }
+            ),
+            "{err:?}"
+        );
+        let e = err.to_string();
         assert!(e.contains("poses.jsonl:2"), "{e}");
+        let other = SessionInfo {
+            schema: SESSION_SCHEMA + 1,
+            ..info.clone()
+        };
+        std::fs::write(
+            dir.join("session.json"),
+            serde_json::to_vec(&other).unwrap(),
+        )
+        .unwrap();
+        let err = Session::read(&dir).unwrap_err();
+        assert!(
+            matches!(err.problem, SessionProblem::Schema { found } if found == SESSION_SCHEMA + 1),
+            "{err:?}"
+        );
         std::fs::remove_file(dir.join("session.json")).unwrap();
-        let e = Session::read(&dir).unwrap_err().to_string();
+        let err = Session::read(&dir).unwrap_err();
+        assert!(matches!(err.problem, SessionProblem::Read(_)), "{err:?}");
+        let e = err.to_string();
         assert!(e.contains("session.json"), "{e}");
         std::fs::remove_dir_all(&dir).unwrap();
     }

@@ -20,7 +20,7 @@
 
 use crate::calibrate::homography;
 use crate::camera::Camera;
-use crate::error::GeometryError;
+use crate::error::{DotGridProblem, GeometryError};
 use nalgebra::{Isometry3, Matrix3, Point2, Point3, Vector3};
 use stereoscope_vision::{
     ExtractConfig, Extractor, GrayImage, GrayView, Histogram, Pixel, ThresholdMethod, Weighting,
@@ -42,14 +42,10 @@ pub struct DotGrid {
 impl DotGrid {
     pub fn new(cols: usize, rows: usize, spacing: f64) -> Result<Self, GeometryError> {
         if cols < 2 || rows < 2 {
-            return Err(GeometryError::Degenerate(format!(
-                "a dot grid needs at least 2 × 2 dots, not {cols} × {rows}"
-            )));
+            return Err(DotGridProblem::TooSmall { cols, rows }.into());
         }
         if !(spacing.is_finite() && spacing > 0.0) {
-            return Err(GeometryError::Degenerate(format!(
-                "dot spacing {spacing} must be a finite number above zero"
-            )));
+            return Err(DotGridProblem::Spacing { spacing }.into());
         }
         Ok(DotGrid {
             cols,
@@ -89,8 +85,7 @@ pub fn render(
     samples: u32,
 ) -> Result<GrayImage<u8>, GeometryError> {
     let (w, h) = (camera.intrinsics.width, camera.intrinsics.height);
-    let mut img = GrayImage::filled(w, h, background.round().clamp(0.0, 255.0) as u8)
-        .map_err(|e| GeometryError::Degenerate(e.to_string()))?;
+    let mut img = GrayImage::filled(w, h, background.round().clamp(0.0, 255.0) as u8)?;
     let target_from_cam = cam_from_target.inverse();
     let origin = target_from_cam * Point3::origin();
     // Where a pixel's ray meets the target plane, in target coordinates.
@@ -226,16 +221,15 @@ pub fn detect<P: Pixel>(
     grid: &DotGrid,
 ) -> Result<Vec<(usize, Point2<f64>)>, GeometryError> {
     let hist = Histogram::of(&img);
-    let vis = |e: stereoscope_vision::VisionError| GeometryError::Degenerate(e.to_string());
-    let threshold = hist.threshold::<P>(ThresholdMethod::Auto).map_err(vis)?;
-    let background = hist.mode().map_err(vis)?.min(threshold.saturating_sub(1));
+    let threshold = hist.threshold::<P>(ThresholdMethod::Auto)?;
+    let background = hist.mode()?.min(threshold.saturating_sub(1));
     let mut ex = Extractor::new(ExtractConfig {
         min_area_px: 4,
         max_blobs: 4 * grid.len() + 64,
         weighting: Weighting::Intensity { background },
         ..Default::default()
     });
-    let blobs = ex.extract(img, threshold, &[]).map_err(vis)?;
+    let blobs = ex.extract(img, threshold, &[])?;
     let mut areas: Vec<u64> = blobs.iter().map(|b| b.area_px()).collect();
     areas.sort_unstable();
     let median = areas.get(areas.len() / 2).copied().unwrap_or(0) as f64;
@@ -255,13 +249,13 @@ pub fn detect<P: Pixel>(
         })
         .collect();
     if dots.len() != grid.len() {
-        return Err(GeometryError::Degenerate(format!(
-            "found {} dots, the {} × {} grid has {} (threshold {threshold}; is the whole grid in view?)",
-            dots.len(),
-            grid.cols,
-            grid.rows,
-            grid.len()
-        )));
+        return Err(DotGridProblem::DotCount {
+            found: dots.len(),
+            cols: grid.cols,
+            rows: grid.rows,
+            threshold,
+        }
+        .into());
     }
     let pts: Vec<Point2<f64>> = dots.iter().map(|d| d.0).collect();
     // The big dot: largest area against its four nearest neighbours.
@@ -277,20 +271,18 @@ pub fn detect<P: Pixel>(
             (dots[i].1 / local.max(1e-9), i)
         })
         .max_by(|a, b| a.0.total_cmp(&b.0))
-        .ok_or_else(|| GeometryError::Degenerate("no dots".into()))?;
+        .ok_or(DotGridProblem::NoOriginDot { best_ratio: 0.0 })?;
     if origin.0 < 1.4 {
-        return Err(GeometryError::Degenerate(format!(
-            "no dot stands out as the larger origin dot (best ratio {:.2})",
-            origin.0
-        )));
+        return Err(DotGridProblem::NoOriginDot {
+            best_ratio: origin.0,
+        }
+        .into());
     }
     let origin = origin.1;
     // Corners: the four sharpest turns of the hull.
     let hull = convex_hull(&pts);
     if hull.len() < 4 {
-        return Err(GeometryError::Degenerate(
-            "the dots do not span an area".into(),
-        ));
+        return Err(DotGridProblem::NoArea.into());
     }
     let turn = |k: usize| {
         let (a, b, c) = (
@@ -321,7 +313,7 @@ pub fn detect<P: Pixel>(
                 })
                 .map(|(i, _)| i)
         })
-        .ok_or_else(|| GeometryError::Degenerate("no grid corner found".into()))?;
+        .ok_or(DotGridProblem::NoCorner)?;
     let c: Vec<Point2<f64>> = (0..4).map(|k| pts[corners[(start + k) % 4]]).collect();
     let (cm, rm) = ((grid.cols - 1) as f64, (grid.rows - 1) as f64);
     let lattice = [
@@ -361,9 +353,7 @@ pub fn detect<P: Pixel>(
             best = Some((labels, worst, hm));
         }
     }
-    let (mut labels, _, _) = best.ok_or_else(|| {
-        GeometryError::Degenerate("the dots do not form the expected grid".into())
-    })?;
+    let (mut labels, _, _) = best.ok_or(DotGridProblem::NotAGrid)?;
     // Refit on every dot (absorbs mild lens distortion) and assign again.
     let lat_all: Vec<Point2<f64>> = labels
         .iter()
@@ -375,9 +365,7 @@ pub fn detect<P: Pixel>(
         labels = l2;
     }
     if labels[origin] != 0 {
-        return Err(GeometryError::Degenerate(
-            "the large dot is not at a corner of the grid".into(),
-        ));
+        return Err(DotGridProblem::OriginNotAtCorner.into());
     }
     let mut out: Vec<(usize, Point2<f64>)> = labels.into_iter().zip(pts).collect();
     out.sort_by_key(|p| p.0);
@@ -471,15 +459,36 @@ mod tests {
         let pose = view(&grid, &mut rng);
         let img = render(&cam, &pose, &grid, 15.0, 200.0, 4).unwrap();
         let other = DotGrid::new(7, 6, 0.05).unwrap();
+        let err = detect(img.view(), &other).unwrap_err();
         assert!(
-            detect(img.view(), &other)
-                .unwrap_err()
-                .to_string()
-                .contains("found 48 dots, the 7 × 6 grid has 42")
+            matches!(
+                err,
+                GeometryError::DotGrid(DotGridProblem::DotCount {
+                    found: 48,
+                    cols: 7,
+                    rows: 6,
+                    ..
+                })
+            ),
+            "{err:?}"
+        );
+        assert!(
+            err.to_string()
+                .contains("found 48 dots, the 7 × 6 grid has 42"),
+            "{err}"
         );
         let blank = GrayImage::filled(640, 480, 15u8).unwrap();
         assert!(detect(blank.view(), &grid).is_err());
-        assert!(DotGrid::new(1, 5, 0.1).is_err());
-        assert!(DotGrid::new(3, 5, -0.1).is_err());
+        assert!(matches!(
+            DotGrid::new(1, 5, 0.1),
+            Err(GeometryError::DotGrid(DotGridProblem::TooSmall {
+                cols: 1,
+                rows: 5
+            }))
+        ));
+        assert!(matches!(
+            DotGrid::new(3, 5, -0.1),
+            Err(GeometryError::DotGrid(DotGridProblem::Spacing { .. }))
+        ));
     }
 }

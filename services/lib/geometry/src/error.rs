@@ -29,10 +29,44 @@ pub enum GeometryError {
     },
     #[error("degenerate points: {0}")]
     Degenerate(String),
+    /// A dot-grid target that cannot be made or was not found in an image.
+    #[error("dot grid: {0}")]
+    DotGrid(#[from] DotGridProblem),
+    #[error("image")]
+    Vision(#[from] stereoscope_vision::VisionError),
     #[error("the point is behind camera {camera}")]
     BehindCamera { camera: usize },
     #[error("{0}")]
     Solver(String),
     #[error("depth model: {0}")]
     DepthModel(String),
+}
+
+/// Why a dot grid cannot be made, or why an image does not show it.
+#[derive(Debug, Error, Clone, PartialEq)]
+pub enum DotGridProblem {
+    #[error("a dot grid needs at least 2 × 2 dots, not {cols} × {rows}")]
+    TooSmall { cols: usize, rows: usize },
+    #[error("dot spacing {spacing} must be a finite number above zero")]
+    Spacing { spacing: f64 },
+    #[error(
+        "found {found} dots, the {cols} × {rows} grid has {} (threshold {threshold}; is the whole grid in view?)",
+        .cols * .rows
+    )]
+    DotCount {
+        found: usize,
+        cols: usize,
+        rows: usize,
+        threshold: u32,
+    },
+    #[error("no dot stands out as the larger origin dot (best ratio {best_ratio:.2})")]
+    NoOriginDot { best_ratio: f64 },
+    #[error("the dots do not span an area")]
+    NoArea,
+    #[error("no grid corner found")]
+    NoCorner,
+    #[error("the dots do not form the expected grid")]
+    NotAGrid,
+    #[error("the large dot is not at a corner of the grid")]
+    OriginNotAtCorner,
 }

@@ -29,7 +29,7 @@ pub mod triangulate;
 pub mod world_heading;
 
 pub use camera::{Camera, Distortion, Intrinsics};
-pub use error::GeometryError;
+pub use error::{DotGridProblem, GeometryError};
 
 /// Index of the smallest value (the first one on ties; 0 for an empty sequence).
 pub(crate) fn index_of_min(values: impl Iterator<Item = f64>) -> usize {
