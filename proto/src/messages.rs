@@ -199,6 +199,40 @@ pub struct Health {
     pub detail: std::collections::BTreeMap<String, String>,
 }
 
+impl Health {
+    /// What this report says the service lost, in words, one line each: frames dropped (and
+    /// which, when the service names them), inputs rejected (with the last reason),
+    /// observations late for their set, recorded sets formed short. Empty when nothing was.
+    pub fn losses(&self) -> Vec<String> {
+        let service = &self.service;
+        let mut out = Vec::new();
+        if self.dropped > 0 {
+            let which = self
+                .detail
+                .get("last_lost")
+                .map(|l| format!(" (the last: {l})"))
+                .unwrap_or_default();
+            out.push(format!("{service}: {} dropped{which}", self.dropped));
+        }
+        if self.rejected > 0 {
+            let why = self.last_error.as_deref().unwrap_or("");
+            out.push(format!(
+                "{service}: {} rejected (last: {why})",
+                self.rejected
+            ));
+        }
+        if let Some(late) = self.detail.get("late").filter(|l| l.as_str() != "0") {
+            out.push(format!("{service}: {late} observations late for their set"));
+        }
+        if let Some(short) = self.detail.get("short_sets") {
+            out.push(format!(
+                "{service}: {short} recorded sets formed without one of their cameras"
+            ));
+        }
+        out
+    }
+}
+
 /// Why a message could not be decoded.
 #[derive(Debug)]
 pub enum DecodeError {
@@ -276,6 +310,43 @@ pub fn now_ns() -> u64 {
 
 #[cfg(test)]
 mod tests {
+
+    #[test]
+    fn health_says_what_was_lost_and_which_frame() {
+        let mut h = Health {
+            schema: SCHEMA_VERSION,
+            rig: "r".into(),
+            host: "pc".into(),
+            service: "moments/cam0".into(),
+            pid: 1,
+            started_ns: 0,
+            published_ns: 0,
+            processed: 10,
+            rate_hz: 1.0,
+            dropped: 0,
+            rejected: 0,
+            last_error: None,
+            detail: Default::default(),
+        };
+        assert!(h.losses().is_empty());
+        h.dropped = 2;
+        h.detail
+            .insert("last_lost".into(), "cam0 frames 7–8".into());
+        h.detail.insert("late".into(), "0".into());
+        assert_eq!(
+            h.losses(),
+            vec!["moments/cam0: 2 dropped (the last: cam0 frames 7–8)".to_string()]
+        );
+        h.rejected = 1;
+        h.last_error = Some("frame 9: header".into());
+        h.detail.insert("late".into(), "3".into());
+        h.detail.insert("short_sets".into(), "1".into());
+        let l = h.losses();
+        assert_eq!(l.len(), 4, "{l:?}");
+        assert!(l[1].contains("1 rejected (last: frame 9: header)"), "{l:?}");
+        assert!(l[2].contains("3 observations late"), "{l:?}");
+        assert!(l[3].contains("1 recorded sets formed without"), "{l:?}");
+    }
     use super::*;
 
     fn sample() -> PoseFrame {

@@ -313,7 +313,11 @@ impl Capture {
                 // sequence numbers and is counted as dropped.
                 let now_slot = (self.start_ns + self.start.elapsed().as_nanos() as u64) / p;
                 if now_slot > self.next_slot + 1 {
-                    self.node.counters.dropped += now_slot - self.next_slot;
+                    self.node.counters.lost_frames(
+                        &self.cfg.camera,
+                        self.next_slot - self.first_slot,
+                        now_slot - 1 - self.first_slot,
+                    );
                     self.next_slot = now_slot;
                 }
                 let slot = self.next_slot;

@@ -34,11 +34,11 @@ pub enum DemoError {
 }
 use std::collections::{BTreeMap, VecDeque};
 use std::io::Write;
-use std::sync::mpsc;
+use std::sync::{Arc, Mutex, mpsc};
 use std::time::{Duration, Instant};
 use stereoscope_numeric::angle::{wrap_half_turn_deg, wrap_turn_deg};
 use stereoscope_numeric::assign::assign_min_cost;
-use stereoscope_proto::messages::{Message, PoseFrame, Truth};
+use stereoscope_proto::messages::{Health, Message, PoseFrame, Truth};
 use stereoscope_proto::names::zenoh as keys;
 use stereoscope_rig::Context;
 use stereoscope_rig::Rig;
@@ -90,6 +90,9 @@ pub struct DemoSummary {
     pub complete_frames: u64,
     pub targets: Vec<TargetStats>,
     pub restarts: u32,
+    /// What the services' last health reports say they lost (frames dropped and which,
+    /// inputs rejected, observations late): where a missed target can be traced to.
+    pub losses: Vec<String>,
 }
 
 impl DemoSummary {
@@ -110,7 +113,7 @@ impl DemoSummary {
             })
             .collect();
         format!(
-            "{{\"seconds\":{:.3},\"pose_frames\":{},\"poses_per_s\":{:.2},\"latency_p50_ms\":{:.4},\"latency_p99_ms\":{:.4},\"exposure_latency_p50_ms\":{:.4},\"position_rms_m\":{:.6},\"heading_rms_deg\":{},\"complete_frames\":{},\"restarts\":{},\"targets\":[{}]}}",
+            "{{\"seconds\":{:.3},\"pose_frames\":{},\"poses_per_s\":{:.2},\"latency_p50_ms\":{:.4},\"latency_p99_ms\":{:.4},\"exposure_latency_p50_ms\":{:.4},\"position_rms_m\":{:.6},\"heading_rms_deg\":{},\"complete_frames\":{},\"restarts\":{},\"targets\":[{}],\"losses\":{}}}",
             self.seconds,
             self.pose_frames,
             self.poses_per_s,
@@ -123,7 +126,8 @@ impl DemoSummary {
                 .unwrap_or("null".into()),
             self.complete_frames,
             self.restarts,
-            targets.join(",")
+            targets.join(","),
+            serde_json::to_string(&self.losses).unwrap_or_else(|_| "[]".into())
         )
     }
 }
@@ -255,6 +259,16 @@ fn watch(
     let _poses = net::subscribe(&session, &keys::poses(rig), move |_, b| {
         if let Ok(p) = PoseFrame::from_json(b) {
             let _ = tx.try_send(Event::Poses(p));
+        }
+    })?;
+    // Each service's newest health report, for what it lost.
+    let health: Arc<Mutex<BTreeMap<String, Health>>> = Arc::default();
+    let sink = health.clone();
+    let _health = net::subscribe(&session, &keys::all_health(rig), move |_, b| {
+        if let Ok(h) = Health::from_json(b)
+            && let Ok(mut m) = sink.lock()
+        {
+            m.insert(h.service.clone(), h);
         }
     })?;
     // Ground truth comes from the synthetic camera on this PC, through shared memory.
@@ -410,6 +424,10 @@ fn watch(
         complete_frames: complete,
         targets,
         restarts: 0,
+        losses: health
+            .lock()
+            .map(|m| m.values().flat_map(Health::losses).collect())
+            .unwrap_or_default(),
     })
 }
 

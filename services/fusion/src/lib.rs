@@ -42,6 +42,9 @@ pub struct FusionConfig {
 pub enum FusionError {
     #[error("fusion: the rig has no cameras")]
     NoCameras,
+    /// `[fusion] replay_sets` names a file that is not a recording's pose frames.
+    #[error("fusion")]
+    ReplaySets(#[source] stereoscope_rig::RigError),
     #[error("fusion")]
     Transport(#[from] stereoscope_transport::TransportError),
 }
@@ -170,6 +173,26 @@ impl FusionService {
             Duration::from_micros(500)
         };
         let fuser = Fuser::new(&ctx.rig, fuser_cfg);
+        let mut pairer = Pairer::new(n, pair_cfg);
+        if let Some(p) = ctx
+            .rig
+            .spec
+            .fusion
+            .as_ref()
+            .and_then(|f| f.replay_sets.as_ref())
+        {
+            let ids: Vec<String> = ctx.rig.cameras.iter().map(|c| c.id.clone()).collect();
+            let schedule = pairing::read_schedule(&ctx.rig.source_path(p), &ids).map_err(|e| {
+                FusionError::ReplaySets(stereoscope_rig::RigError {
+                    kind: stereoscope_rig::RigErrorKind::Value,
+                    file: ctx.rig.path.clone(),
+                    key: "fusion.replay_sets".into(),
+                    message: stereoscope_transport::error_chain(&e),
+                })
+            })?;
+            tracing::info!("forming the {} sets of the recording", schedule.len());
+            pairer = pairer.with_schedule(schedule);
+        }
         Ok(FusionService {
             node,
             local,
@@ -180,7 +203,7 @@ impl FusionService {
             wait,
             poses,
             per_object,
-            pairer: Pairer::new(n, pair_cfg),
+            pairer,
             fuser,
             sequence: 0,
             cfg,
@@ -276,6 +299,13 @@ impl FusionService {
         let detail = &mut counters.detail;
         detail.insert("cameras_live".into(), live.join(","));
         detail.insert("late".into(), self.pairer.late.to_string());
+        if let Some((c, sequence)) = self.pairer.last_lost {
+            let camera = rig.cameras.get(c).map(|c| c.id.as_str()).unwrap_or("?");
+            detail.insert("last_lost".into(), format!("{camera} frame {sequence}"));
+        }
+        if self.pairer.short_sets > 0 {
+            detail.insert("short_sets".into(), self.pairer.short_sets.to_string());
+        }
         detail.insert("objects".into(), self.fuser.objects().to_string());
     }
 }

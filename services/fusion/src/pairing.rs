@@ -11,12 +11,17 @@
 //! yet counts as live for `camera_timeout` (from the first observation of any camera), so
 //! the first sets wait for cameras that start a little later instead of going out alone.
 //!
+//! *Replay.* Given the sets a recording made ([`Pairer::with_schedule`]: each recorded pose
+//! frame's time and cameras), a set is formed with exactly the cameras the recorded one had
+//! and released as soon as they are all in — however the frames arrive on the replaying
+//! machine. A set the recording does not have pairs as above.
+//!
 //! Sets go out in time order, each at most once: an observation that arrives after its set was
 //! released without it (its camera was late by more than `max_wait`), or that is older than
 //! the last set released, is discarded and counted as late — it would otherwise go out as a
 //! second, one-camera pose frame for a time already published, after newer ones.
 
-use std::collections::VecDeque;
+use std::collections::{BTreeMap, VecDeque};
 use stereoscope_proto::messages::Observation;
 
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -45,9 +50,75 @@ pub struct Pairer {
     released: Option<(u64, Vec<bool>)>,
     /// When the first observation of any camera arrived.
     first_arrival_ns: Option<u64>,
+    /// Recorded sets: reference time → the cameras in it.
+    schedule: BTreeMap<u64, Vec<bool>>,
+    /// Recorded sets released without one of their cameras (its frame was lost on the way).
+    pub short_sets: u64,
+    /// The last observation discarded as late or superseded: camera and frame sequence.
+    pub last_lost: Option<(usize, u64)>,
 }
 
 const MAX_QUEUE: usize = 16;
+
+/// Why a recording's pose frames do not give a schedule.
+#[derive(Debug, thiserror::Error)]
+pub enum ScheduleError {
+    #[error("{}", .file.display())]
+    Read {
+        file: std::path::PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
+    #[error("{}:{line}: not a pose frame", .file.display())]
+    Line {
+        file: std::path::PathBuf,
+        line: usize,
+        #[source]
+        source: stereoscope_proto::messages::DecodeError,
+    },
+}
+
+/// The sets a recording formed, from its `poses.jsonl`: each pose frame's time and which of
+/// `cameras` it had (a camera the rig does not have is ignored). An incomplete last line (a
+/// recorder stopped mid-write) is skipped, as the session reader does.
+pub fn read_schedule(
+    file: &std::path::Path,
+    cameras: &[String],
+) -> Result<BTreeMap<u64, Vec<bool>>, ScheduleError> {
+    use std::io::BufRead;
+    use stereoscope_proto::messages::{Message, PoseFrame};
+    let read = |source| ScheduleError::Read {
+        file: file.to_path_buf(),
+        source,
+    };
+    let reader = std::io::BufReader::new(std::fs::File::open(file).map_err(read)?);
+    let mut schedule = BTreeMap::new();
+    let mut pending: Option<ScheduleError> = None;
+    for (i, line) in reader.split(b'\n').enumerate() {
+        let line = line.map_err(read)?;
+        if line.is_empty() {
+            continue;
+        }
+        // Only the last line may be cut short.
+        if let Some(e) = pending.take() {
+            return Err(e);
+        }
+        match PoseFrame::from_json(&line) {
+            Ok(f) => {
+                let had = cameras.iter().map(|c| f.cameras.contains(c)).collect();
+                schedule.insert(f.timestamp_ns, had);
+            }
+            Err(source) => {
+                pending = Some(ScheduleError::Line {
+                    file: file.to_path_buf(),
+                    line: i + 1,
+                    source,
+                })
+            }
+        }
+    }
+    Ok(schedule)
+}
 
 impl Pairer {
     pub fn new(cameras: usize, cfg: PairingConfig) -> Self {
@@ -63,7 +134,22 @@ impl Pairer {
             late: 0,
             released: None,
             first_arrival_ns: None,
+            schedule: BTreeMap::new(),
+            short_sets: 0,
+            last_lost: None,
         }
+    }
+
+    /// Forms the sets a recording made: `schedule` maps each recorded set's time (its oldest
+    /// observation's `timestamp_ns`) to the cameras it had (`n` flags each).
+    pub fn with_schedule(mut self, schedule: BTreeMap<u64, Vec<bool>>) -> Self {
+        self.schedule = schedule;
+        self
+    }
+
+    fn lose(&mut self, camera: usize, obs: &Observation) {
+        self.discarded += 1;
+        self.last_lost = Some((camera, obs.sequence));
     }
 
     /// Adds camera `camera`'s observation, arrived at `now_ns`.
@@ -81,8 +167,10 @@ impl Pairer {
         self.first_arrival_ns.get_or_insert(now_ns);
         q.last_arrival_ns = Some(now_ns);
         while q.items.len() > MAX_QUEUE {
-            q.items.pop_front();
-            self.discarded += 1;
+            if let Some((o, _)) = q.items.pop_front() {
+                self.discarded += 1;
+                self.last_lost = Some((camera, o.sequence));
+            }
         }
     }
 
@@ -99,6 +187,9 @@ impl Pairer {
         for c in 0..n {
             if !self.live(c, now_ns) && !self.queues[c].items.is_empty() {
                 self.discarded += self.queues[c].items.len() as u64;
+                if let Some((o, _)) = self.queues[c].items.back() {
+                    self.last_lost = Some((c, o.sequence));
+                }
                 self.queues[c].items.clear();
             }
         }
@@ -117,20 +208,43 @@ impl Pairer {
                     .front()
                     .is_some_and(|(o, _)| o.timestamp_ns <= limit)
                 {
-                    q.items.pop_front();
-                    self.discarded += 1;
-                    self.late += 1;
+                    if let Some((o, _)) = q.items.pop_front() {
+                        self.discarded += 1;
+                        self.late += 1;
+                        self.last_lost = Some((c, o.sequence));
+                    }
                 }
             }
         }
-        let (ref_cam, ref_ts, ref_arrival) = (0..n)
-            .filter_map(|c| {
-                self.queues[c]
-                    .items
-                    .front()
-                    .map(|(o, a)| (c, o.timestamp_ns, *a))
-            })
-            .min_by_key(|x| x.1)?;
+        let (ref_cam, ref_ts, ref_arrival) = loop {
+            let (c, ts, arrival) = (0..n)
+                .filter_map(|c| {
+                    self.queues[c]
+                        .items
+                        .front()
+                        .map(|(o, a)| (c, o.timestamp_ns, *a))
+                })
+                .min_by_key(|x| x.1)?;
+            // A camera the recorded set at this time did not have: the recording lost this
+            // observation (it came too late), so the replay does too.
+            if self.schedule.get(&ts).is_some_and(|cams| !cams[c])
+                && let Some((o, _)) = self.queues[c].items.pop_front()
+            {
+                self.lose(c, &o);
+                self.late += 1;
+                continue;
+            }
+            break (c, ts, arrival);
+        };
+        // Recorded sets older than this one are past.
+        while self
+            .schedule
+            .first_key_value()
+            .is_some_and(|(t, _)| *t < ref_ts)
+        {
+            self.schedule.pop_first();
+        }
+        let recorded = self.schedule.get(&ref_ts).cloned();
         let skew = self.cfg.max_skew_ns;
         let mut chosen: Vec<Option<usize>> = vec![None; n];
         let mut complete = true;
@@ -140,8 +254,12 @@ impl Pairer {
                 chosen[c] = Some(0);
                 continue;
             }
-            if !self.live(c, now_ns) {
-                continue;
+            match &recorded {
+                // Exactly the recorded set's cameras, each waited for.
+                Some(cams) if !cams[c] => continue,
+                Some(_) => {}
+                None if !self.live(c, now_ns) => continue,
+                None => {}
             }
             let q = &self.queues[c].items;
             let best = q
@@ -165,14 +283,19 @@ impl Pairer {
         if !complete && !hopeless && waited < self.cfg.max_wait_ns {
             return None;
         }
+        if recorded.is_some() && !complete {
+            self.short_sets += 1;
+        }
         let mut set = Vec::new();
         self.released = Some((ref_ts, chosen.iter().map(Option::is_some).collect()));
         for c in 0..n {
             let q = &mut self.queues[c].items;
             if let Some(i) = chosen[c] {
                 // Everything older than the chosen one is superseded.
-                self.discarded += i as u64;
-                q.drain(..i);
+                for (o, _) in q.drain(..i) {
+                    self.discarded += 1;
+                    self.last_lost = Some((c, o.sequence));
+                }
                 if let Some((o, _)) = q.pop_front() {
                     set.push((c, o));
                 }
@@ -182,8 +305,10 @@ impl Pairer {
                     .front()
                     .is_some_and(|(o, _)| o.timestamp_ns + skew < ref_ts)
                 {
-                    q.pop_front();
-                    self.discarded += 1;
+                    if let Some((o, _)) = q.pop_front() {
+                        self.discarded += 1;
+                        self.last_lost = Some((c, o.sequence));
+                    }
                 }
             }
         }
@@ -288,5 +413,93 @@ mod tests {
         p.push(1, obs("b", 633), 634 * MS);
         p.push(0, obs("a", 633), 634 * MS);
         assert_eq!(p.pop(634 * MS).unwrap().len(), 2);
+    }
+
+    /// Given the recorded sets, a replay forms the same ones whatever the arrival: a set waits
+    /// for each camera the recorded one had (up to `max_wait`, a camera not heard for long
+    /// included), leaves out one it did not have, and goes out as soon as it is complete.
+    #[test]
+    fn a_schedule_forms_the_recorded_sets_whatever_the_arrival() {
+        let schedule = BTreeMap::from([
+            (0, vec![true, true]),
+            (700 * MS, vec![true, true]),
+            (733 * MS, vec![true, false]),
+            (766 * MS, vec![true, true]),
+        ]);
+        let mut p = Pairer::new(2, cfg()).with_schedule(schedule);
+        p.push(0, obs("a", 0), 0);
+        p.push(1, obs("b", 0), 0);
+        assert_eq!(p.pop(0).unwrap().len(), 2);
+        // cam1, silent for longer than the camera timeout, is still waited for.
+        p.push(0, obs("a", 700), 700 * MS);
+        assert!(!p.live(1, 705 * MS));
+        assert!(p.pop(705 * MS).is_none());
+        p.push(1, obs("b", 700), 710 * MS);
+        let s = p.pop(710 * MS).unwrap();
+        assert_eq!(s.iter().map(|x| x.0).collect::<Vec<_>>(), vec![0, 1]);
+        // Frame 733 was recorded without cam1: its observation, here on time, is left out
+        // and the set goes out at once.
+        p.push(1, obs("b", 733), 734 * MS);
+        p.push(0, obs("a", 733), 734 * MS);
+        let s = p.pop(734 * MS).unwrap();
+        assert_eq!(s.iter().map(|x| x.0).collect::<Vec<_>>(), vec![0]);
+        // Frame 766: cam1's frame never comes (lost in the replay) — after max_wait the set
+        // goes out short, and is counted.
+        p.push(0, obs("a", 766), 767 * MS);
+        assert!(p.pop(780 * MS).is_none());
+        assert_eq!(p.late, 1);
+        assert_eq!(p.last_lost, Some((1, 733)));
+        let s = p.pop(790 * MS).unwrap();
+        assert_eq!(s.len(), 1);
+        assert_eq!(p.short_sets, 1);
+        // A time the recording does not have pairs as live.
+        p.push(0, obs("a", 800), 801 * MS);
+        p.push(1, obs("b", 800), 801 * MS);
+        assert_eq!(p.pop(801 * MS).unwrap().len(), 2);
+    }
+
+    #[test]
+    fn a_schedule_reads_from_a_recording_and_names_a_bad_line() {
+        use stereoscope_proto::messages::{Message, PoseFrame};
+        let frame = |ts_ms: u64, cameras: &[&str]| {
+            let f = PoseFrame {
+                schema: SCHEMA_VERSION,
+                rig: "r".into(),
+                sequence: ts_ms,
+                timestamp_ns: ts_ms * MS,
+                frame_published_ns: 0,
+                published_ns: 0,
+                cameras: cameras.iter().map(|c| c.to_string()).collect(),
+                poses: vec![],
+            };
+            String::from_utf8(f.to_json()).unwrap()
+        };
+        let dir = std::env::temp_dir().join(format!("schedule-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let file = dir.join("poses.jsonl");
+        let ids = vec!["a".to_string(), "b".to_string()];
+        // A last line cut short (a recorder stopped mid-write) is skipped.
+        let text = format!(
+            "{}\n{}\n{{\"schema\":1,",
+            frame(0, &["a", "b"]),
+            frame(33, &["b"])
+        );
+        std::fs::write(&file, text).unwrap();
+        let s = read_schedule(&file, &ids).unwrap();
+        assert_eq!(
+            s,
+            BTreeMap::from([(0, vec![true, true]), (33 * MS, vec![false, true])])
+        );
+        // One in the middle is an error naming the line.
+        let text = format!("{}\nnot json\n{}\n", frame(0, &["a"]), frame(33, &["b"]));
+        std::fs::write(&file, text).unwrap();
+        let err = read_schedule(&file, &ids).unwrap_err();
+        assert!(
+            matches!(err, ScheduleError::Line { line: 2, .. }),
+            "{err:?}"
+        );
+        std::fs::remove_dir_all(&dir).unwrap();
+        let err = read_schedule(&file, &ids).unwrap_err();
+        assert!(matches!(err, ScheduleError::Read { .. }), "{err:?}");
     }
 }

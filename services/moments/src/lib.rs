@@ -349,14 +349,15 @@ impl MomentsService {
     /// unread (`skipped`) and the gaps in the capture's numbering.
     fn count_gap(&mut self, sequence: u64, skipped: u64) {
         let counters = &mut self.node.counters;
-        counters.dropped += skipped;
-        if let Some(prev) = self.last_sequence
-            && sequence > prev + 1 + skipped
-        {
-            counters.dropped += sequence - prev - 1 - skipped;
+        match self.last_sequence {
+            Some(prev) if sequence > prev + 1 => {
+                counters.lost_frames(&self.cfg.camera, prev + 1, sequence - 1)
+            }
+            // The first frame, or a capture restarted (its count starts again): what was
+            // released unread is all that is known.
+            _ => counters.dropped += skipped,
         }
         if self.last_sequence.is_some_and(|p| sequence <= p) {
-            // Capture restarted: its count starts again.
             tracing::info!(camera = %self.cfg.camera, "frame sequence restarted at {sequence}");
         }
         self.last_sequence = Some(sequence);

@@ -344,7 +344,7 @@ impl Recorder {
                 if let Some(last) = t.y4m.last_sequence
                     && h.sequence > last + 1
                 {
-                    counters.dropped += h.sequence - last - 1;
+                    counters.lost_frames(&t.camera, last + 1, h.sequence - 1);
                 }
                 t.y4m.last_sequence = Some(h.sequence);
                 match h.validate(s.payload().len()) {

@@ -390,9 +390,17 @@ pub fn frames_rig(
     }
     if let Some(f) = &mut file.fusion {
         f.host = None;
-        // Sets as they were recorded, not as frames happen to arrive on a loaded machine: wait
-        // for every camera's frame of a set (a set still goes out at once when a camera has
-        // moved past it), and never count a camera as gone while the files run.
+        // Sets as they were recorded, not as frames happen to arrive on a loaded machine:
+        // fusion forms each recorded set with the cameras it had, waiting for each (up to
+        // 2 s: a frame lost in the replay), and never counts a camera as gone while the files
+        // run.
+        let poses = session_dir.join("poses.jsonl");
+        f.replay_sets = Some(
+            std::path::absolute(&poses)
+                .unwrap_or(poses)
+                .display()
+                .to_string(),
+        );
         f.max_wait_ms = Some(2_000.0);
         f.camera_timeout_ms = Some(10_000.0);
     }

@@ -95,6 +95,9 @@ pub fn summary_text(s: &DemoSummary) -> String {
     if s.restarts > 0 {
         out.push_str(&format!("  services restarted: {}\n", s.restarts));
     }
+    for l in &s.losses {
+        out.push_str(&format!("  lost: {l}\n"));
+    }
     out
 }
 
@@ -450,20 +453,7 @@ pub fn replay_frames(
 fn losses(
     health: &std::collections::BTreeMap<String, stereoscope_proto::messages::Health>,
 ) -> Vec<String> {
-    let mut out = Vec::new();
-    for (service, h) in health {
-        if h.dropped > 0 {
-            out.push(format!("{service}: {} dropped", h.dropped));
-        }
-        if h.rejected > 0 {
-            let why = h.last_error.as_deref().unwrap_or("");
-            out.push(format!("{service}: {} rejected (last: {why})", h.rejected));
-        }
-        if let Some(late) = h.detail.get("late").filter(|l| l.as_str() != "0") {
-            out.push(format!("{service}: {late} observations late for their set"));
-        }
-    }
-    out
+    health.values().flat_map(|h| h.losses()).collect()
 }
 
 /// `stereoscope export --format csv|c3d`.

@@ -290,6 +290,9 @@ pub(crate) fn check(file: &RigFile, base: Option<&Path>, sources: bool) -> Resul
     }
     if let Some(f) = &file.fusion {
         known_host("fusion.host".into(), &f.host)?;
+        if let (true, Some(p)) = (sources, &f.replay_sets) {
+            readable_source("fusion.replay_sets", &resolve(base, p), false)?;
+        }
         for (k, v, hi, what) in [
             ("max_skew_ms", f.max_skew_ms, MAX_WAIT_MS, "ms"),
             ("max_wait_ms", f.max_wait_ms, MAX_WAIT_MS, "ms"),

@@ -389,6 +389,10 @@ pub struct FusionSpec {
     /// "zenoh" (every camera over the network).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub observations: Option<ObservationRoute>,
+    /// A recording's `poses.jsonl`: form the sets it recorded, each with the cameras it had
+    /// (`stereoscope replay --frames` sets it; relative to the rig file).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub replay_sets: Option<String>,
 }
 
 /// The scene synthetic cameras render (lengths in the file's unit).

@@ -20,6 +20,21 @@ pub struct Counters {
 }
 
 impl Counters {
+    /// Counts frames `first..=last` of `what` as dropped and names them in the health
+    /// report's `last_lost` detail, so a missing pose can be traced to the frame behind it.
+    pub fn lost_frames(&mut self, what: &str, first: u64, last: u64) {
+        if last < first {
+            return;
+        }
+        self.dropped += last - first + 1;
+        let frames = if first == last {
+            format!("{what} frame {first}")
+        } else {
+            format!("{what} frames {first}–{last}")
+        };
+        self.detail.insert("last_lost".into(), frames);
+    }
+
     /// Keeps the error of a failed publication (or any side effect the service carries on
     /// after) as the last error; the service goes on either way.
     pub fn note<T, E: std::error::Error + 'static>(&mut self, result: Result<T, E>) {
@@ -114,5 +129,22 @@ impl HealthReporter {
         if let Err(e) = self.publisher.put(&h) {
             tracing::warn!("health report: {}", crate::error_chain(&e));
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn lost_frames_are_counted_and_named() {
+        let mut c = Counters::default();
+        c.lost_frames("cam0", 5, 4);
+        assert_eq!(c.dropped, 0);
+        c.lost_frames("cam0", 7, 7);
+        assert_eq!(c.detail["last_lost"], "cam0 frame 7");
+        c.lost_frames("cam1", 10, 12);
+        assert_eq!(c.dropped, 4);
+        assert_eq!(c.detail["last_lost"], "cam1 frames 10–12");
     }
 }
