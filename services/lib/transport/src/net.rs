@@ -35,22 +35,38 @@ impl ZenohMode {
     }
 }
 
-/// A TCP port on 127.0.0.1 free right now, for a router or a test's endpoint. It comes from
-/// 20000–32767, below Linux's ephemeral range (32768 on), so the kernel does not hand the same
-/// port to another socket (an outgoing connection, a `bind` to port 0) between this call and
-/// its use; successive calls in one process never return the same port (a counter walks the
-/// range from a start derived from the process id); a port in use is skipped. Another process
-/// can still take it in between, so a caller that binds it must report failure.
+/// A TCP port on 127.0.0.1 free right now and reserved for this process, for a router or a
+/// test's endpoint. It comes from 20000–32767, below Linux's ephemeral range (32768 on), so the
+/// kernel does not hand it to another socket (an outgoing connection, a `bind` to port 0)
+/// between this call and its use. Every process that asks here holds a lock on the port's file
+/// in `<temp>/stereoscope-ports/` until it exits, so two test processes (or two demos) never
+/// get the same port; a port another program has bound is skipped. A program that binds the
+/// port in between without asking here can still take it: a caller that binds must report
+/// failure.
 pub fn free_loopback_port() -> std::io::Result<u16> {
+    use std::sync::Mutex;
     use std::sync::atomic::{AtomicU32, Ordering};
     const LOW: u32 = 20_000;
     const SPAN: u32 = 32_768 - LOW;
     static NEXT: AtomicU32 = AtomicU32::new(u32::MAX);
+    // The locks this process holds: released when it exits.
+    static HELD: Mutex<Vec<std::fs::File>> = Mutex::new(Vec::new());
+    let dir = std::env::temp_dir().join("stereoscope-ports");
+    std::fs::create_dir_all(&dir)?;
     let start = (std::process::id() % 64) * (SPAN / 64);
     let _ = NEXT.compare_exchange(u32::MAX, start, Ordering::SeqCst, Ordering::SeqCst);
     for _ in 0..SPAN {
         let port = (LOW + NEXT.fetch_add(1, Ordering::SeqCst) % SPAN) as u16;
+        let lock = std::fs::OpenOptions::new()
+            .create(true)
+            .truncate(false)
+            .write(true)
+            .open(dir.join(port.to_string()))?;
+        if lock.try_lock().is_err() {
+            continue;
+        }
         if std::net::TcpListener::bind(("127.0.0.1", port)).is_ok() {
+            HELD.lock().unwrap_or_else(|e| e.into_inner()).push(lock);
             return Ok(port);
         }
     }
@@ -246,4 +262,27 @@ pub fn alive(
     }
     out.sort();
     Ok(out)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A port handed out stays reserved: its lock file cannot be taken by anyone else (a lock
+    /// on another open of the file fails as another process's would), and this process does
+    /// not hand it out twice.
+    #[test]
+    fn a_free_port_is_reserved_for_this_process() {
+        let a = free_loopback_port().unwrap();
+        let b = free_loopback_port().unwrap();
+        assert_ne!(a, b);
+        assert!((20_000..32_768).contains(&a), "{a}");
+        let other = std::fs::OpenOptions::new()
+            .write(true)
+            .open(std::env::temp_dir().join("stereoscope-ports").join(a.to_string()))
+            .unwrap();
+        assert!(other.try_lock().is_err());
+        // Still free to bind for its owner.
+        assert!(std::net::TcpListener::bind(("127.0.0.1", a)).is_ok());
+    }
 }
