@@ -58,6 +58,9 @@ pub enum ImageIoError {
     PgmData(String),
     #[error("PNG: {0}")]
     Png(String),
+    /// The header claims a size over the supported one: nothing was allocated for it.
+    #[error("the header claims {width}×{height} pixels, larger than the supported {max}×{max}")]
+    TooLarge { width: u32, height: u32, max: u32 },
     #[error("{0}")]
     Image(#[from] VisionError),
 }
@@ -130,11 +133,13 @@ fn pgm_header(bytes: &[u8]) -> Result<([u32; 3], usize), ImageIoError> {
     if w == 0 || h == 0 {
         return Err(ImageIoError::PgmHeader(format!("size {w}×{h} is empty")));
     }
-    let max_side = stereoscope_vision::image::MAX_SIDE_PX;
-    if w > max_side || h > max_side {
-        return Err(ImageIoError::PgmHeader(format!(
-            "size {w}×{h} is larger than the supported {max_side}×{max_side}"
-        )));
+    let max = stereoscope_vision::image::MAX_SIDE_PX;
+    if w > max || h > max {
+        return Err(ImageIoError::TooLarge {
+            width: w,
+            height: h,
+            max,
+        });
     }
     if maxval == 0 || maxval > 65535 {
         return Err(ImageIoError::PgmHeader(format!(
@@ -212,6 +217,12 @@ fn decode_png(bytes: &[u8]) -> Result<AnyGray, ImageIoError> {
     let mut reader = decoder
         .read_info()
         .map_err(|e| ImageIoError::Png(e.to_string()))?;
+    // The header's size is checked before the buffer it implies is allocated.
+    let (width, height) = (reader.info().width, reader.info().height);
+    let max = stereoscope_vision::image::MAX_SIDE_PX;
+    if width > max || height > max {
+        return Err(ImageIoError::TooLarge { width, height, max });
+    }
     let mut buf = vec![0; reader.output_buffer_size()];
     let info = reader
         .next_frame(&mut buf)
@@ -410,5 +421,44 @@ mod tests {
         assert!(msg(b"\x89PNG\r\n\x1a\n\x00\x00").starts_with("PNG:"));
         assert!(msg(b"P5\n99999 99999\n255\n").contains("larger than the supported"));
         assert!(msg(b"P2\n8000 8000\n255\n1 2 3").contains("truncated"));
+    }
+
+    /// A 74-byte PNG whose header claims 100000 × 100000 pixels is refused before its
+    /// 10-gigapixel buffer is allocated (it aborted the process before).
+    #[test]
+    fn a_png_header_claiming_a_huge_image_is_refused_before_allocating() {
+        fn crc32(bytes: &[u8]) -> u32 {
+            let mut c = !0u32;
+            for &b in bytes {
+                c ^= b as u32;
+                for _ in 0..8 {
+                    c = if c & 1 == 1 {
+                        0xEDB8_8320 ^ (c >> 1)
+                    } else {
+                        c >> 1
+                    };
+                }
+            }
+            !c
+        }
+        let small = GrayImage::<u8>::filled(2, 2, 7).unwrap();
+        let mut png = encode_png_u8(&small).unwrap();
+        // IHDR: 8-byte signature, length, "IHDR", width, height, ..., CRC over type + data.
+        png[16..20].copy_from_slice(&100_000u32.to_be_bytes());
+        png[20..24].copy_from_slice(&100_000u32.to_be_bytes());
+        let crc = crc32(&png[12..29]);
+        png[29..33].copy_from_slice(&crc.to_be_bytes());
+        let err = decode_gray(&png).unwrap_err();
+        assert!(
+            matches!(
+                err,
+                ImageIoError::TooLarge {
+                    width: 100_000,
+                    height: 100_000,
+                    ..
+                }
+            ),
+            "{err:?}"
+        );
     }
 }
