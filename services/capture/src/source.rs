@@ -38,15 +38,6 @@ pub enum SourceError {
         frame: u64,
         found: String,
     },
-    /// A file that ends inside a frame (what a crash while recording leaves).
-    #[error("{path}: truncated: frame {frame} has {got} of its {want} {plane} bytes")]
-    Truncated {
-        path: String,
-        frame: u64,
-        plane: &'static str,
-        got: u64,
-        want: u64,
-    },
     /// The V4L2 camera does not give a format the service reads.
     #[error("{device}: {problem}")]
     Format {
@@ -105,6 +96,17 @@ pub enum BadFrame {
     },
     #[error("{path}: bit depth differs from the sequence's first file")]
     DepthChanged { path: String },
+    /// A file that ends inside a frame (what a crash while recording leaves): the partial
+    /// frame is skipped, and the source ends at its last whole frame (or starts again, when
+    /// it repeats).
+    #[error("{path}: truncated: frame {frame} has {got} of its {want} {plane} bytes")]
+    Truncated {
+        path: String,
+        frame: u64,
+        plane: &'static str,
+        got: u64,
+        want: u64,
+    },
     /// A camera buffer that is not a frame (short, or an MJPEG that does not decode).
     #[error("{device}")]
     Camera {

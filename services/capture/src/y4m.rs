@@ -5,7 +5,7 @@
 //! (8-bit) and mono16 (16-bit little-endian luma). Any other input can be converted by
 //! `ffmpeg -i IN -f yuv4mpegpipe -pix_fmt gray PIPE`.
 
-use crate::source::{FrameSource, Read, SourceError};
+use crate::source::{BadFrame, FrameSource, Read, SourceError};
 use std::fs::File;
 use std::io::{BufRead, BufReader, Read as _, Seek, SeekFrom};
 use stereoscope_proto::frame::PixelFormat;
@@ -205,25 +205,27 @@ impl FrameSource for Y4mSource {
             }
         }
         if got < want {
-            return Err(SourceError::Truncated {
+            return Err(BadFrame::Truncated {
                 path: path.to_string(),
                 frame: frame_no,
                 plane: "luma",
                 got: got as u64,
                 want: want as u64,
-            });
+            }
+            .into());
         }
         let skip = self.chroma_bytes as u64;
         let copied =
             std::io::copy(&mut (&mut self.reader).take(skip), &mut std::io::sink()).map_err(io)?;
         if copied < skip {
-            return Err(SourceError::Truncated {
+            return Err(BadFrame::Truncated {
                 path: path.to_string(),
                 frame: frame_no,
                 plane: "chroma",
                 got: copied,
                 want: skip,
-            });
+            }
+            .into());
         }
         self.frames_read += 1;
         let timestamp_ns = frame_timestamp(&line);
@@ -365,13 +367,13 @@ mod tests {
         assert!(
             matches!(
                 err,
-                SourceError::Truncated {
+                SourceError::BadFrame(BadFrame::Truncated {
                     frame: 1,
                     plane: "luma",
                     got: 7,
                     want: 12,
                     ..
-                }
+                })
             ),
             "{err:?}"
         );
@@ -380,6 +382,15 @@ mod tests {
             e.contains("cut.y4m") && e.contains("frame 1") && e.contains("7 of its 12"),
             "{e}"
         );
+        // The partial frame skipped, the source ends at its last whole frame: never again
+        // from frame 0 (5 good frames once gave 19 downstream).
+        assert_eq!(s.read(2, 0.0, &mut out).unwrap(), Read::End);
+        // Repeating, it starts again after the partial frame.
+        let mut s = Y4mSource::open(cut.to_str().unwrap(), false, true).unwrap();
+        s.read(0, 0.0, &mut out).unwrap();
+        assert!(s.read(1, 0.0, &mut out).is_err());
+        s.read(2, 0.0, &mut out).unwrap();
+        assert_eq!(out, a);
         // Repeat starts again.
         let mut s = Y4mSource::open(p.to_str().unwrap(), false, true).unwrap();
         for _ in 0..3 {
