@@ -233,12 +233,80 @@ impl Health {
     }
 }
 
+/// Bounds every received message is held to before it changes anything
+/// (`docs/protocol.md`, "Limits").
+pub mod limits {
+    /// Largest encoded message a receiver decodes, bytes.
+    pub const MAX_MESSAGE_BYTES: usize = 1 << 20;
+    /// Longest rig, camera, host or service name, bytes.
+    pub const MAX_NAME_BYTES: usize = 64;
+    /// Most blobs in one observation (what a worker reports at most).
+    pub const MAX_BLOBS: usize = 64;
+    /// Most poses (objects) in one pose frame, and targets in one truth message.
+    pub const MAX_POSES: usize = 256;
+    /// Most cameras named in one pose frame or pose.
+    pub const MAX_CAMERAS: usize = 64;
+    /// Largest image side, pixels (the rig's own bound).
+    pub const MAX_IMAGE_SIDE_PX: u32 = 8192;
+    /// Longest free text (a health report's last error, a detail value), bytes.
+    pub const MAX_TEXT_BYTES: usize = 512;
+    /// Most `detail` entries in a health report.
+    pub const MAX_DETAIL_ENTRIES: usize = 32;
+}
+
+/// What is wrong with a field of a message that decoded.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Invalid {
+    NotFinite,
+    TooLong { bytes: usize, max: usize },
+    TooMany { count: usize, max: usize },
+    Empty,
+    OutOfRange { value: f64, min: f64, max: f64 },
+}
+
+impl std::fmt::Display for Invalid {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Invalid::NotFinite => write!(f, "is not a finite number"),
+            Invalid::TooLong { bytes, max } => write!(f, "is {bytes} bytes long, over {max}"),
+            Invalid::TooMany { count, max } => write!(f, "has {count} entries, over {max}"),
+            Invalid::Empty => write!(f, "is empty"),
+            Invalid::OutOfRange { value, min, max } => {
+                write!(f, "{value} is outside {min}–{max}")
+            }
+        }
+    }
+}
+
 /// Why a message could not be decoded.
 #[derive(Debug)]
 pub enum DecodeError {
     Json(serde_json::Error),
     Binary(postcard::Error),
-    Schema { found: u32 },
+    Schema {
+        found: u32,
+    },
+    /// The encoded message is larger than [`limits::MAX_MESSAGE_BYTES`]; not parsed.
+    TooLarge {
+        bytes: usize,
+    },
+    /// It decoded, but a field is outside [`limits`] (`field` is its path: `blobs[3].x_px`).
+    Invalid {
+        field: String,
+        problem: Invalid,
+    },
+}
+
+impl DecodeError {
+    /// A short name for counting rejections by reason.
+    pub fn reason(&self) -> &'static str {
+        match self {
+            DecodeError::Json(_) | DecodeError::Binary(_) => "undecodable",
+            DecodeError::Schema { .. } => "schema",
+            DecodeError::TooLarge { .. } => "too_large",
+            DecodeError::Invalid { .. } => "invalid",
+        }
+    }
 }
 
 impl std::fmt::Display for DecodeError {
@@ -249,15 +317,208 @@ impl std::fmt::Display for DecodeError {
             DecodeError::Schema { found } => {
                 write!(f, "schema {found} is not {SCHEMA_VERSION}")
             }
+            DecodeError::TooLarge { bytes } => write!(
+                f,
+                "a message of {bytes} bytes, over the {} accepted",
+                limits::MAX_MESSAGE_BYTES
+            ),
+            DecodeError::Invalid { field, problem } => write!(f, "{field} {problem}"),
         }
     }
 }
 
 impl std::error::Error for DecodeError {}
 
-/// A message with a schema number, encodable both ways.
+/// Field checks, each naming the field's path on failure.
+struct Checker {
+    path: Vec<String>,
+}
+
+type Checked = Result<(), DecodeError>;
+
+impl Checker {
+    fn new() -> Self {
+        Checker { path: Vec::new() }
+    }
+
+    fn fail(&self, field: &str, problem: Invalid) -> DecodeError {
+        let mut f = self.path.concat();
+        if !f.is_empty() && !field.is_empty() {
+            f.push('.');
+        }
+        f.push_str(field);
+        DecodeError::Invalid { field: f, problem }
+    }
+
+    fn name(&self, field: &str, v: &str) -> Checked {
+        if v.is_empty() {
+            return Err(self.fail(field, Invalid::Empty));
+        }
+        self.text(field, v, limits::MAX_NAME_BYTES)
+    }
+
+    fn text(&self, field: &str, v: &str, max: usize) -> Checked {
+        if v.len() > max {
+            return Err(self.fail(
+                field,
+                Invalid::TooLong {
+                    bytes: v.len(),
+                    max,
+                },
+            ));
+        }
+        Ok(())
+    }
+
+    fn count(&self, field: &str, count: usize, max: usize) -> Checked {
+        if count > max {
+            return Err(self.fail(field, Invalid::TooMany { count, max }));
+        }
+        Ok(())
+    }
+
+    fn finite(&self, field: &str, values: &[f64]) -> Checked {
+        if values.iter().any(|v| !v.is_finite()) {
+            return Err(self.fail(field, Invalid::NotFinite));
+        }
+        Ok(())
+    }
+
+    fn range(&self, field: &str, v: f64, min: f64, max: f64) -> Checked {
+        self.finite(field, &[v])?;
+        if !(min..=max).contains(&v) {
+            return Err(self.fail(field, Invalid::OutOfRange { value: v, min, max }));
+        }
+        Ok(())
+    }
+
+    fn names(&self, field: &str, v: &[String]) -> Checked {
+        self.count(field, v.len(), limits::MAX_CAMERAS)?;
+        v.iter()
+            .enumerate()
+            .try_for_each(|(i, n)| self.name(&format!("{field}[{i}]"), n))
+    }
+
+    /// Runs `f` with `field` (and `[index]`) appended to the path.
+    fn within(&mut self, field: String, f: impl FnOnce(&mut Self) -> Checked) -> Checked {
+        let sep = if self.path.is_empty() || field.starts_with('[') {
+            ""
+        } else {
+            "."
+        };
+        self.path.push(format!("{sep}{field}"));
+        let r = f(self);
+        self.path.pop();
+        r
+    }
+}
+
+impl Pose {
+    fn validate(&self, c: &mut Checker) -> Checked {
+        c.finite("position_m", &self.position_m)?;
+        c.finite("velocity_m_per_s", &self.velocity_m_per_s)?;
+        if let Some(h) = self.heading_deg {
+            c.finite("heading_deg", &[h])?;
+        }
+        c.names("cameras", &self.cameras)?;
+        c.range("residual_px", self.residual_px, 0.0, f64::MAX)
+    }
+}
+
+impl BlobObservation {
+    fn validate(&self, c: &mut Checker) -> Checked {
+        c.range("area_px", self.area_px, 0.0, f64::MAX)?;
+        c.finite(
+            "moments",
+            &[
+                self.x_px,
+                self.y_px,
+                self.mu20,
+                self.mu02,
+                self.mu11,
+                self.orientation_deg,
+                self.roundness,
+                self.heading_deg,
+            ],
+        )
+    }
+}
+
+impl Observation {
+    fn validate(&self, c: &mut Checker) -> Checked {
+        c.name("rig", &self.rig)?;
+        c.name("camera", &self.camera)?;
+        let side = limits::MAX_IMAGE_SIDE_PX as f64;
+        c.range("width_px", self.width_px as f64, 1.0, side)?;
+        c.range("height_px", self.height_px as f64, 1.0, side)?;
+        c.count("blobs", self.blobs.len(), limits::MAX_BLOBS)?;
+        for (i, b) in self.blobs.iter().enumerate() {
+            c.within(format!("blobs[{i}]"), |c| b.validate(c))?;
+        }
+        Ok(())
+    }
+}
+
+impl PoseFrame {
+    fn validate(&self, c: &mut Checker) -> Checked {
+        c.name("rig", &self.rig)?;
+        c.names("cameras", &self.cameras)?;
+        c.count("poses", self.poses.len(), limits::MAX_POSES)?;
+        for (i, p) in self.poses.iter().enumerate() {
+            c.within(format!("poses[{i}]"), |c| p.validate(c))?;
+        }
+        Ok(())
+    }
+}
+
+impl PoseUpdate {
+    fn validate(&self, c: &mut Checker) -> Checked {
+        c.name("rig", &self.rig)?;
+        c.within("pose".into(), |c| self.pose.validate(c))
+    }
+}
+
+impl Truth {
+    fn validate(&self, c: &mut Checker) -> Checked {
+        c.name("camera", &self.camera)?;
+        c.count("targets", self.targets.len(), limits::MAX_POSES)?;
+        for (i, t) in self.targets.iter().enumerate() {
+            c.within(format!("targets[{i}]"), |c| {
+                c.finite("position_m", &t.position_m)?;
+                c.finite("heading_deg", &[t.heading_deg, t.area_px])?;
+                c.finite("centroid_px", &t.centroid_px)
+            })?;
+        }
+        Ok(())
+    }
+}
+
+impl Health {
+    fn validate(&self, c: &mut Checker) -> Checked {
+        c.name("rig", &self.rig)?;
+        c.name("host", &self.host)?;
+        c.name("service", &self.service)?;
+        c.range("rate_hz", self.rate_hz, 0.0, f64::MAX)?;
+        if let Some(e) = &self.last_error {
+            c.text("last_error", e, limits::MAX_TEXT_BYTES)?;
+        }
+        c.count("detail", self.detail.len(), limits::MAX_DETAIL_ENTRIES)?;
+        for (k, v) in &self.detail {
+            c.name("detail", k)?;
+            c.text(&format!("detail.{k}"), v, limits::MAX_TEXT_BYTES)?;
+        }
+        Ok(())
+    }
+}
+
+/// A message with a schema number, encodable both ways. Decoding checks the size first, then
+/// the schema, then every field against [`limits`]: a message that decodes can be trusted to be
+/// in bounds.
 pub trait Message: Serialize + for<'de> Deserialize<'de> {
     fn schema(&self) -> u32;
+
+    /// The field checks of this message type.
+    fn fields_valid(&self) -> Result<(), DecodeError>;
 
     fn to_json(&self) -> Vec<u8> {
         // Serialising these plain structs cannot fail (no maps with non-string keys).
@@ -265,6 +526,9 @@ pub trait Message: Serialize + for<'de> Deserialize<'de> {
     }
 
     fn from_json(bytes: &[u8]) -> Result<Self, DecodeError> {
+        if bytes.len() > limits::MAX_MESSAGE_BYTES {
+            return Err(DecodeError::TooLarge { bytes: bytes.len() });
+        }
         let m: Self = serde_json::from_slice(bytes).map_err(DecodeError::Json)?;
         m.check()
     }
@@ -274,18 +538,21 @@ pub trait Message: Serialize + for<'de> Deserialize<'de> {
     }
 
     fn from_binary(bytes: &[u8]) -> Result<Self, DecodeError> {
+        if bytes.len() > limits::MAX_MESSAGE_BYTES {
+            return Err(DecodeError::TooLarge { bytes: bytes.len() });
+        }
         let m: Self = postcard::from_bytes(bytes).map_err(DecodeError::Binary)?;
         m.check()
     }
 
     fn check(self) -> Result<Self, DecodeError> {
-        if self.schema() == SCHEMA_VERSION {
-            Ok(self)
-        } else {
-            Err(DecodeError::Schema {
+        if self.schema() != SCHEMA_VERSION {
+            return Err(DecodeError::Schema {
                 found: self.schema(),
-            })
+            });
         }
+        self.fields_valid()?;
+        Ok(self)
     }
 }
 
@@ -294,6 +561,10 @@ macro_rules! message {
         impl Message for $t {
             fn schema(&self) -> u32 {
                 self.schema
+            }
+
+            fn fields_valid(&self) -> Result<(), DecodeError> {
+                self.validate(&mut Checker::new())
             }
         }
     )*};
@@ -443,5 +714,61 @@ mod tests {
             .unwrap()
             .replacen("\"rig\"", "\"rigg\"", 1);
         assert!(PoseFrame::from_json(unknown.as_bytes()).is_err());
+    }
+
+    /// What decodes but is out of bounds is refused with the field's path and the reason;
+    /// what is too large is refused before it is parsed.
+    #[test]
+    fn fields_out_of_bounds_are_refused_by_path() {
+        let invalid = |r: Result<PoseFrame, DecodeError>| match r {
+            Err(DecodeError::Invalid { field, problem }) => (field, problem),
+            other => panic!("{other:?}"),
+        };
+        // A NaN only travels in the binary form (JSON has none).
+        let mut p = sample();
+        p.poses[0].position_m[1] = f64::NAN;
+        let (field, problem) = invalid(PoseFrame::from_binary(&p.to_binary()));
+        assert_eq!(
+            (field.as_str(), problem),
+            ("poses[0].position_m", Invalid::NotFinite)
+        );
+        let mut p = sample();
+        p.poses[0].residual_px = -1.0;
+        let (field, _) = invalid(PoseFrame::from_binary(&p.to_binary()));
+        assert_eq!(field, "poses[0].residual_px");
+        let mut p = sample();
+        p.rig = "r".repeat(65);
+        let (field, problem) = invalid(PoseFrame::from_json(&p.to_json()));
+        assert_eq!(
+            (field.as_str(), problem),
+            ("rig", Invalid::TooLong { bytes: 65, max: 64 })
+        );
+        let mut p = sample();
+        p.poses = vec![p.poses[0].clone(); limits::MAX_POSES + 1];
+        let (field, _) = invalid(PoseFrame::from_json(&p.to_json()));
+        assert_eq!(field, "poses");
+        let mut p = sample();
+        p.poses[0].cameras[1] = String::new();
+        let (field, problem) = invalid(PoseFrame::from_json(&p.to_json()));
+        assert_eq!(
+            (field.as_str(), problem),
+            ("poses[0].cameras[1]", Invalid::Empty)
+        );
+        let big = vec![b' '; limits::MAX_MESSAGE_BYTES + 1];
+        assert!(matches!(
+            PoseFrame::from_json(&big),
+            Err(DecodeError::TooLarge { .. })
+        ));
+        let e = DecodeError::Invalid {
+            field: "blobs[3].x_px".into(),
+            problem: Invalid::NotFinite,
+        };
+        assert_eq!(e.to_string(), "blobs[3].x_px is not a finite number");
+        assert_eq!(e.reason(), "invalid");
+        // What a service sends is within bounds.
+        assert_eq!(
+            PoseFrame::from_binary(&sample().to_binary()).unwrap(),
+            sample()
+        );
     }
 }

@@ -389,8 +389,7 @@ impl Service for Capture {
             Err(SourceError::BadFrame(bad)) => {
                 let m = stereoscope_transport::error_chain(&bad);
                 tracing::warn!(camera = %cam, "skipped a frame: {m}");
-                self.node.counters.rejected += 1;
-                self.node.counters.last_error = Some(m);
+                self.node.counters.reject("bad_frame", &m);
                 self.summary.bad_frames += 1;
                 return Ok(Flow::Continue);
             }

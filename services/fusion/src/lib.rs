@@ -59,6 +59,12 @@ pub fn settings(file: &RigFile) -> (PairingConfig, FuserConfig, bool) {
         max_skew_ns: ms(f.max_skew_ms, 5.0),
         max_wait_ns: ms(f.max_wait_ms, 20.0),
         camera_timeout_ns: ms(f.camera_timeout_ms, 500.0),
+        max_ahead_ns: ms(f.clock_window_ms, 1000.0),
+        // A replay's frames keep their recorded times.
+        max_behind_ns: f
+            .replay_sets
+            .is_none()
+            .then(|| ms(f.clock_window_ms, 1000.0)),
     };
     let d = CorrespondConfig::default();
     let fuser = FuserConfig {
@@ -76,7 +82,8 @@ pub fn settings(file: &RigFile) -> (PairingConfig, FuserConfig, bool) {
 
 enum Input {
     Obs(usize, Observation),
-    Bad(String),
+    /// Refused before it changed anything: the reason it is counted under, and the message.
+    Bad(&'static str, String),
 }
 
 /// Runs until shutdown (or `max_sets`); returns the number of pose frames published.
@@ -144,11 +151,15 @@ impl FusionService {
                 let sub = net::subscribe(&node.session, &key, move |k, bytes| {
                     let input = match Observation::from_json(bytes) {
                         Ok(o) if o.rig == expected_rig && o.camera == cam_id => Input::Obs(i, o),
-                        Ok(o) => Input::Bad(format!(
-                            "{k}: observation of rig {:?} camera {:?} on this camera's key",
-                            o.rig, o.camera
-                        )),
-                        Err(e) => Input::Bad(format!("{k}: {e}")),
+                        // Names are bounded by the decoder's checks.
+                        Ok(o) => Input::Bad(
+                            "foreign",
+                            format!(
+                                "{k}: observation of rig {:?} camera {:?} on this camera's key",
+                                o.rig, o.camera
+                            ),
+                        ),
+                        Err(e) => Input::Bad(e.reason(), format!("{k}: {e}")),
                     };
                     if tx.try_send(input).is_err() {
                         overflow.fetch_add(1, Ordering::Relaxed);
@@ -221,9 +232,9 @@ impl FusionService {
         for (i, sub) in &self.local {
             loop {
                 match sub.try_next::<Observation>() {
-                    Ok(Some(Ok(o))) => self.pairer.push(*i, o, now_ns()),
+                    Ok(Some(Ok(o))) => handle(Input::Obs(*i, o), &mut self.pairer, counters),
                     Ok(Some(Err(e))) => handle(
-                        Input::Bad(format!("{}: {e}", sub.name())),
+                        Input::Bad(e.reason(), format!("{}: {e}", sub.name())),
                         &mut self.pairer,
                         counters,
                     ),
@@ -334,6 +345,11 @@ impl Service for FusionService {
                 break;
             }
         }
+        if self.pairer.schedule_done() {
+            tracing::info!("formed every set of the recording");
+            self.report_detail();
+            return Ok(Flow::Stop);
+        }
         if self.node.report_due() {
             self.report_detail();
         }
@@ -346,12 +362,22 @@ impl Service for FusionService {
 }
 
 fn handle(input: Input, pairer: &mut Pairer, counters: &mut Counters) {
-    match input {
-        Input::Obs(c, o) => pairer.push(c, o, now_ns()),
-        Input::Bad(m) => {
-            tracing::warn!("rejected {m}");
-            counters.rejected += 1;
-            counters.last_error = Some(m);
+    let (reason, message) = match input {
+        Input::Obs(c, o) => {
+            let (camera, sequence) = (o.camera.clone(), o.sequence);
+            match pairer.push(c, o, now_ns()) {
+                Ok(()) => return,
+                Err(r) => (
+                    r.reason(),
+                    format!("observation of {camera} frame {sequence}: {r}"),
+                ),
+            }
         }
+        Input::Bad(reason, message) => (reason, message),
+    };
+    counters.reject(reason, &message);
+    // A flood is counted in full but logged sparsely.
+    if counters.rejected <= 10 || counters.rejected.is_power_of_two() {
+        tracing::warn!("rejected {message} ({} so far)", counters.rejected);
     }
 }

@@ -29,6 +29,31 @@ pub struct PairingConfig {
     pub max_skew_ns: u64,
     pub max_wait_ns: u64,
     pub camera_timeout_ns: u64,
+    /// An observation stamped more than this ahead of the receiver's clock is refused
+    /// (one from the future would hold every later set back as "late").
+    pub max_ahead_ns: u64,
+    /// An observation stamped more than this behind the receiver's clock is refused; `None`
+    /// for a replay, whose frames keep their recorded times.
+    pub max_behind_ns: Option<u64>,
+}
+
+/// Why [`Pairer::push`] refused an observation.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
+pub enum Refused {
+    #[error("stamped {ahead_ms} ms ahead of this PC's clock (more than {limit_ms} ms)")]
+    Future { ahead_ms: u64, limit_ms: u64 },
+    #[error("stamped {behind_ms} ms behind this PC's clock (more than {limit_ms} ms)")]
+    Stale { behind_ms: u64, limit_ms: u64 },
+}
+
+impl Refused {
+    /// A short name for counting refusals by reason.
+    pub fn reason(&self) -> &'static str {
+        match self {
+            Refused::Future { .. } => "future",
+            Refused::Stale { .. } => "stale",
+        }
+    }
 }
 
 #[derive(Debug)]
@@ -50,8 +75,10 @@ pub struct Pairer {
     released: Option<(u64, Vec<bool>)>,
     /// When the first observation of any camera arrived.
     first_arrival_ns: Option<u64>,
-    /// Recorded sets: reference time → the cameras in it.
+    /// Recorded sets not formed yet: reference time → the cameras in it.
     schedule: BTreeMap<u64, Vec<bool>>,
+    /// A schedule was given (replay).
+    scheduled: bool,
     /// Recorded sets released without one of their cameras (its frame was lost on the way).
     pub short_sets: u64,
     /// The last observation discarded as late or superseded: camera and frame sequence.
@@ -135,6 +162,7 @@ impl Pairer {
             released: None,
             first_arrival_ns: None,
             schedule: BTreeMap::new(),
+            scheduled: false,
             short_sets: 0,
             last_lost: None,
         }
@@ -144,7 +172,13 @@ impl Pairer {
     /// observation's `timestamp_ns`) to the cameras it had (`n` flags each).
     pub fn with_schedule(mut self, schedule: BTreeMap<u64, Vec<bool>>) -> Self {
         self.schedule = schedule;
+        self.scheduled = true;
         self
+    }
+
+    /// With a schedule: every recorded set has been formed (or passed, its frames lost).
+    pub fn schedule_done(&self) -> bool {
+        self.scheduled && self.schedule.is_empty()
     }
 
     fn lose(&mut self, camera: usize, obs: &Observation) {
@@ -152,10 +186,28 @@ impl Pairer {
         self.last_lost = Some((camera, obs.sequence));
     }
 
-    /// Adds camera `camera`'s observation, arrived at `now_ns`.
-    pub fn push(&mut self, camera: usize, obs: Observation, now_ns: u64) {
+    /// Adds camera `camera`'s observation, arrived at `now_ns`, unless its time is outside
+    /// the clock window (then nothing changes).
+    pub fn push(&mut self, camera: usize, obs: Observation, now_ns: u64) -> Result<(), Refused> {
+        let ms = |ns: u64| ns / 1_000_000;
+        let ahead = obs.timestamp_ns.saturating_sub(now_ns);
+        if ahead > self.cfg.max_ahead_ns {
+            return Err(Refused::Future {
+                ahead_ms: ms(ahead),
+                limit_ms: ms(self.cfg.max_ahead_ns),
+            });
+        }
+        let behind = now_ns.saturating_sub(obs.timestamp_ns);
+        if let Some(limit) = self.cfg.max_behind_ns
+            && behind > limit
+        {
+            return Err(Refused::Stale {
+                behind_ms: ms(behind),
+                limit_ms: ms(limit),
+            });
+        }
         let Some(q) = self.queues.get_mut(camera) else {
-            return;
+            return Ok(());
         };
         // Out of order (older than what is queued) is kept in order.
         let pos = q
@@ -172,6 +224,7 @@ impl Pairer {
                 self.last_lost = Some((camera, o.sequence));
             }
         }
+        Ok(())
     }
 
     /// Whether camera `c` counts as live at `now_ns`.
@@ -283,8 +336,11 @@ impl Pairer {
         if !complete && !hopeless && waited < self.cfg.max_wait_ns {
             return None;
         }
-        if recorded.is_some() && !complete {
-            self.short_sets += 1;
+        if recorded.is_some() {
+            self.schedule.remove(&ref_ts);
+            if !complete {
+                self.short_sets += 1;
+            }
         }
         let mut set = Vec::new();
         self.released = Some((ref_ts, chosen.iter().map(Option::is_some).collect()));
@@ -346,21 +402,23 @@ mod tests {
             max_skew_ns: 5 * MS,
             max_wait_ns: 20 * MS,
             camera_timeout_ns: 500 * MS,
+            max_ahead_ns: 1000 * MS,
+            max_behind_ns: None,
         }
     }
 
     #[test]
     fn pairs_within_skew_and_waits_for_live_cameras() {
         let mut p = Pairer::new(2, cfg());
-        p.push(0, obs("a", 100), 101 * MS);
-        p.push(1, obs("b", 90), 91 * MS);
+        p.push(0, obs("a", 100), 101 * MS).unwrap();
+        p.push(1, obs("b", 90), 91 * MS).unwrap();
         // cam1's 90 ms frame is alone (cam0 has nothing near it, but cam0 is already past).
         let s = p.pop(101 * MS).unwrap();
         assert_eq!(s.len(), 1);
         assert_eq!(s[0].0, 1);
         // cam0's 100 waits for cam1 (live) until it comes.
         assert!(p.pop(102 * MS).is_none());
-        p.push(1, obs("b", 102), 103 * MS);
+        p.push(1, obs("b", 102), 103 * MS).unwrap();
         let s = p.pop(103 * MS).unwrap();
         assert_eq!(s.iter().map(|x| x.0).collect::<Vec<_>>(), vec![0, 1]);
         assert!(p.pop(103 * MS).is_none());
@@ -371,47 +429,47 @@ mod tests {
     #[test]
     fn a_late_observation_never_makes_a_second_set_for_its_time() {
         let mut p = Pairer::new(2, cfg());
-        p.push(0, obs("a", 100), 101 * MS);
-        p.push(1, obs("b", 100), 101 * MS);
+        p.push(0, obs("a", 100), 101 * MS).unwrap();
+        p.push(1, obs("b", 100), 101 * MS).unwrap();
         assert_eq!(p.pop(101 * MS).unwrap().len(), 2);
         // Frame 133: cam1 is late, cam0's goes out alone after max_wait.
-        p.push(0, obs("a", 133), 134 * MS);
+        p.push(0, obs("a", 133), 134 * MS).unwrap();
         assert!(p.pop(140 * MS).is_none());
         let s = p.pop(155 * MS).unwrap();
         assert_eq!(s.iter().map(|x| x.0).collect::<Vec<_>>(), vec![0]);
         // Frame 166 of both, and cam1's 133 (1 ms off its clock) arriving after it.
-        p.push(0, obs("a", 166), 167 * MS);
-        p.push(1, obs("b", 166), 167 * MS);
-        p.push(1, obs("b", 134), 168 * MS);
+        p.push(0, obs("a", 166), 167 * MS).unwrap();
+        p.push(1, obs("b", 166), 167 * MS).unwrap();
+        p.push(1, obs("b", 134), 168 * MS).unwrap();
         let s = p.pop(168 * MS).unwrap();
         assert_eq!(s.len(), 2);
         assert!(s.iter().all(|(_, o)| o.timestamp_ns == 166 * MS), "{s:?}");
         assert!(p.pop(200 * MS).is_none());
         assert_eq!((p.late, p.discarded), (1, 1));
         // Sets keep coming: the next frame pairs as usual.
-        p.push(0, obs("a", 200), 201 * MS);
-        p.push(1, obs("b", 200), 201 * MS);
+        p.push(0, obs("a", 200), 201 * MS).unwrap();
+        p.push(1, obs("b", 200), 201 * MS).unwrap();
         assert_eq!(p.pop(201 * MS).unwrap().len(), 2);
     }
 
     #[test]
     fn gives_up_after_max_wait_and_forgets_dead_cameras() {
         let mut p = Pairer::new(2, cfg());
-        p.push(1, obs("b", 0), 0);
+        p.push(1, obs("b", 0), 0).unwrap();
         // Just started: cam0, not heard yet, is waited for (up to max_wait).
         assert!(p.pop(0).is_none());
         assert_eq!(p.pop(21 * MS).unwrap().len(), 1);
-        p.push(0, obs("a", 10), 10 * MS);
+        p.push(0, obs("a", 10), 10 * MS).unwrap();
         assert!(p.pop(15 * MS).is_none());
         let s = p.pop(31 * MS).unwrap();
         assert_eq!(s.len(), 1);
         // After the timeout cam1 is not waited for at all.
-        p.push(0, obs("a", 600), 600 * MS);
+        p.push(0, obs("a", 600), 600 * MS).unwrap();
         assert_eq!(p.pop(600 * MS).unwrap().len(), 1);
         assert!(!p.live(1, 600 * MS));
         // It comes back.
-        p.push(1, obs("b", 633), 634 * MS);
-        p.push(0, obs("a", 633), 634 * MS);
+        p.push(1, obs("b", 633), 634 * MS).unwrap();
+        p.push(0, obs("a", 633), 634 * MS).unwrap();
         assert_eq!(p.pop(634 * MS).unwrap().len(), 2);
     }
 
@@ -427,34 +485,36 @@ mod tests {
             (766 * MS, vec![true, true]),
         ]);
         let mut p = Pairer::new(2, cfg()).with_schedule(schedule);
-        p.push(0, obs("a", 0), 0);
-        p.push(1, obs("b", 0), 0);
+        assert!(!p.schedule_done());
+        p.push(0, obs("a", 0), 0).unwrap();
+        p.push(1, obs("b", 0), 0).unwrap();
         assert_eq!(p.pop(0).unwrap().len(), 2);
         // cam1, silent for longer than the camera timeout, is still waited for.
-        p.push(0, obs("a", 700), 700 * MS);
+        p.push(0, obs("a", 700), 700 * MS).unwrap();
         assert!(!p.live(1, 705 * MS));
         assert!(p.pop(705 * MS).is_none());
-        p.push(1, obs("b", 700), 710 * MS);
+        p.push(1, obs("b", 700), 710 * MS).unwrap();
         let s = p.pop(710 * MS).unwrap();
         assert_eq!(s.iter().map(|x| x.0).collect::<Vec<_>>(), vec![0, 1]);
         // Frame 733 was recorded without cam1: its observation, here on time, is left out
         // and the set goes out at once.
-        p.push(1, obs("b", 733), 734 * MS);
-        p.push(0, obs("a", 733), 734 * MS);
+        p.push(1, obs("b", 733), 734 * MS).unwrap();
+        p.push(0, obs("a", 733), 734 * MS).unwrap();
         let s = p.pop(734 * MS).unwrap();
         assert_eq!(s.iter().map(|x| x.0).collect::<Vec<_>>(), vec![0]);
         // Frame 766: cam1's frame never comes (lost in the replay) — after max_wait the set
         // goes out short, and is counted.
-        p.push(0, obs("a", 766), 767 * MS);
+        p.push(0, obs("a", 766), 767 * MS).unwrap();
         assert!(p.pop(780 * MS).is_none());
         assert_eq!(p.late, 1);
         assert_eq!(p.last_lost, Some((1, 733)));
         let s = p.pop(790 * MS).unwrap();
         assert_eq!(s.len(), 1);
         assert_eq!(p.short_sets, 1);
+        assert!(p.schedule_done());
         // A time the recording does not have pairs as live.
-        p.push(0, obs("a", 800), 801 * MS);
-        p.push(1, obs("b", 800), 801 * MS);
+        p.push(0, obs("a", 800), 801 * MS).unwrap();
+        p.push(1, obs("b", 800), 801 * MS).unwrap();
         assert_eq!(p.pop(801 * MS).unwrap().len(), 2);
     }
 
@@ -501,5 +561,38 @@ mod tests {
         std::fs::remove_dir_all(&dir).unwrap();
         let err = read_schedule(&file, &ids).unwrap_err();
         assert!(matches!(err, ScheduleError::Read { .. }), "{err:?}");
+    }
+
+    /// One observation stamped an hour ahead (a forged or broken clock) is refused and changes
+    /// nothing: the sets go on; with a limit behind, a stale one is refused too.
+    #[test]
+    fn observations_outside_the_clock_window_are_refused_and_change_nothing() {
+        let now = 10_000 * MS;
+        let mut p = Pairer::new(2, cfg());
+        let hour = 3_600_000 * MS;
+        let e = p.push(0, obs("a", 10_000 + 3_600_000), now).unwrap_err();
+        assert_eq!(
+            e,
+            Refused::Future {
+                ahead_ms: 3_600_000,
+                limit_ms: 1000
+            }
+        );
+        assert!(p.pop(now).is_none());
+        p.push(0, obs("a", 10_000), now).unwrap();
+        p.push(1, obs("b", 10_000), now).unwrap();
+        assert_eq!(p.pop(now).unwrap().len(), 2);
+        assert_eq!(p.late, 0);
+        // A replay's recorded times are accepted however old; with a limit they are not.
+        p.push(0, obs("a", 10_001), now + hour).unwrap();
+        let mut strict = Pairer::new(
+            2,
+            PairingConfig {
+                max_behind_ns: Some(1000 * MS),
+                ..cfg()
+            },
+        );
+        let e = strict.push(0, obs("a", 10_000), now + hour).unwrap_err();
+        assert_eq!(e.reason(), "stale");
     }
 }

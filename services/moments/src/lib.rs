@@ -406,8 +406,7 @@ impl Service for MomentsService {
                         stereoscope_transport::error_chain(&e)
                     );
                     tracing::warn!(camera = %self.cfg.camera, "rejected {m}");
-                    counters.rejected += 1;
-                    counters.last_error = Some(m);
+                    counters.reject("bad_frame", &m);
                 }
             }
         }

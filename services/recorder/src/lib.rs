@@ -67,7 +67,8 @@ pub enum RecorderError {
 enum Item {
     Poses(Vec<u8>, PoseFrame),
     Observation(Vec<u8>),
-    Bad(String),
+    /// Refused (not recorded): the reason it is counted under, and the message.
+    Bad(&'static str, String),
 }
 
 struct Out {
@@ -268,18 +269,26 @@ impl Recorder {
         }
         let (tx, rx) = mpsc::sync_channel::<Item>(4096);
         let tx2 = tx.clone();
+        // Only messages that decode within the protocol's limits and name this rig are
+        // recorded: a session replays and exports what it holds.
+        let (rig_p, rig_o) = (rig.clone(), rig.clone());
+        let foreign = |k: &str, what: &str, other: &str| {
+            Item::Bad("foreign", format!("{k}: {what} of rig {other:?}"))
+        };
         let poses = net::subscribe(&node.session, &keys::poses(&rig), move |k, b| {
             let item = match PoseFrame::from_json(b) {
-                Ok(f) => Item::Poses(b.to_vec(), f),
-                Err(e) => Item::Bad(format!("{k}: {e}")),
+                Ok(f) if f.rig == rig_p => Item::Poses(b.to_vec(), f),
+                Ok(f) => foreign(k, "pose frame", &f.rig),
+                Err(e) => Item::Bad(e.reason(), format!("{k}: {e}")),
             };
             let _ = tx.send(item);
         })?;
         let observations =
             net::subscribe(&node.session, &keys::all_observations(&rig), move |k, b| {
                 let item = match Observation::from_json(b) {
-                    Ok(_) => Item::Observation(b.to_vec()),
-                    Err(e) => Item::Bad(format!("{k}: {e}")),
+                    Ok(o) if o.rig == rig_o => Item::Observation(b.to_vec()),
+                    Ok(o) => foreign(k, "observation", &o.rig),
+                    Err(e) => Item::Bad(e.reason(), format!("{k}: {e}")),
                 };
                 let _ = tx2.send(item);
             })?;
@@ -321,10 +330,7 @@ impl Recorder {
                     self.obs_out.buf.push(b'\n');
                     self.n_obs += 1;
                 }
-                Item::Bad(m) => {
-                    counters.rejected += 1;
-                    counters.last_error = Some(m);
-                }
+                Item::Bad(reason, m) => counters.reject(reason, &m),
             }
             taken += 1;
             if self.last_flush.elapsed() >= self.cfg.flush_interval {
@@ -360,9 +366,10 @@ impl Recorder {
                         t.y4m.push(&mut t.out.buf, &h, format, frame);
                     }
                     Err(e) => {
-                        counters.rejected += 1;
-                        counters.last_error =
-                            Some(format!("frame {} of {}: {e}", h.sequence, t.camera));
+                        counters.reject(
+                            "bad_frame",
+                            &format!("frame {} of {}: {e}", h.sequence, t.camera),
+                        );
                     }
                 }
             }

@@ -122,8 +122,14 @@ pub fn packet(
 struct Latest {
     frame: Option<PoseFrame>,
     generation: u64,
-    bad: Option<String>,
+    /// Messages refused since the service last looked: each with its reason.
+    bad: Vec<(&'static str, String)>,
+    /// Refused beyond those kept (counted, not kept).
+    bad_uncounted: u64,
 }
+
+/// Most refusals kept between two looks (a flood is counted, its messages not all kept).
+const MAX_BAD_KEPT: usize = 64;
 
 /// Runs until shutdown (or `max_packets`); returns the packets written.
 pub fn run(cfg: SerialConfig, shutdown: Shutdown) -> Result<u64, SerialServiceError> {
@@ -188,13 +194,19 @@ impl SerialService {
         let sink = latest.clone();
         let poses = net::subscribe(&node.session, &keys::poses(&rig), move |k, b| {
             let mut l = sink.lock().unwrap_or_else(|e| e.into_inner());
-            match PoseFrame::from_json(b) {
+            let bad = match PoseFrame::from_json(b) {
                 Ok(f) if f.rig == rig => {
                     l.frame = Some(f);
                     l.generation += 1;
+                    return;
                 }
-                Ok(f) => l.bad = Some(format!("{k}: pose frame of rig {:?}", f.rig)),
-                Err(e) => l.bad = Some(format!("{k}: {e}")),
+                Ok(f) => ("foreign", format!("{k}: pose frame of rig {:?}", f.rig)),
+                Err(e) => (e.reason(), format!("{k}: {e}")),
+            };
+            if l.bad.len() < MAX_BAD_KEPT {
+                l.bad.push(bad);
+            } else {
+                l.bad_uncounted += 1;
             }
         })
         .map_err(transport)?;
@@ -238,10 +250,10 @@ impl SerialService {
             }
             Err(e) => {
                 let m = format!("{}: {e}; trying again in 1 s", self.cfg.port);
-                if counters.last_error.as_deref() != Some(&m) {
+                if counters.last_error() != Some(&m) {
                     tracing::warn!("{m}");
                 }
-                counters.last_error = Some(m);
+                counters.set_error(&m);
                 counters.detail.insert("port".into(), "closed".into());
                 self.next_open = Instant::now() + Duration::from_secs(1);
                 false
@@ -255,10 +267,10 @@ impl SerialService {
         let counters = &mut self.node.counters;
         let (frame, generation) = {
             let mut l = self.latest.lock().unwrap_or_else(|e| e.into_inner());
-            if let Some(b) = l.bad.take() {
-                counters.rejected += 1;
-                counters.last_error = Some(b);
+            for (reason, message) in l.bad.drain(..) {
+                counters.reject(reason, &message);
             }
+            counters.rejected += std::mem::take(&mut l.bad_uncounted);
             (l.frame.clone(), l.generation)
         };
         let frame = frame?;
@@ -333,7 +345,7 @@ impl Service for SerialService {
             Err(e) => {
                 let m = format!("{}: writing: {e}; reopening", self.cfg.port);
                 tracing::warn!("{m}");
-                counters.last_error = Some(m);
+                counters.set_error(&m);
                 counters.detail.insert("port".into(), "closed".into());
                 self.port = None;
                 self.next_open = Instant::now() + Duration::from_secs(1);

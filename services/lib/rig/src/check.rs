@@ -297,6 +297,7 @@ pub(crate) fn check(file: &RigFile, base: Option<&Path>, sources: bool) -> Resul
             ("max_skew_ms", f.max_skew_ms, MAX_WAIT_MS, "ms"),
             ("max_wait_ms", f.max_wait_ms, MAX_WAIT_MS, "ms"),
             ("camera_timeout_ms", f.camera_timeout_ms, MAX_WAIT_MS, "ms"),
+            ("clock_window_ms", f.clock_window_ms, MAX_WAIT_MS, "ms"),
             (
                 "max_epipolar_px",
                 f.max_epipolar_px,

@@ -389,6 +389,10 @@ pub struct FusionSpec {
     /// "zenoh" (every camera over the network).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub observations: Option<ObservationRoute>,
+    /// An observation stamped further than this from fusion's clock, ahead (or behind, except
+    /// in a replay) is refused and counted (default 1000 ms): keep the PCs' clocks within it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub clock_window_ms: Option<f64>,
     /// A recording's `poses.jsonl`: form the sets it recorded, each with the cameras it had
     /// (`stereoscope replay --frames` sets it; relative to the rig file).
     #[serde(default, skip_serializing_if = "Option::is_none")]

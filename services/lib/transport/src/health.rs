@@ -5,21 +5,56 @@ use crate::TransportError;
 use crate::net::JsonPublisher;
 use std::collections::BTreeMap;
 use std::time::{Duration, Instant};
-use stereoscope_proto::messages::{Health, SCHEMA_VERSION, now_ns};
+use stereoscope_proto::messages::{Health, SCHEMA_VERSION, limits, now_ns};
 use stereoscope_proto::names::zenoh as keys;
 use zenoh::Wait;
 
-/// What a service counts, reported by [`HealthReporter::tick`].
+/// What a service counts, reported by [`HealthReporter::tick`]. The last error is kept
+/// within [`limits::MAX_TEXT_BYTES`] whatever an input put in it.
 #[derive(Debug, Clone, Default)]
 pub struct Counters {
     pub processed: u64,
     pub dropped: u64,
     pub rejected: u64,
-    pub last_error: Option<String>,
+    last_error: Option<String>,
     pub detail: BTreeMap<String, String>,
 }
 
+/// `text` cut to at most `max` bytes at a character boundary, marked with "…" when cut.
+pub fn bounded(text: &str, max: usize) -> String {
+    if text.len() <= max {
+        return text.to_string();
+    }
+    let mut end = max.saturating_sub('…'.len_utf8());
+    while !text.is_char_boundary(end) {
+        end -= 1;
+    }
+    format!("{}…", &text[..end])
+}
+
 impl Counters {
+    /// The last problem met.
+    pub fn last_error(&self) -> Option<&str> {
+        self.last_error.as_deref()
+    }
+
+    /// Keeps `message` as the last problem (bounded).
+    pub fn set_error(&mut self, message: &str) {
+        self.last_error = Some(bounded(message, limits::MAX_TEXT_BYTES));
+    }
+
+    /// Counts one rejected input under `reason` (`detail["rejected.<reason>"]`) and keeps its
+    /// message as the last error.
+    pub fn reject(&mut self, reason: &str, message: &str) {
+        self.rejected += 1;
+        let n = self
+            .detail
+            .entry(format!("rejected.{reason}"))
+            .or_insert_with(|| "0".into());
+        *n = (n.parse::<u64>().unwrap_or(0) + 1).to_string();
+        self.set_error(message);
+    }
+
     /// Counts frames `first..=last` of `what` as dropped and names them in the health
     /// report's `last_lost` detail, so a missing pose can be traced to the frame behind it.
     pub fn lost_frames(&mut self, what: &str, first: u64, last: u64) {
@@ -39,7 +74,7 @@ impl Counters {
     /// after) as the last error; the service goes on either way.
     pub fn note<T, E: std::error::Error + 'static>(&mut self, result: Result<T, E>) {
         if let Err(e) = result {
-            self.last_error = Some(crate::error_chain(&e));
+            self.set_error(&crate::error_chain(&e));
         }
     }
 }
@@ -146,5 +181,25 @@ mod tests {
         c.lost_frames("cam1", 10, 12);
         assert_eq!(c.dropped, 4);
         assert_eq!(c.detail["last_lost"], "cam1 frames 10–12");
+    }
+
+    /// An input that carries megabytes of text leaves a bounded last error, counted by reason.
+    #[test]
+    fn rejections_are_counted_by_reason_and_their_text_is_bounded() {
+        let mut c = Counters::default();
+        let huge = "é".repeat(5_000_000);
+        c.reject("invalid", &huge);
+        c.reject("invalid", "short");
+        c.reject("future", &huge);
+        assert_eq!(c.rejected, 3);
+        assert_eq!(c.detail["rejected.invalid"], "2");
+        assert_eq!(c.detail["rejected.future"], "1");
+        let e = c.last_error().unwrap();
+        assert!(
+            e.len() <= limits::MAX_TEXT_BYTES && e.ends_with('…'),
+            "{}",
+            e.len()
+        );
+        assert_eq!(bounded("abc", 10), "abc");
     }
 }
