@@ -540,11 +540,29 @@ fn bad_sources_are_named() {
             clip.display()
         )),
     );
-    let e = capture_fails(&rig);
+    // The partial frame is named and skipped, and the source ends at its last whole frame:
+    // capture finishes (status 0), never starts the file over (it used to fail and be
+    // restarted from frame 0 for ever).
+    let out = run_with_limit(
+        &[
+            "service",
+            "capture",
+            "--rig",
+            &rig,
+            "--camera",
+            "cam0",
+            "--iox-prefix",
+            &prefix,
+        ],
+        Duration::from_secs(30),
+    );
+    let e = stderr(&out);
+    assert!(out.status.success(), "{e}");
     assert!(
         e.contains("clip.y4m") && e.contains("frame 2") && e.contains("truncated"),
         "{e}"
     );
+    assert!(e.contains("frames=2"), "{e}");
     // A Y4M whose frame size differs from the camera's.
     std::fs::write(&clip, b"YUV4MPEG2 W64 H48 F30:1 Cmono\n").unwrap();
     let e = capture_fails(&rig);
@@ -1454,12 +1472,14 @@ fn recorded_frames_replay_through_the_services_to_the_same_poses() {
     eprintln!("frame replay: {v}");
     assert_eq!(v["recorded_frames"].as_u64().unwrap() as usize, recorded);
     // Fusion forms the recorded sets (`[fusion] replay_sets`): every recorded frame comes
-    // back, and none that was not recorded — unless a frame was lost in the replay, which the
-    // services' health then names (`losses`).
+    // back — unless a frame was lost in the replay, which the services' health then names
+    // (`losses`). (The frames files may hold a frame or two more than the poses at either end:
+    // the recorder subscribes to frames first, and stops between a frame and its pose; those
+    // make sets the recording does not have.)
     let lost = v["losses"].as_array().unwrap();
     let matched = v["matched_frames"].as_u64().unwrap() as usize;
     assert!(
-        (matched == recorded && v["replayed_frames"] == v["recorded_frames"]) || !lost.is_empty(),
+        matched == recorded || !lost.is_empty(),
         "{v}\n{}",
         stderr(&o)
     );
@@ -1471,6 +1491,27 @@ fn recorded_frames_replay_through_the_services_to_the_same_poses() {
     let matched = v["matched_frames"].as_u64().unwrap();
     assert!(
         v["identical_last_frames"].as_u64().unwrap() + 35 >= matched,
+        "{v}"
+    );
+    // A frames file cut mid-frame (what a crash while recording leaves) ends the replay at its
+    // last whole frame with a warning naming it — it used to start the file over for ever.
+    let cam0 = session.join("frames-cam0.y4m");
+    let bytes = std::fs::read(&cam0).unwrap();
+    std::fs::write(&cam0, &bytes[..bytes.len() - 1000]).unwrap();
+    let o = run_with_limit(
+        &["replay", &session_s, "--frames", "--speed", "3", "--json"],
+        Duration::from_secs(90),
+    );
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(
+        stderr(&o).contains("frames-cam0.y4m: truncated"),
+        "{}",
+        stderr(&o)
+    );
+    let out = String::from_utf8_lossy(&o.stdout);
+    let v: serde_json::Value = serde_json::from_str(out.lines().last().unwrap()).unwrap();
+    assert!(
+        v["replayed_frames"].as_u64().unwrap() as usize <= recorded,
         "{v}"
     );
     // A session without frames is refused, naming the files.

@@ -40,15 +40,21 @@ pub struct LaunchConfig {
     pub env: Vec<(String, String)>,
     /// Run this PC's Zenoh router (default true; off when the PC has a `zenohd`).
     pub router: bool,
-    /// Stop once every capture has finished (its finite source ended), after
-    /// [`DRAIN_AFTER_SOURCES_END`] for the workers and fusion to finish the last frames: for
-    /// replaying recorded frames.
+    /// Stop once every capture has finished (its finite source ended) and the workers and
+    /// fusion have had the last frames: for replaying recorded frames. A fusion that forms a
+    /// recording's sets (`[fusion] replay_sets`) finishes by itself after the last one, and is
+    /// waited for (at most [`MAX_DRAIN_AFTER_SOURCES_END`]); otherwise the rest run on for
+    /// [`DRAIN_AFTER_SOURCES_END`].
     pub until_sources_end: bool,
 }
 
 /// How long the other services run on after the last capture finished, with
-/// [`LaunchConfig::until_sources_end`].
+/// [`LaunchConfig::until_sources_end`] and a fusion that does not finish by itself.
 pub const DRAIN_AFTER_SOURCES_END: Duration = Duration::from_millis(1500);
+
+/// The longest wait for a replaying fusion to finish its last set after the sources ended
+/// (it waits up to its `max_wait_ms` for a frame lost in the replay).
+pub const MAX_DRAIN_AFTER_SOURCES_END: Duration = Duration::from_secs(10);
 
 #[derive(Debug, thiserror::Error)]
 pub enum LaunchError {
@@ -298,6 +304,14 @@ pub fn run(cfg: LaunchConfig, shutdown: Shutdown) -> Result<u32, LaunchError> {
     }
     let mut restarts = 0;
     let mut refused: Option<LaunchError> = None;
+    // A fusion forming a recording's sets finishes by itself after the last one.
+    let replaying = ctx
+        .rig
+        .spec
+        .fusion
+        .as_ref()
+        .is_some_and(|f| f.replay_sets.is_some());
+    let mut sources_ended: Option<Instant> = None;
     while !shutdown.requested() && refused.is_none() {
         for r in running.iter_mut() {
             if let Some(c) = &mut r.child
@@ -369,9 +383,27 @@ pub fn run(cfg: LaunchConfig, shutdown: Shutdown) -> Result<u32, LaunchError> {
                 .iter()
                 .filter(|r| r.spec.name.starts_with("capture/"));
             if captures.clone().count() > 0 && captures.clone().all(|r| r.finished) {
-                tracing::info!("every source ended");
-                shutdown.sleep(DRAIN_AFTER_SOURCES_END);
-                break;
+                let ended = *sources_ended.get_or_insert_with(|| {
+                    tracing::info!("every source ended");
+                    Instant::now()
+                });
+                let fusion_done = running
+                    .iter()
+                    .filter(|r| r.spec.name == "fusion")
+                    .all(|r| r.finished);
+                let drain = if replaying {
+                    MAX_DRAIN_AFTER_SOURCES_END
+                } else {
+                    DRAIN_AFTER_SOURCES_END
+                };
+                if (replaying && fusion_done) || ended.elapsed() >= drain {
+                    if replaying && !fusion_done {
+                        tracing::warn!(
+                            "fusion did not finish the recording's sets within {drain:?} of the sources' end"
+                        );
+                    }
+                    break;
+                }
             }
         }
         shutdown.sleep(Duration::from_millis(50));

@@ -26,7 +26,13 @@ pub enum ReplayError {
     #[error(
         "poses.jsonl: {frames} frames of {period_ns} ns: the session's times are too far apart for one C3D file"
     )]
-    TooLong { frames: usize, period_ns: u64 },
+    TooLong { frames: f64, period_ns: u64 },
+    #[error(
+        "poses.jsonl: {frames} frames × {points} points would make a C3D file of {} MB, over the {} MB this export writes (a session with this many objects over this long is not one trial)",
+        .frames * .points * 16 / 1_000_000,
+        MAX_C3D_CELLS * 16 / 1_000_000
+    )]
+    TooLarge { frames: usize, points: usize },
     #[error(
         "no recorded frames: {} (record with --frames and every camera; without --frames, replay re-fuses the recorded observations)",
         .0.join(", ")
@@ -245,6 +251,11 @@ pub struct C3dExport {
     pub pose_frames: usize,
 }
 
+/// Most C3D frames one export makes.
+pub const MAX_C3D_FRAMES: usize = 50_000_000;
+/// Most frame × point cells one export makes (16 bytes each in the file: 1.6 GB).
+pub const MAX_C3D_CELLS: usize = 100_000_000;
+
 /// The session's poses as C3D points (docs/recording.md): per object a marker `obj<id>` at its
 /// position and, for objects with a heading, `obj<id>_heading` [`HEADING_MARKER_MM`] along it
 /// in the horizontal plane; millimetres, world frame. The frame rate is the pose frames' median
@@ -262,15 +273,19 @@ pub fn export_c3d(session: &Session) -> Result<C3dExport, ReplayError> {
     let Some(&period_ns) = gaps.get(gaps.len() / 2) else {
         return Err(ReplayError::TooFewTimes(times.len()));
     };
-    let t0 = times[0];
-    let slot = |t: u64| ((t - t0) as f64 / period_ns as f64).round() as usize;
-    let n_frames = slot(times[times.len() - 1]) + 1;
-    if n_frames > 50_000_000 {
+    let (t0, t_last) = (times[0], times[times.len() - 1]);
+    // In floating point until bounded: a timestamp near u64::MAX must not overflow a count.
+    let frames_f = ((t_last - t0) as f64 / period_ns as f64).round() + 1.0;
+    if !(frames_f <= MAX_C3D_FRAMES as f64) {
         return Err(ReplayError::TooLong {
-            frames: n_frames,
+            frames: frames_f,
             period_ns,
         });
     }
+    let n_frames = frames_f as usize;
+    let slot = |t: u64| {
+        (((t.saturating_sub(t0)) as f64 / period_ns as f64).round() as usize).min(n_frames - 1)
+    };
     // Markers: every object in the session, in id order.
     let mut objects: BTreeMap<u32, bool> = BTreeMap::new();
     for pf in &session.poses {
@@ -293,6 +308,13 @@ pub fn export_c3d(session: &Session) -> Result<C3dExport, ReplayError> {
             pos + 1
         });
         column.insert(id, (pos, head));
+    }
+    // Checked before the table is allocated: frames × points cells.
+    if n_frames.saturating_mul(labels.len().max(1)) > MAX_C3D_CELLS {
+        return Err(ReplayError::TooLarge {
+            frames: n_frames,
+            points: labels.len(),
+        });
     }
     let mut frames = vec![vec![None; labels.len()]; n_frames];
     let mut merged = 0;
@@ -432,6 +454,18 @@ pub struct FramesCompared {
     pub identical_last_frames: usize,
     pub position_rms_mm: f64,
     pub position_max_mm: f64,
+    /// Recorded frames the replay did not make (by position in the recording, 0 = first, and
+    /// sequence number), the first ten: where to look when frames are missing.
+    pub missing: Vec<MissingFrame>,
+}
+
+/// A recorded pose frame without a replayed one at its time.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct MissingFrame {
+    pub index: usize,
+    pub sequence: u64,
+    pub timestamp_ns: u64,
+    pub cameras: Vec<String>,
 }
 
 /// Compares poses fusion made from replayed frames with the recorded poses: frames by
@@ -496,6 +530,20 @@ pub fn compare_frames(recorded: &[PoseFrame], replayed: &[PoseFrame]) -> FramesC
     if out.objects_compared > 0 {
         out.position_rms_mm = (sum_sq / out.objects_compared as f64).sqrt();
     }
+    let replayed_times: std::collections::HashSet<u64> =
+        replayed.iter().map(|f| f.timestamp_ns).collect();
+    out.missing = recorded
+        .iter()
+        .enumerate()
+        .filter(|(_, r)| !replayed_times.contains(&r.timestamp_ns))
+        .take(10)
+        .map(|(index, r)| MissingFrame {
+            index,
+            sequence: r.sequence,
+            timestamp_ns: r.timestamp_ns,
+            cameras: r.cameras.clone(),
+        })
+        .collect();
     out
 }
 
@@ -561,5 +609,55 @@ mod tests {
         assert!((c.position_max_mm - 2.0).abs() < 1e-9, "{c:?}");
         let same = compare_frames(&recorded, &recorded);
         assert_eq!((same.identical_last_frames, same.position_rms_mm), (5, 0.0));
+    }
+
+    fn session_of(poses: Vec<PoseFrame>) -> Session {
+        Session {
+            info: crate::session::SessionInfo {
+                schema: crate::session::SESSION_SCHEMA,
+                rig: "demo".into(),
+                started_ns: 0,
+                rig_file: include_str!("../../../deploy/rigs/demo.toml").into(),
+            },
+            poses,
+            observations: vec![],
+            warnings: vec![],
+        }
+    }
+
+    /// Times and counts from a session file are checked before they size anything: a last
+    /// timestamp of u64::MAX (it panicked) and 200 objects over 40 M frames (it ran out of
+    /// memory) are refused with the figures.
+    #[test]
+    fn a_c3d_export_of_hostile_times_or_counts_is_refused_not_crashed() {
+        let ms = 1_000_000;
+        let mut poses: Vec<PoseFrame> = (0..5).map(|i| frame(i * 33 * ms, &[0.1])).collect();
+        poses.push(frame(u64::MAX, &[0.1]));
+        let err = export_c3d(&session_of(poses)).unwrap_err();
+        assert!(matches!(err, ReplayError::TooLong { .. }), "{err:?}");
+
+        let many: Vec<f64> = (0..200).map(|i| i as f64 * 0.01).collect();
+        let mut poses: Vec<PoseFrame> = (0..5).map(|i| frame(i * 33 * ms, &many)).collect();
+        poses.push(frame(40_000_000 * 33 * ms, &many));
+        let err = export_c3d(&session_of(poses)).unwrap_err();
+        assert!(
+            matches!(
+                err,
+                ReplayError::TooLarge {
+                    frames: 40_000_001,
+                    points: 200
+                }
+            ),
+            "{err:?}"
+        );
+        assert!(
+            err.to_string().contains("40000001 frames × 200 points"),
+            "{err}"
+        );
+
+        // An ordinary session still exports.
+        let poses: Vec<PoseFrame> = (0..5).map(|i| frame(i * 33 * ms, &[0.1, 0.2])).collect();
+        let e = export_c3d(&session_of(poses)).unwrap();
+        assert_eq!(e.trial.frames.len(), 5);
     }
 }

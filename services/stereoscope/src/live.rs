@@ -441,6 +441,15 @@ pub fn replay_frames(
             c.position_max_mm,
             c.identical_last_frames
         );
+        for m in &c.missing {
+            println!(
+                "not replayed: recorded pose frame {} (sequence {}, cameras {}, timestamp_ns {})",
+                m.index,
+                m.sequence,
+                m.cameras.join(","),
+                m.timestamp_ns
+            );
+        }
         for l in &losses {
             println!("lost in the replay: {l}");
         }

@@ -279,7 +279,11 @@ mod tests {
         assert!((20_000..32_768).contains(&a), "{a}");
         let other = std::fs::OpenOptions::new()
             .write(true)
-            .open(std::env::temp_dir().join("stereoscope-ports").join(a.to_string()))
+            .open(
+                std::env::temp_dir()
+                    .join("stereoscope-ports")
+                    .join(a.to_string()),
+            )
             .unwrap();
         assert!(other.try_lock().is_err());
         // Still free to bind for its owner.
