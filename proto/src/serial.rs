@@ -528,4 +528,37 @@ mod tests {
         assert_eq!(got.len(), 2);
         assert_eq!(got[1].x_cm, -100);
     }
+
+    /// Property test: the serial decoders take any bytes — random streams and hostile variants
+    /// of valid packets — without a panic (docs/reliability.md).
+    #[test]
+    fn hostile_serial_bytes_never_panic_a_decoder() {
+        use stereoscope_numeric::random::mutations;
+        let pose = SerialPose {
+            object_id: 3,
+            position_m: [0.1, -0.2, 1.5],
+            heading_deg: 45.0,
+        };
+        let (legacy, _) = encode_legacy(&pose);
+        let (framed, _) = encode_framed(&pose, 7);
+        let mut legacy_dec = LegacyDecoder::default();
+        let mut framed_dec = FramedDecoder::default();
+        for seed in 0..10 {
+            for bytes in mutations(&legacy, 2_000, seed) {
+                let _ = legacy_dec.push(&bytes);
+                if let Ok(b) = <[u8; LEGACY_LEN]>::try_from(bytes.as_slice()) {
+                    let _ = decode_legacy(&b);
+                }
+            }
+            for bytes in mutations(&framed, 2_000, seed) {
+                let _ = framed_dec.push(&bytes);
+                let _ = decode_framed(&bytes);
+                let _ = cobs_decode(&bytes);
+            }
+        }
+        // Still in step: a valid packet after all that garbage decodes.
+        let _ = framed_dec.push(&[0]);
+        let got = framed_dec.push(&framed);
+        assert!(got.iter().any(|p| p.is_ok()), "{got:?}");
+    }
 }

@@ -62,11 +62,15 @@ pub fn parse_header(
     };
     let (mut w, mut h, mut fps, mut colour) = (None, None, None, "420jpeg".to_string());
     for word in words {
-        let (tag, value) = word.split_at(1);
+        // The tag is the first character, whatever it is (a multi-byte one must not split
+        // the word inside it: the property test found that panic).
+        let mut chars = word.chars();
+        let tag = chars.next();
+        let value = chars.as_str();
         match tag {
-            "W" => w = Some(number("width", value)?),
-            "H" => h = Some(number("height", value)?),
-            "F" => {
+            Some('W') => w = Some(number("width", value)?),
+            Some('H') => h = Some(number("height", value)?),
+            Some('F') => {
                 let rate = || Y4mHeaderError::Rate(value.to_string());
                 let (n, d) = value.split_once(':').ok_or_else(rate)?;
                 let (n, d): (f64, f64) = (
@@ -77,7 +81,7 @@ pub fn parse_header(
                     fps = Some(n / d);
                 }
             }
-            "C" => colour = value.to_string(),
+            Some('C') => colour = value.to_string(),
             _ => {}
         }
     }
@@ -397,6 +401,44 @@ mod tests {
             s.read(0, 0.0, &mut out).unwrap();
         }
         assert_eq!(out, a);
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    /// Property test: hostile stream headers and frames (cut, bit-flipped, with bytes inserted,
+    /// removed or repeated, random) give an error, a skipped frame or the end — never a panic
+    /// or an allocation the header claims (docs/reliability.md).
+    #[test]
+    fn hostile_y4m_bytes_never_panic_the_reader() {
+        use stereoscope_numeric::random::mutations;
+        let header = "YUV4MPEG2 W8 H6 F30:1 Ip A1:1 C420jpeg";
+        for seed in 0..10 {
+            for m in mutations(header.as_bytes(), 2_000, seed) {
+                let _ = parse_header(&String::from_utf8_lossy(&m));
+            }
+        }
+        let frame = vec![7u8; 48];
+        let bytes = encode_mono(8, 6, 30, &[&frame, &frame, &frame]);
+        let dir = std::env::temp_dir().join(format!("y4m-fuzz-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("m.y4m");
+        let mut out = vec![0u8; 48];
+        for (i, m) in mutations(&bytes, 3_000, 42).into_iter().enumerate() {
+            std::fs::write(&path, &m).unwrap();
+            let Ok(mut s) = Y4mSource::open(path.to_str().unwrap(), false, i % 2 == 0) else {
+                continue;
+            };
+            if s.size() != (8, 6) {
+                continue;
+            }
+            // Bounded: a repeating source of garbage must not read for ever either.
+            for k in 0..10 {
+                match s.read(k, 0.0, &mut out) {
+                    Ok(Read::End)
+                    | Err(SourceError::Io { .. } | SourceError::NoFrameLine { .. }) => break,
+                    _ => {}
+                }
+            }
+        }
         std::fs::remove_dir_all(&dir).unwrap();
     }
 }

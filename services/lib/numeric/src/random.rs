@@ -44,3 +44,50 @@ impl SplitMix64 {
         (r * c, r * s)
     }
 }
+
+/// Hostile inputs for the decoders' property tests: from a valid encoding, `n` variants that
+/// are cut short, have bits flipped, bytes inserted, removed or repeated, or are random bytes
+/// of the same length — deterministic for a seed, so a failure reproduces.
+pub fn mutations(valid: &[u8], n: usize, seed: u64) -> Vec<Vec<u8>> {
+    let mut rng = SplitMix64::new(seed);
+    let mut pick = |k: usize| (rng.next_u64() % k.max(1) as u64) as usize;
+    (0..n)
+        .map(|i| {
+            let mut b = valid.to_vec();
+            match i % 6 {
+                0 => b.truncate(pick(valid.len() + 1)),
+                1 => {
+                    for _ in 0..1 + pick(8) {
+                        let at = pick(b.len());
+                        if let Some(x) = b.get_mut(at) {
+                            *x ^= 1 << pick(8);
+                        }
+                    }
+                }
+                2 => {
+                    let at = pick(b.len() + 1);
+                    let byte = pick(256) as u8;
+                    b.insert(at, byte);
+                }
+                3 => {
+                    if !b.is_empty() {
+                        let at = pick(b.len());
+                        let len = pick(b.len() - at + 1);
+                        b.drain(at..at + len);
+                    }
+                }
+                4 => {
+                    let at = pick(b.len() + 1);
+                    let tail = b[at..].to_vec();
+                    b.extend_from_slice(&tail);
+                }
+                _ => {
+                    for x in b.iter_mut() {
+                        *x = pick(256) as u8;
+                    }
+                }
+            }
+            b
+        })
+        .collect()
+}
