@@ -127,4 +127,16 @@ fn inconsistent_frame_is_rejected_and_the_next_one_processed() {
     );
     shutdown.request();
     assert!(worker.join().unwrap().unwrap() >= 1);
+    // The worker, stopping while this test's writer node lived, left the prefix alone; the
+    // last user releases it, and nothing of the test stays in /dev/shm.
+    drop((frames, obs));
+    drop(n);
+    assert!(stereoscope_transport::iox::release_prefix(&prefix).unwrap());
+    let left: Vec<String> = std::fs::read_dir("/dev/shm")
+        .unwrap()
+        .flatten()
+        .map(|e| e.file_name().to_string_lossy().into_owned())
+        .filter(|f| f.starts_with(&prefix))
+        .collect();
+    assert!(left.is_empty(), "{left:?}");
 }

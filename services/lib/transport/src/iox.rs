@@ -64,6 +64,59 @@ pub fn cleanup_dead_nodes(prefix: &str) -> Result<usize, TransportError> {
     Ok(cleaned)
 }
 
+/// Whether `file` (a name in `/dev/shm`) is the node registry iceoryx2 keeps for `prefix`:
+/// `<prefix><40 hex digits>_node.<digits and _>.global_mgmt`. Strict, so that prefix `stsc_`
+/// never matches another rig's `stsc_demo12_…` file.
+pub fn is_prefix_registry(file: &str, prefix: &str) -> bool {
+    let Some(rest) = file.strip_prefix(prefix) else {
+        return false;
+    };
+    let Some((hash, tail)) = rest.split_once('_') else {
+        return false;
+    };
+    let Some(version) = tail
+        .strip_prefix("node.")
+        .and_then(|t| t.strip_suffix(".global_mgmt"))
+    else {
+        return false;
+    };
+    hash.len() == 40
+        && hash.bytes().all(|b| b.is_ascii_hexdigit())
+        && !version.is_empty()
+        && version.bytes().all(|b| b.is_ascii_digit() || b == b'_')
+}
+
+/// After a clean stop: when no iceoryx2 node of `prefix` is alive any more (dead ones are
+/// cleaned first), removes the node registry iceoryx2 leaves in `/dev/shm` for the prefix, so
+/// that runs leave nothing behind. Returns whether the prefix is now clear; a prefix still in
+/// use (another process of the same rig and PC) is left alone.
+pub fn release_prefix(prefix: &str) -> Result<bool, TransportError> {
+    cleanup_dead_nodes(prefix)?;
+    let cfg = config(prefix)?;
+    let mut others = 0;
+    Node::<IoxService>::list(&cfg, |state| {
+        if !matches!(state, NodeState::<IoxService>::Dead(_)) {
+            others += 1;
+        }
+        CallbackProgression::Continue
+    })
+    .map_err(|e| err("node list", prefix, e))?;
+    if others > 0 {
+        return Ok(false);
+    }
+    let Ok(entries) = std::fs::read_dir("/dev/shm") else {
+        return Ok(true);
+    };
+    for e in entries.flatten() {
+        if let Some(name) = e.file_name().to_str()
+            && is_prefix_registry(name, prefix)
+        {
+            let _ = std::fs::remove_file(e.path());
+        }
+    }
+    Ok(true)
+}
+
 fn service_name(name: &str) -> Result<ServiceName, TransportError> {
     ServiceName::new(name).map_err(|e| err("service name", name, e))
 }
@@ -454,5 +507,54 @@ impl MessageSubscriber {
             Ok(None) => Ok(None),
             Err(e) => Err(err("message receive", &self.name, e)),
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const HASH: &str = "9204dd183d1c4d8e1ff592a30766ffa6765aa8b5";
+
+    #[test]
+    fn only_the_prefixs_own_registry_matches() {
+        let f = |p: &str| format!("{p}{HASH}_node.0_10_0.global_mgmt");
+        assert!(is_prefix_registry(&f("stsc_"), "stsc_"));
+        assert!(is_prefix_registry(&f("stsc_demo12_"), "stsc_demo12_"));
+        // Another rig's file under a longer prefix, even one that looks hexadecimal.
+        assert!(!is_prefix_registry(&f("stsc_demo12_"), "stsc_"));
+        assert!(!is_prefix_registry(&f("stsc_abc_"), "stsc_"));
+        assert!(!is_prefix_registry(&f("stsc_demo1_"), "stsc_demo12_"));
+        assert!(!is_prefix_registry(
+            &format!("stsc_{HASH}_node.0_10_0.global_mgmt.bak"),
+            "stsc_"
+        ));
+        assert!(!is_prefix_registry("stsc_1234.event", "stsc_"));
+    }
+
+    /// A prefix whose nodes have all gone leaves nothing in `/dev/shm`; one still in use is
+    /// left alone.
+    #[test]
+    fn a_released_prefix_leaves_no_file() {
+        let prefix = format!("stsc_rel{}_", std::process::id());
+        let ours = || {
+            std::fs::read_dir("/dev/shm")
+                .map(|d| {
+                    d.flatten()
+                        .filter(|e| e.file_name().to_string_lossy().starts_with(&prefix))
+                        .count()
+                })
+                .unwrap_or(0)
+        };
+        let n = node(&prefix, "release-test").unwrap();
+        assert!(ours() > 0, "iceoryx2 made no file in /dev/shm");
+        assert!(
+            !release_prefix(&prefix).unwrap(),
+            "released while a node lives"
+        );
+        assert!(ours() > 0);
+        drop(n);
+        assert!(release_prefix(&prefix).unwrap());
+        assert_eq!(ours(), 0);
     }
 }

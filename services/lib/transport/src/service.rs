@@ -21,6 +21,19 @@ pub struct NodeSpec<'a> {
     pub service: &'a str,
     pub iox_prefix: &'a str,
     pub zenoh: &'a ZenohSpec,
+    /// Where no second instance may run.
+    pub exclusive: Exclusive,
+}
+
+/// Where a service must be the only one of its name.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Exclusive {
+    /// One in the whole rig (a camera's capture and worker, fusion).
+    Rig,
+    /// One per host (a serial port's output).
+    Host,
+    /// Any number (recorders).
+    No,
 }
 
 /// A running service's connections: its iceoryx2 node, its Zenoh session, and its health.
@@ -31,6 +44,7 @@ pub struct ServiceNode {
     health: HealthReporter,
     rig: String,
     service: String,
+    iox_prefix: String,
 }
 
 impl std::fmt::Debug for ServiceNode {
@@ -42,9 +56,35 @@ impl std::fmt::Debug for ServiceNode {
 impl ServiceNode {
     /// Creates the iceoryx2 node (named after the service, `/` as `-`), opens the Zenoh
     /// session and declares the service alive.
+    /// A service that must be the only one of its name ([`NodeSpec::exclusive`]) and finds
+    /// another alive is refused with [`TransportError::AlreadyRunning`], naming its host.
     pub fn start(spec: NodeSpec<'_>) -> Result<Self, TransportError> {
-        let iox = crate::iox::node(spec.iox_prefix, &spec.service.replace('/', "-"))?;
         let session = net::open(spec.zenoh)?;
+        let key = match spec.exclusive {
+            Exclusive::Rig => Some(format!("stereoscope/{}/alive/*/{}", spec.rig, spec.service)),
+            Exclusive::Host => Some(stereoscope_proto::names::zenoh::alive(
+                spec.rig,
+                spec.host,
+                spec.service,
+            )),
+            Exclusive::No => None,
+        };
+        if let Some(key) = key {
+            let prefix = format!("stereoscope/{}/alive/", spec.rig);
+            let suffix = format!("/{}", spec.service);
+            let running = net::alive(&session, &key, std::time::Duration::from_millis(500))?;
+            if let Some(other) = running.first() {
+                let host = other
+                    .strip_prefix(&prefix)
+                    .and_then(|k| k.strip_suffix(&suffix))
+                    .unwrap_or(other);
+                return Err(TransportError::AlreadyRunning {
+                    service: spec.service.to_string(),
+                    host: host.to_string(),
+                });
+            }
+        }
+        let iox = crate::iox::node(spec.iox_prefix, &spec.service.replace('/', "-"))?;
         let health = HealthReporter::new(&session, spec.rig, spec.host, spec.service)?;
         Ok(ServiceNode {
             iox,
@@ -53,6 +93,7 @@ impl ServiceNode {
             health,
             rig: spec.rig.to_string(),
             service: spec.service.to_string(),
+            iox_prefix: spec.iox_prefix.to_string(),
         })
     }
 
@@ -175,7 +216,19 @@ pub fn drive<S: Service>(
     };
     let stopped = service.stop();
     service.node().finish();
+    let summary = service.summary();
+    // A service run on its own removes its prefix's iceoryx2 files as it stops, once no other
+    // process uses them: nothing stays behind in /dev/shm. Under a launcher (which names its
+    // session in the environment) the launcher does it after the last service, so a service
+    // that ends early never pulls them from under one being restarted.
+    let prefix = service.node().iox_prefix.clone();
+    drop(service);
+    if std::env::var_os(stereoscope_proto::names::SESSION_ENV).is_none()
+        && let Err(e) = crate::iox::release_prefix(&prefix)
+    {
+        tracing::warn!("cleaning up iceoryx2 files of {prefix}: {e}");
+    }
     stepped?;
     stopped?;
-    Ok(service.summary())
+    Ok(summary)
 }
