@@ -297,6 +297,22 @@ fn a_killed_capture_leaves_fusion_on_one_camera_and_is_restarted() {
         let alive = unsafe { libc::kill(pid, 0) } == 0;
         assert!(!alive, "service pid {pid} outlived the launcher");
     }
+    // Nothing of the run stays in /dev/shm or iceoryx2's folders, the killed capture's
+    // leftovers included.
+    let prefix = format!("stsc_t{}k_", std::process::id());
+    let left: Vec<String> = [
+        "/dev/shm",
+        "/tmp/iceoryx2",
+        "/tmp/iceoryx2/nodes",
+        "/tmp/iceoryx2/services",
+    ]
+    .iter()
+    .filter_map(|d| std::fs::read_dir(d).ok())
+    .flat_map(|d| d.flatten())
+    .map(|e| e.path().display().to_string())
+    .filter(|p| p.rsplit('/').next().is_some_and(|n| n.starts_with(&prefix)))
+    .collect();
+    assert!(left.is_empty(), "left behind: {left:?}");
 }
 
 #[test]
@@ -875,6 +891,36 @@ fn status_lists_every_service_and_flags_a_stalled_camera() {
     assert!(
         text.contains("capture/cam0") && text.contains("latest pose frame"),
         "{text}"
+    );
+    // A frozen fusion (SIGSTOP: alive, silent, no poses while observations arrive) is flagged
+    // by status and, silent for the watchdog's 3 s, killed and restarted by the launcher;
+    // poses come again.
+    let old = watcher.until(Duration::from_secs(30), "both cameras again", both_cameras);
+    let pid = pid_of(&launcher.output(), "fusion");
+    // SAFETY: a signal to a process this test started (through the launcher).
+    unsafe { libc::kill(pid, libc::SIGSTOP) };
+    let fusion_stalled = |v: &serde_json::Value| {
+        v["services"].as_array().is_some_and(|a| {
+            a.iter()
+                .any(|x| x["service"] == "fusion" && x["stalled"] == true)
+        })
+    };
+    status_when(&["--stall-ms", "1000"], "fusion stalled", &fusion_stalled);
+    launcher.wait_for(Duration::from_secs(20), "the watchdog's restart", |o| {
+        o.contains("fusion: no health report") && o.contains("restarted fusion")
+    });
+    // Within the session the restarted fusion continues above every number the first one
+    // could have used (its first reserved block: sequence numbers below 10 000), and never
+    // reuses an object id.
+    let new = watcher.until(
+        Duration::from_secs(20),
+        "poses of the restarted fusion",
+        |p| both_cameras(p) && p.sequence >= 10_000,
+    );
+    let old_max = old.poses.iter().map(|p| p.object_id).max().unwrap();
+    assert!(
+        new.poses.iter().all(|p| p.object_id > old_max),
+        "{old:?}\n{new:?}"
     );
 }
 

@@ -4,6 +4,11 @@
 
 /// iceoryx2 services on one PC. Each pub/sub service has an event service of the same name
 /// that the publisher notifies after each sample, so readers sleep until data arrives.
+/// The environment variable the launcher names its session with (its start time in
+/// nanoseconds since the Unix epoch), for the services it starts: fusion keeps its pose
+/// sequence and object ids unique within a session across restarts.
+pub const SESSION_ENV: &str = "STEREOSCOPE_SESSION";
+
 pub mod iox {
     /// Frames of one camera: `[u8]` payload with a `FrameHeader` user header.
     pub fn frames(rig: &str, camera: &str) -> String {

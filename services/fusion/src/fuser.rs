@@ -95,6 +95,17 @@ impl Fuser {
         self.objects.len()
     }
 
+    /// Numbers new objects from `first` on (a restarted fusion continuing its session).
+    pub fn with_first_id(mut self, first: u32) -> Self {
+        self.next_id = first.max(1);
+        self
+    }
+
+    /// The id the next new object gets.
+    pub fn next_id(&self) -> u32 {
+        self.next_id
+    }
+
     /// The 3D points of one set (`(rig camera index, observation)` pairs).
     pub fn points(&self, set: &[(usize, Observation)]) -> Vec<Point> {
         let cams: Vec<Camera> = set.iter().map(|(c, _)| self.cameras[*c]).collect();

@@ -12,6 +12,7 @@
 
 pub mod cli;
 pub mod fuser;
+pub mod identity;
 pub mod pairing;
 
 use fuser::{Fuser, FuserConfig};
@@ -47,7 +48,12 @@ pub enum FusionError {
     ReplaySets(#[source] stereoscope_rig::RigError),
     #[error("fusion")]
     Transport(#[from] stereoscope_transport::TransportError),
+    #[error(transparent)]
+    Identity(#[from] identity::IdentityError),
 }
+
+/// Most new objects one set can make: the id reservation covers them before a set is fused.
+const MAX_NEW_OBJECTS_PER_SET: u32 = 256;
 
 /// Fusion's settings from the rig file's `[fusion]` table (defaults in `docs/services.md`;
 /// values checked when the rig was loaded).
@@ -109,6 +115,7 @@ pub struct FusionService {
     pairer: Pairer,
     fuser: Fuser,
     sequence: u64,
+    ids: identity::Reservations,
 }
 
 impl std::fmt::Debug for FusionService {
@@ -183,7 +190,20 @@ impl FusionService {
         } else {
             Duration::from_micros(500)
         };
-        let fuser = Fuser::new(&ctx.rig, fuser_cfg);
+        // Within a launcher's session, numbers continue across restarts.
+        let (ids, sequence, first_id) = match std::env::var(identity::SESSION_ENV) {
+            Ok(session) if !session.is_empty() => identity::Reservations::open(
+                &identity::Reservations::path(&ctx.iox_prefix, &rig),
+                &session,
+            )?,
+            _ => (identity::Reservations::none(), 0, 1),
+        };
+        if sequence > 0 {
+            tracing::info!(
+                "continuing the session from pose frame {sequence}, object id {first_id}"
+            );
+        }
+        let fuser = Fuser::new(&ctx.rig, fuser_cfg).with_first_id(first_id);
         let mut pairer = Pairer::new(n, pair_cfg);
         if let Some(p) = ctx
             .rig
@@ -216,7 +236,8 @@ impl FusionService {
             per_object,
             pairer,
             fuser,
-            sequence: 0,
+            sequence,
+            ids,
             cfg,
         })
     }
@@ -253,7 +274,12 @@ impl FusionService {
 
     /// Fuses one complete (or timed-out) set of observations and publishes its pose frame,
     /// on both transports, and each object's pose on its own key.
-    fn publish_set(&mut self, set: &[(usize, Observation)]) {
+    fn publish_set(&mut self, set: &[(usize, Observation)]) -> Result<(), FusionError> {
+        // Reserved before they are used: a crash never lets them be handed out twice.
+        self.ids.reserve(
+            self.sequence,
+            self.fuser.next_id().saturating_add(MAX_NEW_OBJECTS_PER_SET),
+        )?;
         let rig = &self.cfg.ctx.rig;
         let timestamp_ns = set.iter().map(|(_, o)| o.timestamp_ns).min().unwrap_or(0);
         let frame_published_ns = set
@@ -295,7 +321,8 @@ impl FusionService {
             );
         }
         self.sequence += 1;
-        counters.processed = self.sequence;
+        counters.processed += 1;
+        Ok(())
     }
 
     fn report_detail(&mut self) {
@@ -331,7 +358,11 @@ impl Service for FusionService {
 
     /// Waits (bounded) for observations, then fuses every set the pairer has ready.
     fn step(&mut self, _shutdown: &Shutdown) -> Result<Flow, FusionError> {
-        let done = |s: &Self| s.cfg.max_sets.is_some_and(|m| s.sequence >= m);
+        let done = |s: &Self| {
+            s.cfg
+                .max_sets
+                .is_some_and(|m| s.node.counters.processed >= m)
+        };
         if done(self) {
             return Ok(Flow::Stop);
         }
@@ -340,7 +371,7 @@ impl Service for FusionService {
             if set.is_empty() {
                 continue;
             }
-            self.publish_set(&set);
+            self.publish_set(&set)?;
             if done(self) {
                 break;
             }
@@ -356,8 +387,9 @@ impl Service for FusionService {
         Ok(Flow::Continue)
     }
 
+    /// Pose frames published by this run.
     fn summary(&self) -> u64 {
-        self.sequence
+        self.node.counters.processed
     }
 }
 

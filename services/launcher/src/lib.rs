@@ -48,6 +48,16 @@ pub struct LaunchConfig {
     pub until_sources_end: bool,
 }
 
+/// A running service silent this long (no health report) is killed and restarted.
+pub const WATCHDOG: Duration = Duration::from_secs(3);
+
+/// The delay before a failed service's first restart.
+pub const FIRST_RESTART_DELAY: Duration = Duration::from_millis(500);
+
+/// A service that ran this long before it failed is restarted after [`FIRST_RESTART_DELAY`]
+/// again; one that fails sooner waits twice as long each time, up to 10 s.
+pub const RAN_WELL: Duration = Duration::from_secs(2);
+
 /// How long the other services run on after the last capture finished, with
 /// [`LaunchConfig::until_sources_end`] and a fusion that does not finish by itself.
 pub const DRAIN_AFTER_SOURCES_END: Duration = Duration::from_millis(1500);
@@ -71,6 +81,23 @@ pub enum LaunchError {
     },
     #[error("launcher")]
     Transport(#[from] stereoscope_transport::TransportError),
+
+    /// Another launcher runs this host of the rig (same iceoryx2 prefix) on this PC.
+    #[error(
+        "a launcher for host {host:?} with iceoryx2 prefix {prefix:?} already runs on this PC (lock {}): stop it first, or give this rig its own iceoryx2_prefix",
+        .lock.display()
+    )]
+    AlreadyRunning {
+        host: String,
+        prefix: String,
+        lock: std::path::PathBuf,
+    },
+    #[error("launcher: the lock file {}", .lock.display())]
+    Lock {
+        lock: std::path::PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
 
     /// A service refused its configuration: no restart would mend it, so the rig stopped.
     #[error(
@@ -161,6 +188,7 @@ fn pipe_lines(
 fn spawn(
     cfg: &LaunchConfig,
     spec: &ServiceSpec,
+    session: &str,
     last_error_line: &Arc<Mutex<String>>,
 ) -> std::io::Result<(Child, Option<JoinHandle<()>>)> {
     let (prog, pre) = cfg
@@ -173,6 +201,7 @@ fn spawn(
         .stdin(Stdio::null())
         .stdout(Stdio::piped())
         .stderr(Stdio::piped());
+    cmd.env(stereoscope_proto::names::SESSION_ENV, session);
     for (k, v) in &cfg.env {
         cmd.env(k, v);
     }
@@ -252,6 +281,11 @@ pub fn router_specs(ctx: &Context) -> Option<(ZenohSpec, ZenohSpec)> {
 /// Runs this host's services until shutdown. Returns how many restarts happened.
 pub fn run(cfg: LaunchConfig, shutdown: Shutdown) -> Result<u32, LaunchError> {
     let ctx = &cfg.ctx;
+    // One launcher per rig prefix and host on this PC: a second would start a second set of
+    // every service (two fusions publishing interleaved poses).
+    let _lock = lock_host(&ctx.iox_prefix, &ctx.host)?;
+    // This run is one session: a restarted fusion continues its numbering.
+    let session = stereoscope_proto::messages::now_ns().to_string();
     // The router first, so the services' clients find it.
     let (router, service_zenoh) = match router_specs(ctx) {
         Some((r, s)) if cfg.router => (Some(r), s),
@@ -285,9 +319,11 @@ pub fn run(cfg: LaunchConfig, shutdown: Shutdown) -> Result<u32, LaunchError> {
     for spec in specs {
         let last_error_line = Arc::new(Mutex::new(String::new()));
         let (child, stderr_copier) =
-            spawn(&cfg, &spec, &last_error_line).map_err(|source| LaunchError::Spawn {
-                service: spec.name.clone(),
-                source,
+            spawn(&cfg, &spec, &session, &last_error_line).map_err(|source| {
+                LaunchError::Spawn {
+                    service: spec.name.clone(),
+                    source,
+                }
             })?;
         tracing::info!("started {} (pid {})", spec.name, child.id());
         running.push(Running {
@@ -296,12 +332,34 @@ pub fn run(cfg: LaunchConfig, shutdown: Shutdown) -> Result<u32, LaunchError> {
             last_error_line,
             stderr_copier,
             started: Instant::now(),
-            backoff: Duration::from_millis(500),
+            backoff: FIRST_RESTART_DELAY,
             restart_at: None,
             restarts: 0,
             finished: false,
         });
     }
+    // The watchdog: each service's newest health report (they come every second from the
+    // service's own loop, so none means the loop is stuck or the process stopped). Heard on
+    // this PC's router; a launcher without one (`--no-router`) runs without the watchdog.
+    let reports: Arc<Mutex<std::collections::HashMap<String, Instant>>> = Arc::default();
+    let _watch = match &_router {
+        Some(router) => {
+            let reports = reports.clone();
+            let prefix = format!("stereoscope/{}/health/{}/", ctx.rig.name, ctx.host);
+            Some(net::subscribe(
+                router,
+                &format!("{prefix}**"),
+                move |key, _| {
+                    if let Some(service) = key.strip_prefix(&prefix)
+                        && let Ok(mut r) = reports.lock()
+                    {
+                        r.insert(service.to_string(), Instant::now());
+                    }
+                },
+            )?)
+        }
+        None => None,
+    };
     let mut restarts = 0;
     let mut refused: Option<LaunchError> = None;
     // A fusion forming a recording's sets finishes by itself after the last one.
@@ -313,6 +371,7 @@ pub fn run(cfg: LaunchConfig, shutdown: Shutdown) -> Result<u32, LaunchError> {
         .is_some_and(|f| f.replay_sets.is_some());
     let mut sources_ended: Option<Instant> = None;
     while !shutdown.requested() && refused.is_none() {
+        watchdog(&mut running, &reports);
         for r in running.iter_mut() {
             if let Some(c) = &mut r.child
                 && let Ok(Some(status)) = c.try_wait()
@@ -340,8 +399,11 @@ pub fn run(cfg: LaunchConfig, shutdown: Shutdown) -> Result<u32, LaunchError> {
                     });
                     break;
                 }
-                if r.started.elapsed() > Duration::from_secs(30) {
-                    r.backoff = Duration::from_millis(500);
+                // A service that was up for a while (not failing at start) is restarted at
+                // the first delay again: killing it five times in a row costs 0.5 s each
+                // time, not 0.5, 1, 2, 4, 8 s. Only quick failures back off.
+                if r.started.elapsed() >= RAN_WELL {
+                    r.backoff = FIRST_RESTART_DELAY;
                 }
                 tracing::warn!(
                     "{} exited ({status}); restarting in {:.1} s",
@@ -361,7 +423,7 @@ pub fn run(cfg: LaunchConfig, shutdown: Shutdown) -> Result<u32, LaunchError> {
                         stereoscope_transport::error_chain(&e)
                     );
                 }
-                match spawn(&cfg, &r.spec, &r.last_error_line) {
+                match spawn(&cfg, &r.spec, &session, &r.last_error_line) {
                     Ok((c, copier)) => {
                         tracing::info!("restarted {} (pid {})", r.spec.name, c.id());
                         r.child = Some(c);
@@ -410,16 +472,90 @@ pub fn run(cfg: LaunchConfig, shutdown: Shutdown) -> Result<u32, LaunchError> {
     }
     tracing::info!("stopping {} services", running.len());
     terminate(&mut running);
-    let _ = iox::cleanup_dead_nodes(&ctx.iox_prefix);
+    // Nothing of the run stays behind in /dev/shm (unless another process still uses the
+    // prefix: then it is left alone).
+    if let Err(e) = iox::release_prefix(&ctx.iox_prefix) {
+        tracing::warn!("cleaning up iceoryx2 files of {}: {e}", ctx.iox_prefix);
+    }
     match refused {
         Some(e) => Err(e),
         None => Ok(restarts),
     }
 }
 
+/// Kills (SIGKILL) a service that reported its health since it started and then fell silent
+/// for [`WATCHDOG`]: stopped (SIGSTOP), or stuck in a step. The restart follows as for any
+/// service that died. (One that never reported — still starting, or not a Stereoscope
+/// service — is left to itself.)
+fn watchdog(running: &mut [Running], reports: &Mutex<std::collections::HashMap<String, Instant>>) {
+    let Ok(reports) = reports.lock() else {
+        return;
+    };
+    for r in running.iter_mut() {
+        let Some(child) = &mut r.child else {
+            continue;
+        };
+        let Some(last) = reports
+            .get(&r.spec.name)
+            .copied()
+            .filter(|t| *t > r.started)
+        else {
+            continue;
+        };
+        if last.elapsed() > WATCHDOG {
+            tracing::warn!(
+                "{}: no health report for {:.1} s; killing it to restart it",
+                r.spec.name,
+                last.elapsed().as_secs_f64()
+            );
+            let _ = child.kill();
+        }
+    }
+}
+
+/// Holds `<temp>/stereoscope-launchers/<prefix><host>.lock` for as long as the returned file
+/// lives (the lock goes with the process, however it ends).
+fn lock_host(prefix: &str, host: &str) -> Result<std::fs::File, LaunchError> {
+    let dir = std::env::temp_dir().join("stereoscope-launchers");
+    let lock = dir.join(format!("{prefix}{host}.lock"));
+    let io = |source| LaunchError::Lock {
+        lock: lock.clone(),
+        source,
+    };
+    std::fs::create_dir_all(&dir).map_err(io)?;
+    let file = std::fs::OpenOptions::new()
+        .create(true)
+        .truncate(false)
+        .write(true)
+        .open(&lock)
+        .map_err(io)?;
+    match file.try_lock() {
+        Ok(()) => Ok(file),
+        Err(std::fs::TryLockError::WouldBlock) => Err(LaunchError::AlreadyRunning {
+            host: host.to_string(),
+            prefix: prefix.to_string(),
+            lock,
+        }),
+        Err(std::fs::TryLockError::Error(e)) => Err(io(e)),
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_second_launcher_for_the_same_host_and_prefix_is_refused() {
+        let prefix = format!("stsc_lock{}_", std::process::id());
+        let first = lock_host(&prefix, "pc").unwrap();
+        let err = lock_host(&prefix, "pc").unwrap_err();
+        assert!(matches!(err, LaunchError::AlreadyRunning { .. }), "{err:?}");
+        assert!(err.to_string().contains("already runs"), "{err}");
+        // Another host, or another prefix, is another rig's business.
+        let _other = lock_host(&prefix, "pc2").unwrap();
+        drop(first);
+        let _again = lock_host(&prefix, "pc").unwrap();
+    }
 
     const DEMO_RIG: &str = include_str!("../../../deploy/rigs/demo.toml");
     use stereoscope_rig::Rig;

@@ -232,7 +232,10 @@ impl Recorder {
             })?;
         // Connected before anything is written: a recorder that cannot reach the rig leaves
         // no half-made session folder in the way of the next try.
-        let node = ServiceNode::start(ctx.node_spec("recorder"))?;
+        let node = ServiceNode::start(stereoscope_transport::NodeSpec {
+            exclusive: stereoscope_transport::Exclusive::No,
+            ..ctx.node_spec("recorder")
+        })?;
         let create = |source| RecorderError::CreateDir {
             dir: cfg.out.clone(),
             source,

@@ -189,7 +189,12 @@ impl SerialService {
             "serial/{}",
             short.replace(|c: char| !c.is_ascii_alphanumeric() && c != '-', "_")
         );
-        let node = ServiceNode::start(ctx.node_spec(&service)).map_err(transport)?;
+        // One output per port and host; another PC may drive its own port of that name.
+        let node = ServiceNode::start(stereoscope_transport::NodeSpec {
+            exclusive: stereoscope_transport::Exclusive::Host,
+            ..ctx.node_spec(&service)
+        })
+        .map_err(transport)?;
         let latest = Arc::new(Mutex::new(Latest::default()));
         let sink = latest.clone();
         let poses = net::subscribe(&node.session, &keys::poses(&rig), move |k, b| {

@@ -18,7 +18,8 @@ pub struct StatusConfig {
     pub zenoh: ZenohSpec,
     /// How long to listen for health reports (they come every second).
     pub listen: Duration,
-    /// A camera service with no processed frame for this long is stalled.
+    /// A camera service with no processed frame for this long is stalled; so is fusion with
+    /// no pose frame while the moment workers report observations.
     pub stall: Duration,
 }
 
@@ -109,14 +110,23 @@ impl Monitor {
         ids.sort();
         ids.dedup();
         let stall = self.cfg.stall.as_secs_f64();
+        // Observations are flowing when a moment worker reports a rate: fusion must then
+        // make pose frames.
+        let observations_flow = seen
+            .health
+            .iter()
+            .any(|((_, service), (h, _))| service.starts_with("moments/") && h.rate_hz > 0.0);
         let services = ids
             .into_iter()
             .map(|id| {
                 let h = seen.health.get(&id);
                 let age = h.map(|(_, t)| t.elapsed().as_secs_f64());
                 let camera_service = id.1.starts_with("capture/") || id.1.starts_with("moments/");
+                // Fusion is judged against its inputs: alive and reporting, but making no pose
+                // frames while observations arrive, it is stalled too.
+                let fusion = id.1 == "fusion";
                 // Stalled: no report for the stall time, or reports that handled nothing.
-                let stalled = camera_service
+                let stalled = (camera_service || (fusion && observations_flow))
                     && match h {
                         None => true,
                         Some((h, t)) => {

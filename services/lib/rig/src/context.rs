@@ -150,6 +150,7 @@ impl Context {
             service,
             iox_prefix: &self.iox_prefix,
             zenoh: &self.zenoh,
+            exclusive: stereoscope_transport::Exclusive::Rig,
         }
     }
 

@@ -15,7 +15,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 
 pub use health::{Counters, HealthReporter};
 pub use net::{ZenohMode, ZenohSpec};
-pub use service::{Flow, NodeSpec, Outlet, Service, ServiceNode, drive};
+pub use service::{Exclusive, Flow, NodeSpec, Outlet, Service, ServiceNode, drive};
 
 /// A shared "please stop" flag: set by SIGINT/SIGTERM ([`Shutdown::on_signals`]) or by a
 /// caller ([`Shutdown::request`]); services poll it between bounded waits.
@@ -114,6 +114,9 @@ pub enum TransportError {
         source: ZenohCause,
     },
     /// Not `client`, `peer` or `router`.
+    /// Another instance of a service that must be alone already runs (liveliness).
+    #[error("{service} already runs on host {host:?} of this rig: stop that one first")]
+    AlreadyRunning { service: String, host: String },
     #[error("zenoh mode {0:?} is not client, peer or router")]
     UnknownZenohMode(String),
     /// An iceoryx2 file prefix iceoryx2 does not take.
