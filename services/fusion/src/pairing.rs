@@ -3,8 +3,11 @@
 //! Each camera's observations queue in arrival order. The oldest waiting observation is the
 //! reference; every other *live* camera contributes its observation closest in time to it,
 //! if within `max_skew`. A set is released as soon as every live camera has contributed, or
-//! when waiting longer cannot help: a live camera has already sent something later than the
-//! reference window (it missed this frame), or the reference has waited `max_wait`. So a
+//! when waiting longer cannot help: each missing camera has already sent something later than
+//! the reference window (it missed this frame) or is overdue — later than its usual delay
+//! from exposure to arrival here, plus four times that delay's usual deviation and 1 ms (each
+//! camera's arrival is learnt from its observations) — or the reference has waited
+//! `max_wait`. So a
 //! missing or late frame costs at most `max_wait` of latency, and a set then holds fewer
 //! cameras. A camera silent for `camera_timeout` is not live (not waited for) until it is
 //! heard again; its stale observations are discarded. Right after start, a camera not heard
@@ -60,6 +63,45 @@ impl Refused {
 struct Queue {
     items: VecDeque<(Observation, u64)>,
     last_arrival_ns: Option<u64>,
+    arrival: Arrival,
+}
+
+/// Observations a camera must have delivered before its arrival is predicted.
+const ARRIVAL_WARMUP: u32 = 8;
+/// Slack over a camera's predicted arrival before a set stops waiting for it.
+const ARRIVAL_MARGIN_NS: f64 = 1_000_000.0;
+
+/// How late a camera's observations arrive after their exposure (exponential averages of the
+/// lag and of its deviation, weight 1/8): its observation for an exposure is due by
+/// `timestamp + lag + 4 · deviation + 1 ms`.
+#[derive(Debug, Default, Clone, Copy)]
+struct Arrival {
+    samples: u32,
+    lag_ns: f64,
+    deviation_ns: f64,
+}
+
+impl Arrival {
+    fn note(&mut self, timestamp_ns: u64, now_ns: u64) {
+        let lag = now_ns as f64 - timestamp_ns as f64;
+        if self.samples == 0 {
+            self.lag_ns = lag;
+        } else {
+            let d = lag - self.lag_ns;
+            self.lag_ns += d / 8.0;
+            self.deviation_ns += (d.abs() - self.deviation_ns) / 8.0;
+        }
+        self.samples = self.samples.saturating_add(1);
+    }
+
+    /// When this camera's observation of exposure `timestamp_ns` is due at the latest, once
+    /// enough have been seen to tell.
+    fn due_ns(&self, timestamp_ns: u64) -> Option<u64> {
+        (self.samples >= ARRIVAL_WARMUP).then(|| {
+            let wait = (self.lag_ns + 4.0 * self.deviation_ns + ARRIVAL_MARGIN_NS).max(0.0);
+            timestamp_ns.saturating_add(wait as u64)
+        })
+    }
 }
 
 /// Observations of `n` cameras, paired into sets.
@@ -155,6 +197,7 @@ impl Pairer {
                 .map(|_| Queue {
                     items: VecDeque::new(),
                     last_arrival_ns: None,
+                    arrival: Arrival::default(),
                 })
                 .collect(),
             discarded: 0,
@@ -209,6 +252,7 @@ impl Pairer {
         let Some(q) = self.queues.get_mut(camera) else {
             return Ok(());
         };
+        let obs_timestamp_ns = obs.timestamp_ns;
         // Out of order (older than what is queued) is kept in order.
         let pos = q
             .items
@@ -218,6 +262,7 @@ impl Pairer {
         q.items.insert(pos, (obs, now_ns));
         self.first_arrival_ns.get_or_insert(now_ns);
         q.last_arrival_ns = Some(now_ns);
+        q.arrival.note(obs_timestamp_ns, now_ns);
         while q.items.len() > MAX_QUEUE {
             if let Some((o, _)) = q.items.pop_front() {
                 self.discarded += 1;
@@ -301,7 +346,9 @@ impl Pairer {
         let skew = self.cfg.max_skew_ns;
         let mut chosen: Vec<Option<usize>> = vec![None; n];
         let mut complete = true;
-        let mut hopeless = false;
+        // Every missing camera given up on: it moved past this set, or (live only) its
+        // observation is overdue by its own arrival record.
+        let mut all_gone = true;
         for c in 0..n {
             if c == ref_cam {
                 chosen[c] = Some(0);
@@ -324,16 +371,22 @@ impl Pairer {
                 Some((i, _)) => chosen[c] = Some(i),
                 None => {
                     complete = false;
-                    if q.back()
-                        .is_some_and(|(o, _)| o.timestamp_ns > ref_ts + skew)
-                    {
-                        hopeless = true;
+                    let moved_past = q
+                        .back()
+                        .is_some_and(|(o, _)| o.timestamp_ns > ref_ts + skew);
+                    let overdue = recorded.is_none()
+                        && self.queues[c]
+                            .arrival
+                            .due_ns(ref_ts)
+                            .is_some_and(|due| now_ns > due);
+                    if !(moved_past || overdue) {
+                        all_gone = false;
                     }
                 }
             }
         }
         let waited = now_ns.saturating_sub(ref_arrival);
-        if !complete && !hopeless && waited < self.cfg.max_wait_ns {
+        if !complete && !all_gone && waited < self.cfg.max_wait_ns {
             return None;
         }
         if recorded.is_some() {
@@ -594,5 +647,41 @@ mod tests {
         );
         let e = strict.push(0, obs("a", 10_000), now + hour).unwrap_err();
         assert_eq!(e.reason(), "stale");
+    }
+
+    /// Once each camera's arrival is known (its observations come 2 ms after exposure, give or
+    /// take 0.1 ms), a set missing one stops waiting when that camera is overdue — about 3.4 ms
+    /// after the exposure — instead of the full `max_wait` (20 ms); the late observation, when
+    /// it comes, is dropped as late. A camera whose record is not yet known is waited for as
+    /// before.
+    #[test]
+    fn a_set_waits_for_a_camera_only_as_long_as_it_is_usually_late() {
+        let mut p = Pairer::new(2, cfg());
+        let period = 33 * MS;
+        let mut t = 1000 * MS;
+        // Before the record is known (fewer than 8 observations), a missing camera is waited
+        // for up to max_wait.
+        p.push(0, obs("a", t / MS), t + 2 * MS).unwrap();
+        assert!(p.pop(t + 10 * MS).is_none());
+        p.push(1, obs("b", t / MS), t + 2 * MS + 100_000).unwrap();
+        assert_eq!(p.pop(t + 10 * MS).unwrap().len(), 2);
+        for k in 0..10u64 {
+            t += period;
+            let jitter = (k % 3) * 100_000;
+            p.push(0, obs("a", t / MS), t + 2 * MS + jitter).unwrap();
+            p.push(1, obs("b", t / MS), t + 2 * MS + 100_000 - jitter)
+                .unwrap();
+            assert_eq!(p.pop(t + 3 * MS).unwrap().len(), 2);
+        }
+        // cam1's next observation is late.
+        t += period;
+        p.push(0, obs("a", t / MS), t + 2 * MS).unwrap();
+        assert!(p.pop(t + 3 * MS).is_none(), "released before cam1 was due");
+        let s = p.pop(t + 4 * MS).expect("released once cam1 was overdue");
+        assert_eq!(s.iter().map(|x| x.0).collect::<Vec<_>>(), vec![0]);
+        // It comes at last, and is dropped as late rather than making a second set.
+        p.push(1, obs("b", t / MS), t + 15 * MS).unwrap();
+        assert!(p.pop(t + 16 * MS).is_none());
+        assert_eq!(p.late, 1);
     }
 }
