@@ -1556,8 +1556,9 @@ fn recorded_frames_replay_through_the_services_to_the_same_poses() {
     );
     let out = String::from_utf8_lossy(&o.stdout);
     let v: serde_json::Value = serde_json::from_str(out.lines().last().unwrap()).unwrap();
+    // Every recorded set but the one or two whose cam0 frame was cut comes back.
     assert!(
-        v["replayed_frames"].as_u64().unwrap() as usize <= recorded,
+        v["matched_frames"].as_u64().unwrap() as usize + 2 >= recorded,
         "{v}"
     );
     // A session without frames is refused, naming the files.

@@ -21,11 +21,11 @@ pub mod y4m;
 use source::{FrameSource, Read, SourceError};
 use std::time::{Duration, Instant};
 use stereoscope_proto::frame::FrameHeader;
-use stereoscope_proto::messages::{SCHEMA_VERSION, Truth, now_ns};
+use stereoscope_proto::messages::{Observation, SCHEMA_VERSION, Truth, now_ns};
 use stereoscope_proto::names::{iox as iox_names, zenoh as keys};
 use stereoscope_rig::Context;
 use stereoscope_rig::schema::SourceSpec;
-use stereoscope_transport::iox::{FramePublisher, FrameStamp};
+use stereoscope_transport::iox::{FramePublisher, FrameStamp, MessageSubscriber};
 use stereoscope_transport::{Flow, Outlet, Service, ServiceNode, Shutdown, drive};
 
 /// What to run.
@@ -225,7 +225,13 @@ pub struct Capture {
     /// Frames read or skipped as bad so far (the source's frame index).
     index: u64,
     summary: CaptureSummary,
+    /// With a lockstep source: the worker's observations, and the sequence number of the last
+    /// frame sent, whose observation the next frame waits for.
+    lockstep: Option<(MessageSubscriber, Option<u64>)>,
 }
+
+/// The longest a lockstep frame waits for the worker's observation of the one before.
+const LOCKSTEP_WAIT: Duration = Duration::from_secs(2);
 
 impl std::fmt::Debug for Capture {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
@@ -271,6 +277,13 @@ impl Capture {
             ),
             None => None,
         };
+        let lockstep = if source.lockstep() {
+            let sub = MessageSubscriber::new(&node.iox, &iox_names::observations(rig, &cam))
+                .map_err(transport)?;
+            Some((sub, None))
+        } else {
+            None
+        };
         tracing::info!(camera = %cam, "capturing from {}", source.describe());
         node.counters
             .detail
@@ -300,7 +313,32 @@ impl Capture {
             next_slot: first_slot,
             index: 0,
             summary: CaptureSummary::default(),
+            lockstep,
         })
+    }
+
+    /// With a lockstep source: waits (up to [`LOCKSTEP_WAIT`]) until the worker has published
+    /// its observation of the last frame sent, so that no frame is overwritten unread.
+    fn wait_for_worker(&mut self, shutdown: &Shutdown) {
+        let Some((sub, Some(sent))) = &self.lockstep else {
+            return;
+        };
+        let sent = *sent;
+        let end = Instant::now() + LOCKSTEP_WAIT;
+        while Instant::now() < end && !shutdown.requested() {
+            loop {
+                match sub.try_next::<Observation>() {
+                    Ok(Some(Ok(o))) if o.sequence >= sent => return,
+                    Ok(Some(_)) => continue,
+                    Ok(None) | Err(_) => break,
+                }
+            }
+            std::thread::sleep(Duration::from_micros(200));
+        }
+        tracing::warn!(
+            camera = %self.cfg.camera,
+            "no observation of frame {sent} from the worker within {LOCKSTEP_WAIT:?}; going on"
+        );
     }
 
     /// The next slot to fill, its scene time and its nominal timestamp, after waiting for it
@@ -353,6 +391,7 @@ impl Service for Capture {
         if self.cfg.max_frames.is_some_and(|m| self.index >= m) {
             return Ok(Flow::Stop);
         }
+        self.wait_for_worker(shutdown);
         let Some((slot, scene_time_s, nominal_ns)) = self.next_slot(shutdown) else {
             return Ok(Flow::Stop);
         };
@@ -376,11 +415,15 @@ impl Service for Capture {
                 timestamp_ns,
                 sequence,
             }) => {
+                let sent = sequence.unwrap_or(header.sequence);
                 loan.send(FrameStamp {
                     timestamp_ns,
                     sequence,
                 })
                 .map_err(transport)?;
+                if let Some((_, last)) = &mut self.lockstep {
+                    *last = Some(sent);
+                }
             }
             Ok(Read::End) => {
                 tracing::info!(camera = %cam, frames = self.index - 1, "end of source");

@@ -139,6 +139,12 @@ pub trait FrameSource: Send {
     /// Whether the service should pace frames at [`FrameSource::fps`] (cameras pace
     /// themselves and answer false).
     fn realtime(&self) -> bool;
+    /// Whether each frame should wait until the camera's moment worker has taken the one
+    /// before (a replay of recorded frames: every frame must reach fusion, however loaded the
+    /// machine; live cameras never wait).
+    fn lockstep(&self) -> bool {
+        false
+    }
     /// Writes frame `index` (0-based, `scene_time_s` = its time since the start) into `out`
     /// (`stride × height` bytes, tight rows).
     fn read(&mut self, index: u64, scene_time_s: f64, out: &mut [u8]) -> Result<Read, SourceError>;

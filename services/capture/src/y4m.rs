@@ -175,6 +175,10 @@ impl FrameSource for Y4mSource {
         self.realtime
     }
 
+    fn lockstep(&self) -> bool {
+        self.replay_clock.is_some()
+    }
+
     fn read(&mut self, _index: u64, _t: f64, out: &mut [u8]) -> Result<Read, SourceError> {
         let frame_no = self.frames_read;
         let path = self.path.as_str();
