@@ -696,4 +696,39 @@ mod tests {
             "{fusion:?}"
         );
     }
+
+    /// The deployment rigs in `deploy/rigs/` load, and each host runs what their comments say.
+    #[test]
+    fn the_deployment_rigs_give_each_host_its_services() {
+        let names = |text: &str, host: &str| -> Vec<String> {
+            let c = ctx(text, host);
+            let (_, client) = router_specs(&c).unwrap();
+            services_here(&c, &client)
+                .into_iter()
+                .map(|s| s.name)
+                .collect()
+        };
+        let three = include_str!("../../../deploy/rigs/three-pcs.toml");
+        assert_eq!(
+            names(three, "capture1"),
+            ["capture/cam0", "moments/cam0", "capture/cam1", "moments/cam1"]
+        );
+        assert_eq!(
+            names(three, "capture2"),
+            ["capture/cam2", "moments/cam2", "capture/cam3", "moments/cam3"]
+        );
+        assert_eq!(names(three, "fusion"), ["fusion"]);
+        let c = ctx(three, "capture1");
+        let (router, client) = router_specs(&c).unwrap();
+        assert_eq!(router.connect, ["tcp/192.168.10.20:7447"]);
+        assert_eq!(client.connect, ["tcp/127.0.0.1:7447"]);
+        let ring = include_str!("../../../deploy/rigs/one-pc-per-camera.toml");
+        for k in 0..6 {
+            assert_eq!(
+                names(ring, &format!("pc{k}")),
+                [format!("capture/cam{k}"), format!("moments/cam{k}")]
+            );
+        }
+        assert_eq!(names(ring, "station"), ["fusion"]);
+    }
 }
