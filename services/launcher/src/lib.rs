@@ -711,11 +711,21 @@ mod tests {
         let three = include_str!("../../../deploy/rigs/three-pcs.toml");
         assert_eq!(
             names(three, "capture1"),
-            ["capture/cam0", "moments/cam0", "capture/cam1", "moments/cam1"]
+            [
+                "capture/cam0",
+                "moments/cam0",
+                "capture/cam1",
+                "moments/cam1"
+            ]
         );
         assert_eq!(
             names(three, "capture2"),
-            ["capture/cam2", "moments/cam2", "capture/cam3", "moments/cam3"]
+            [
+                "capture/cam2",
+                "moments/cam2",
+                "capture/cam3",
+                "moments/cam3"
+            ]
         );
         assert_eq!(names(three, "fusion"), ["fusion"]);
         let c = ctx(three, "capture1");
