@@ -21,8 +21,13 @@ use stereoscope_rig::Rig;
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct FuserConfig {
     pub correspond: CorrespondConfig,
-    /// Largest distance of a point from an object's prediction to continue it, metres.
+    /// Largest distance of a point from an object's prediction to continue it, metres, for an
+    /// object seen in the last set.
     pub gate_m: f64,
+    /// How much the gate widens for each second an object has gone unseen, metres per second:
+    /// the prediction of an object lost behind an occlusion or through a camera restart grows
+    /// uncertain, and it should still find the object when it reappears near it.
+    pub gate_growth_m_per_s: f64,
     /// An object unseen this long is forgotten.
     pub drop_after_ns: u64,
     /// Above this roundness a blob's axis is not used for heading.
@@ -34,7 +39,8 @@ impl Default for FuserConfig {
         FuserConfig {
             correspond: CorrespondConfig::default(),
             gate_m: 0.1,
-            drop_after_ns: 1_000_000_000,
+            gate_growth_m_per_s: 0.5,
+            drop_after_ns: 2_000_000_000,
             max_roundness: 0.9,
         }
     }
@@ -225,11 +231,12 @@ impl Fuser {
         self.objects
             .retain(|o| timestamp_ns.saturating_sub(o.last_seen_ns) <= drop_after);
         // Assign points to predictions.
-        let gate2 = self.cfg.gate_m * self.cfg.gate_m;
         let mut cost = Vec::with_capacity(self.objects.len() * points.len());
         for o in &self.objects {
             let dt = timestamp_ns.saturating_sub(o.last_seen_ns) as f64 * 1e-9;
             let predicted = o.position_m + o.velocity_m_per_s * dt;
+            let gate = self.cfg.gate_m + self.cfg.gate_growth_m_per_s * dt;
+            let gate2 = gate * gate;
             cost.extend(points.iter().map(|p| {
                 let d2 = (p.position_m - predicted).norm_squared();
                 if d2 <= gate2 { d2 } else { f64::INFINITY }
@@ -311,5 +318,81 @@ impl Fuser {
         }
         poses.sort_by_key(|p| p.object_id);
         poses
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use stereoscope_proto::messages::SCHEMA_VERSION;
+
+    const RIG: &str = include_str!("../../../deploy/rigs/demo.toml");
+
+    /// The set of both demo cameras seeing one ball at `point`.
+    fn set_at(rig: &Rig, point: Point3<f64>, t_ns: u64) -> Vec<(usize, Observation)> {
+        (0..2)
+            .map(|c| {
+                let px = rig.cameras[c].camera.project(&point).unwrap();
+                let blob = BlobObservation {
+                    track_id: 1,
+                    status: TrackState::Tracked,
+                    area_px: 60.0,
+                    x_px: px.x,
+                    y_px: px.y,
+                    mu20: 300.0,
+                    mu02: 300.0,
+                    mu11: 0.0,
+                    orientation_deg: 0.0,
+                    roundness: 1.0,
+                    heading_deg: 0.0,
+                    directed: false,
+                    heading_ambiguous: true,
+                    clipped: false,
+                    window_px: [0, 0, 319, 239],
+                    bbox_px: [0, 0, 1, 1],
+                };
+                let o = Observation {
+                    schema: SCHEMA_VERSION,
+                    rig: "demo".into(),
+                    camera: rig.cameras[c].id.clone(),
+                    sequence: t_ns,
+                    timestamp_ns: t_ns,
+                    frame_published_ns: t_ns,
+                    published_ns: t_ns,
+                    width_px: 320,
+                    height_px: 240,
+                    threshold: 100,
+                    full_frame: false,
+                    dropped_blobs: 0,
+                    blobs: vec![blob],
+                };
+                (c, o)
+            })
+            .collect()
+    }
+
+    /// An object gone for 0.6 s (a camera restart, an occlusion) and back 0.15 m from its
+    /// prediction keeps its id; one gone longer than `drop_after` gets a new one.
+    #[test]
+    fn an_object_back_from_a_short_loss_keeps_its_id() {
+        let rig = Rig::from_toml(RIG).unwrap();
+        let mut f = Fuser::new(&rig, FuserConfig::default());
+        let s = 1_000_000_000u64;
+        let p = Point3::new(0.05, -0.03, 0.6);
+        let id = |poses: &[Pose]| {
+            assert_eq!(poses.len(), 1, "{poses:?}");
+            poses[0].object_id
+        };
+        let first = id(&f.fuse(&set_at(&rig, p, s), s));
+        assert_eq!(id(&f.fuse(&set_at(&rig, p, s + s / 30), s + s / 30)), first);
+        // 0.6 s unseen, back 0.15 m away: beyond the 0.1 m gate of a tracked object, within
+        // the gate widened by 0.5 m/s × 0.6 s.
+        let back = p + Vector3::new(0.15, 0.0, 0.0);
+        let t = s + s / 30 + 6 * s / 10;
+        assert_eq!(id(&f.fuse(&set_at(&rig, back, t), t)), first);
+        // Gone for longer than drop_after (2 s): a new object.
+        let t = t + 2 * s + s / 10;
+        let again = id(&f.fuse(&set_at(&rig, back, t), t));
+        assert!(again > first, "{again} {first}");
     }
 }

@@ -79,7 +79,7 @@ pub fn settings(file: &RigFile) -> (PairingConfig, FuserConfig, bool) {
             max_residual_px: f.max_residual_px.unwrap_or(d.max_residual_px),
         },
         gate_m: f.association_gate.map(|g| g * scale).unwrap_or(0.1),
-        drop_after_ns: (f.drop_after_s.unwrap_or(1.0) * 1e9) as u64,
+        drop_after_ns: (f.drop_after_s.unwrap_or(2.0) * 1e9) as u64,
         ..FuserConfig::default()
     };
     let all_zenoh = f.observations == Some(ObservationRoute::Zenoh);
