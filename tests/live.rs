@@ -414,6 +414,11 @@ fn every_rig_rule_is_refused_at_start_with_its_key() {
             &["fusion.max_skew_ms"],
         ),
         (
+            "recorder_frames",
+            format!("{demo}\n[recorder]\nfolder = \"sessions\"\nframes = [\"cam9\"]\n"),
+            &["recorder.frames[0]", "cam9"],
+        ),
+        (
             "replay_sets",
             demo.replacen(
                 "max_skew_ms = 5.0",
@@ -1570,4 +1575,72 @@ fn recorded_frames_replay_through_the_services_to_the_same_poses() {
     let o = run_with_limit(&["replay", &session_s, "--frames"], Duration::from_secs(30));
     assert!(!o.status.success());
     assert!(stderr(&o).contains("frames-cam1.y4m"), "{}", stderr(&o));
+}
+
+/// The recorder under the launcher: `[recorder]` in the rig starts it beside the other
+/// services; killed, it is restarted and records a new session folder, and both sessions read
+/// back whole.
+#[test]
+fn a_supervised_recorder_is_restarted_into_a_new_session() {
+    let _serial = serial();
+    let dir = TempDir::new("supervised-recorder");
+    let (path, port) = one_pc_rig(&dir, 'w');
+    let sessions = dir.0.join("sessions");
+    let text = std::fs::read_to_string(&path).unwrap()
+        + &format!(
+            "\n[recorder]\nfolder = {:?}\n",
+            sessions.display().to_string()
+        );
+    std::fs::write(&path, text).unwrap();
+    let launcher = Proc::start(&["run", &path]);
+    let watcher = PoseWatcher::new(&format!("tcp/127.0.0.1:{port}"), "demo");
+    watcher.until(Duration::from_secs(40), "three objects", both_cameras);
+    // Session folders holding at least `n` pose frames.
+    let recorded = |n: usize| -> Vec<std::path::PathBuf> {
+        let Ok(d) = std::fs::read_dir(&sessions) else {
+            return Vec::new();
+        };
+        let mut v: Vec<_> = d
+            .flatten()
+            .map(|e| e.path())
+            .filter(|p| {
+                std::fs::read_to_string(p.join("poses.jsonl"))
+                    .map(|t| t.lines().count() >= n)
+                    .unwrap_or(false)
+            })
+            .collect();
+        v.sort();
+        v
+    };
+    let wait = |what: &str, ok: &dyn Fn() -> bool| {
+        let end = Instant::now() + Duration::from_secs(30);
+        while !ok() {
+            assert!(
+                Instant::now() < end,
+                "{what} within 30 s:\n{}",
+                launcher.output()
+            );
+            std::thread::sleep(Duration::from_millis(100));
+        }
+    };
+    wait("a first session with 30 pose frames", &|| {
+        recorded(30).len() == 1
+    });
+    let pid = pid_of(&launcher.output(), "recorder");
+    // SAFETY: killing a process this test started (through the launcher).
+    assert_eq!(unsafe { libc::kill(pid, libc::SIGKILL) }, 0);
+    wait("the recorder restarted", &|| {
+        launcher.output().contains("restarted recorder")
+    });
+    wait("a second session with 30 pose frames", &|| {
+        recorded(30).len() == 2
+    });
+    let mut launcher = launcher;
+    launcher.stop();
+    for s in recorded(30) {
+        let session = stereoscope_recorder::session::Session::read(&s)
+            .unwrap_or_else(|e| panic!("{}: {e}", s.display()));
+        assert!(session.poses.len() >= 30, "{}", s.display());
+        assert_eq!(session.info.rig, "demo");
+    }
 }

@@ -142,9 +142,30 @@ pub fn services_here(ctx: &Context, service_zenoh: &ZenohSpec) -> Vec<ServiceSpe
     }
     if ctx.fusion_here() && ctx.rig.spec.fusion.is_some() {
         let mut args = vec!["fusion".to_string()];
-        args.extend(common);
+        args.extend(common.clone());
         out.push(ServiceSpec {
             name: "fusion".into(),
+            args,
+        });
+    }
+    if let Some(r) = &ctx.rig.spec.recorder
+        && r.host.as_deref().is_none_or(|h| h == ctx.host)
+    {
+        // Every start records a new session folder inside the rig's folder.
+        let mut args = vec!["recorder".to_string()];
+        args.extend(common);
+        args.extend([
+            "--into".to_string(),
+            ctx.rig.source_path(&r.folder).display().to_string(),
+        ]);
+        if !r.frames.is_empty() {
+            args.extend(["--frames".to_string(), r.frames.join(",")]);
+        }
+        if let Some(f) = r.flush_ms {
+            args.extend(["--flush-ms".to_string(), f.to_string()]);
+        }
+        out.push(ServiceSpec {
+            name: "recorder".into(),
             args,
         });
     }

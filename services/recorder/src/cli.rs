@@ -11,8 +11,12 @@ pub struct Args {
     #[command(flatten)]
     pub common: CommonArgs,
     /// The session folder to create.
+    #[arg(long, required_unless_present = "into", conflicts_with = "into")]
+    pub out: Option<PathBuf>,
+    /// Make a new session folder in this one, named after the rig and the start time (how
+    /// the launcher runs a supervised recorder: every restart records a new session).
     #[arg(long)]
-    pub out: PathBuf,
+    pub into: Option<PathBuf>,
     /// How often to write and sync, milliseconds (what a crash can lose at most).
     #[arg(long, default_value_t = 200)]
     pub flush_ms: u64,
@@ -38,10 +42,16 @@ pub fn main(args: Args) -> anyhow::Result<()> {
             stop.request();
         });
     }
+    let ctx = args.common.resolve()?;
+    let out = match (args.out, args.into) {
+        (Some(out), _) => out,
+        (None, Some(folder)) => crate::session::new_session_folder(&folder, &ctx.rig.name),
+        (None, None) => anyhow::bail!("give --out SESSION or --into FOLDER"),
+    };
     let (p, o) = run(
         RecorderConfig {
-            ctx: args.common.resolve()?,
-            out: args.out,
+            ctx,
+            out,
             flush_interval: Duration::from_millis(args.flush_ms.max(1)),
             frames: args.frames,
         },

@@ -53,6 +53,38 @@ pub fn csv_rows(f: &PoseFrame) -> String {
     out
 }
 
+/// A new session folder's path inside `folder`: `<rig>-<UTC date and time>-<ms>`, unique per
+/// start (a recorder restarted within the same millisecond gets `-2`, `-3`, …).
+pub fn new_session_folder(folder: &Path, rig: &str) -> PathBuf {
+    let now_ns = stereoscope_proto::messages::now_ns();
+    let secs = (now_ns / 1_000_000_000) as i64;
+    let (days, rem) = (secs.div_euclid(86_400), secs.rem_euclid(86_400));
+    // Civil date from days since 1970-01-01 (Howard Hinnant's algorithm).
+    let z = days + 719_468;
+    let era = z.div_euclid(146_097);
+    let doe = z.rem_euclid(146_097);
+    let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
+    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
+    let mp = (5 * doy + 2) / 153;
+    let d = doy - (153 * mp + 2) / 5 + 1;
+    let m = if mp < 10 { mp + 3 } else { mp - 9 };
+    let y = yoe + era * 400 + i64::from(m <= 2);
+    let base = format!(
+        "{rig}-{y:04}{m:02}{d:02}T{:02}{:02}{:02}Z-{:03}",
+        rem / 3600,
+        rem % 3600 / 60,
+        rem % 60,
+        (now_ns / 1_000_000) % 1000
+    );
+    let mut path = folder.join(&base);
+    let mut n = 2;
+    while path.exists() {
+        path = folder.join(format!("{base}-{n}"));
+        n += 1;
+    }
+    path
+}
+
 /// A problem in a session folder, naming the file and line.
 #[derive(Debug, thiserror::Error)]
 #[error("{}{}: {problem}", file.display(), line.map(|l| format!(":{l}")).unwrap_or_default())]

@@ -408,6 +408,7 @@ mod tests {
             fusion: None,
             synthetic: None,
             serial: Vec::new(),
+            recorder: None,
         };
         let back = Rig::from_toml(&file.to_toml().unwrap()).unwrap();
         let b = back.cameras[0].camera;

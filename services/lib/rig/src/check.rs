@@ -184,7 +184,7 @@ pub(crate) fn check(file: &RigFile, base: Option<&Path>, sources: bool) -> Resul
             )),
             None if file.hosts.len() > 1 => Err(err(
                 key,
-                "missing; with several [[host]] sections every camera, [fusion] and [[serial]] must name its host",
+                "missing; with several [[host]] sections every camera, [fusion], [[serial]] and [recorder] must name its host",
             )),
             _ => Ok(()),
         }
@@ -343,6 +343,44 @@ pub(crate) fn check(file: &RigFile, base: Option<&Path>, sources: bool) -> Resul
                     s.port
                 ),
             ));
+        }
+    }
+    if let Some(r) = &file.recorder {
+        known_host("recorder.host".into(), &r.host)?;
+        if r.folder.trim().is_empty() {
+            return Err(err("recorder.folder", "is empty: say where sessions go"));
+        }
+        if let Some(f) = r.flush_ms
+            && !(1..=60_000).contains(&f)
+        {
+            return Err(err(
+                "recorder.flush_ms",
+                format!("{f} is not between 1 and 60000"),
+            ));
+        }
+        for (i, cam) in r.frames.iter().enumerate() {
+            let on_host = file
+                .cameras
+                .iter()
+                .find(|c| &c.id == cam)
+                .map(|c| c.host.as_deref() == r.host.as_deref() || c.host.is_none());
+            match on_host {
+                None => {
+                    return Err(err(
+                        format!("recorder.frames[{i}]"),
+                        format!("{cam:?} is not a camera of the rig"),
+                    ));
+                }
+                Some(false) => {
+                    return Err(err(
+                        format!("recorder.frames[{i}]"),
+                        format!(
+                            "camera {cam:?} is on another host than the recorder: frames are read from this PC's shared memory"
+                        ),
+                    ));
+                }
+                Some(true) => {}
+            }
         }
     }
     if let Some(s) = &file.synthetic {

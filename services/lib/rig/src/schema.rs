@@ -168,6 +168,27 @@ pub struct RigFile {
     /// Serial-link outputs.
     #[serde(rename = "serial", default, skip_serializing_if = "Vec::is_empty")]
     pub serial: Vec<SerialSpec>,
+    /// A recorder the launcher runs and supervises (`docs/recording.md`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub recorder: Option<RecorderSpec>,
+}
+
+/// A supervised recorder: each start (the first, and every restart after a crash) records a
+/// new session folder inside `folder`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RecorderSpec {
+    /// The PC it runs on.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub host: Option<String>,
+    /// Where session folders go (relative to the rig file); made if missing.
+    pub folder: String,
+    /// Cameras on the recorder's PC whose raw frames to record as well.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub frames: Vec<String>,
+    /// How often to write and sync, milliseconds (default 200).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub flush_ms: Option<u64>,
 }
 
 /// A serial-link output (`docs/services.md`, "serial").
