@@ -1644,3 +1644,36 @@ fn a_supervised_recorder_is_restarted_into_a_new_session() {
         assert_eq!(session.info.rig, "demo");
     }
 }
+
+/// One of each: with the rig running, a second launcher for the same host is refused, and so
+/// is a second fusion started by hand (it names the host the first runs on); the rig carries on.
+#[test]
+fn a_second_launcher_or_fusion_for_a_running_rig_is_refused() {
+    let _serial = serial();
+    let dir = TempDir::new("one-of-each");
+    let (_launcher, watcher, path, port) = running_demo(&dir, 'o');
+    let second = run_with_limit(&["run", &path], Duration::from_secs(30));
+    assert!(!second.status.success());
+    let e = stderr(&second);
+    assert!(e.contains("already runs"), "{e}");
+    let endpoint = format!("tcp/127.0.0.1:{port}");
+    let fusion = run_with_limit(
+        &[
+            "service",
+            "fusion",
+            "--rig",
+            &path,
+            "--iox-prefix",
+            &format!("stsc_t{}o2_", std::process::id()),
+            "--zenoh-mode",
+            "client",
+            "--zenoh-connect",
+            &endpoint,
+        ],
+        Duration::from_secs(30),
+    );
+    assert!(!fusion.status.success());
+    let e = stderr(&fusion);
+    assert!(e.contains("fusion already runs on host \"pc\""), "{e}");
+    watcher.until(Duration::from_secs(20), "poses still", both_cameras);
+}
