@@ -244,20 +244,24 @@ impl FusionService {
 
     /// Takes every observation waiting, local and remote, into the pairer.
     fn take_inputs(&mut self) {
+        let cameras = &self.cfg.ctx.rig.cameras;
         if !self.local.is_empty() {
             self.waker.wait(self.wait);
         } else if let Ok(input) = self.remote.recv_timeout(Duration::from_millis(50)) {
-            handle(input, &mut self.pairer, &mut self.node.counters);
+            handle(input, &mut self.pairer, &mut self.node.counters, cameras);
         }
         let counters = &mut self.node.counters;
         for (i, sub) in &self.local {
             loop {
                 match sub.try_next::<Observation>() {
-                    Ok(Some(Ok(o))) => handle(Input::Obs(*i, o), &mut self.pairer, counters),
+                    Ok(Some(Ok(o))) => {
+                        handle(Input::Obs(*i, o), &mut self.pairer, counters, cameras)
+                    }
                     Ok(Some(Err(e))) => handle(
                         Input::Bad(e.reason(), format!("{}: {e}", sub.name())),
                         &mut self.pairer,
                         counters,
+                        cameras,
                     ),
                     Ok(None) => break,
                     Err(e) => {
@@ -268,7 +272,7 @@ impl FusionService {
             }
         }
         while let Ok(input) = self.remote.try_recv() {
-            handle(input, &mut self.pairer, counters);
+            handle(input, &mut self.pairer, counters, cameras);
         }
     }
 
@@ -393,16 +397,26 @@ impl Service for FusionService {
     }
 }
 
-fn handle(input: Input, pairer: &mut Pairer, counters: &mut Counters) {
+/// Pairs an observation of camera index `c` (`cameras` names it in a refusal), or counts a
+/// refused input.
+fn handle(
+    input: Input,
+    pairer: &mut Pairer,
+    counters: &mut Counters,
+    cameras: &[stereoscope_rig::RigCamera],
+) {
     let (reason, message) = match input {
         Input::Obs(c, o) => {
-            let (camera, sequence) = (o.camera.clone(), o.sequence);
+            let sequence = o.sequence;
             match pairer.push(c, o, now_ns()) {
                 Ok(()) => return,
-                Err(r) => (
-                    r.reason(),
-                    format!("observation of {camera} frame {sequence}: {r}"),
-                ),
+                Err(r) => {
+                    let camera = cameras.get(c).map(|x| x.id.as_str()).unwrap_or("?");
+                    (
+                        r.reason(),
+                        format!("observation of {camera} frame {sequence}: {r}"),
+                    )
+                }
             }
         }
         Input::Bad(reason, message) => (reason, message),
