@@ -80,6 +80,8 @@ impl Harness {
                 mode: ZenohMode::Peer,
                 connect: vec![],
                 listen: vec![endpoint.clone()],
+                tls: None,
+                access_control: None,
             },
         };
         let shutdown = Shutdown::new();
@@ -99,6 +101,8 @@ impl Harness {
             mode: ZenohMode::Peer,
             connect: vec![endpoint],
             listen: vec![],
+            tls: None,
+            access_control: None,
         })
         .unwrap();
         let (htx, health) = mpsc::channel();

@@ -15,8 +15,7 @@ use std::process::{Child, Command, Stdio};
 use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
-use stereoscope_rig::Context;
-use stereoscope_rig::context::local_endpoint;
+use stereoscope_rig::{Context, RigError, security};
 use stereoscope_transport::net::{ZenohMode, ZenohSpec};
 use stereoscope_transport::{Shutdown, iox, net};
 
@@ -81,6 +80,8 @@ pub enum LaunchError {
     },
     #[error("launcher")]
     Transport(#[from] stereoscope_transport::TransportError),
+    #[error(transparent)]
+    Rig(#[from] RigError),
 
     /// Another launcher runs this host of the rig (same iceoryx2 prefix) on this PC.
     #[error(
@@ -281,22 +282,71 @@ fn terminate(children: &mut [Running]) {
 pub const DEFAULT_ROUTER: &str = "tcp/127.0.0.1:7447";
 
 /// The Zenoh spec of this host's router, and that of its services (clients of it). A rig with
-/// no `[[host]]` runs on one PC with its router on [`DEFAULT_ROUTER`].
-pub fn router_specs(ctx: &Context) -> Option<(ZenohSpec, ZenohSpec)> {
-    let (listen, connect) = match ctx.rig.spec.hosts.iter().find(|h| h.name == ctx.host) {
-        Some(h) => (h.zenoh_listen.clone(), h.zenoh_connect.clone()),
-        None if ctx.rig.spec.hosts.is_empty() => (vec![DEFAULT_ROUTER.to_string()], Vec::new()),
-        None => return None,
+/// no `[[host]]` runs on one PC with its router on [`DEFAULT_ROUTER`]; with TLS the router
+/// also listens on loopback for its services and enforces the rig's access control
+/// (`stereoscope_rig::security`).
+pub fn router_specs(ctx: &Context) -> Result<Option<(ZenohSpec, ZenohSpec)>, RigError> {
+    if ctx.rig.spec.hosts.is_empty() {
+        return Ok(Some((
+            ZenohSpec {
+                mode: ZenohMode::Router,
+                connect: Vec::new(),
+                listen: vec![DEFAULT_ROUTER.to_string()],
+                tls: None,
+                access_control: None,
+            },
+            ZenohSpec::client_of(DEFAULT_ROUTER),
+        )));
+    }
+    let base = ctx.rig.base_dir.as_deref();
+    let Some(router) = security::router_spec(&ctx.rig.spec, &ctx.host, base)? else {
+        return Ok(None);
     };
-    let first = listen.first()?.clone();
-    Some((
-        ZenohSpec {
-            mode: ZenohMode::Router,
-            connect,
-            listen,
-        },
-        ZenohSpec::client_of(&local_endpoint(&first)),
-    ))
+    let local = ctx
+        .rig
+        .spec
+        .hosts
+        .iter()
+        .find(|h| h.name == ctx.host)
+        .and_then(security::service_endpoint);
+    Ok(local.map(|l| (router, ZenohSpec::client_of(&l))))
+}
+
+/// Runs only this host's Zenoh router (`stereoscope service router`) until shutdown: for a
+/// PC that runs no service but should relay (a consumer PC), or to keep the router out of a
+/// process that measures it (`stereoscope demo`).
+pub fn run_router(ctx: &Context, shutdown: &Shutdown) -> Result<(), LaunchError> {
+    let Some((router, _)) = router_specs(ctx).map_err(|e| e.in_file(&ctx.rig_path))? else {
+        return Err(LaunchError::NothingHere {
+            rig: ctx.rig_path.clone(),
+            host: ctx.host.clone(),
+        });
+    };
+    let _session = net::open(&router)?;
+    tracing::info!("zenoh router listening on {:?}", router.listen);
+    while !shutdown.sleep(Duration::from_millis(200)) {}
+    Ok(())
+}
+
+/// The router's command line (`stereoscope service router`).
+pub mod router_cli {
+    use stereoscope_rig::CommonArgs;
+    use stereoscope_transport::{Shutdown, init_logging};
+
+    #[derive(clap::Args, Debug, Clone)]
+    pub struct Args {
+        #[command(flatten)]
+        pub common: CommonArgs,
+    }
+
+    /// Runs the router until SIGINT/SIGTERM.
+    pub fn main(args: Args) -> anyhow::Result<()> {
+        init_logging("router");
+        let shutdown = Shutdown::on_signals()?;
+        let ctx = args.common.resolve()?;
+        super::run_router(&ctx, &shutdown)?;
+        Ok(())
+    }
 }
 
 /// Runs this host's services until shutdown. Returns how many restarts happened.
@@ -308,7 +358,7 @@ pub fn run(cfg: LaunchConfig, shutdown: Shutdown) -> Result<u32, LaunchError> {
     // This run is one session: a restarted fusion continues its numbering.
     let session = stereoscope_proto::messages::now_ns().to_string();
     // The router first, so the services' clients find it.
-    let (router, service_zenoh) = match router_specs(ctx) {
+    let (router, service_zenoh) = match router_specs(ctx).map_err(|e| e.in_file(&ctx.rig_path))? {
         Some((r, s)) if cfg.router => (Some(r), s),
         Some((_, s)) => (None, s),
         None => (None, ctx.zenoh.clone()),
@@ -575,7 +625,18 @@ mod tests {
         // Another host, or another prefix, is another rig's business.
         let _other = lock_host(&prefix, "pc2").unwrap();
         drop(first);
-        let _again = lock_host(&prefix, "pc").unwrap();
+        // Free again. Other tests of this process start children meanwhile, and a child
+        // holds a copy of every open descriptor (the lock's too) from its fork until its
+        // exec closes them: the lock comes free within that moment.
+        let end = Instant::now() + Duration::from_secs(2);
+        let again = loop {
+            match lock_host(&prefix, "pc") {
+                Ok(f) => break f,
+                Err(e) if Instant::now() > end => panic!("{e}"),
+                Err(_) => std::thread::sleep(Duration::from_millis(5)),
+            }
+        };
+        drop(again);
     }
 
     const DEMO_RIG: &str = include_str!("../../../deploy/rigs/demo.toml");
@@ -677,13 +738,14 @@ mod tests {
 
     #[test]
     fn each_host_runs_its_own_services() {
-        let text = DEMO_RIG
-            .replacen("id = \"cam0\"", "id = \"cam0\"\nhost = \"a\"", 1)
-            .replacen("id = \"cam1\"", "id = \"cam1\"\nhost = \"b\"", 1)
-            .replacen("[fusion]\n", "[fusion]\nhost = \"b\"\n", 1)
+        let text = "insecure = true\n".to_string()
+            + &DEMO_RIG
+                .replacen("id = \"cam0\"", "id = \"cam0\"\nhost = \"a\"", 1)
+                .replacen("id = \"cam1\"", "id = \"cam1\"\nhost = \"b\"", 1)
+                .replacen("[fusion]\n", "[fusion]\nhost = \"b\"\n", 1)
             + "\n[[host]]\nname = \"a\"\nzenoh_listen = [\"tcp/0.0.0.0:7447\"]\n[[host]]\nname = \"b\"\nzenoh_listen = [\"tcp/127.0.0.1:7448\"]\nzenoh_connect = [\"tcp/10.0.0.1:7447\"]\n[[serial]]\nhost = \"b\"\nport = \"/dev/ttyUSB0\"\nmode = \"legacy\"\nobjects = [3, 1]\n";
         let a = ctx(&text, "a");
-        let (router, client) = router_specs(&a).unwrap();
+        let (router, client) = router_specs(&a).unwrap().unwrap();
         assert_eq!(router.mode, ZenohMode::Router);
         assert_eq!(client.connect, vec!["tcp/127.0.0.1:7447".to_string()]);
         let names: Vec<String> = services_here(&a, &client)
@@ -692,7 +754,7 @@ mod tests {
             .collect();
         assert_eq!(names, ["capture/cam0", "moments/cam0"]);
         let b = ctx(&text, "b");
-        let (router, client) = router_specs(&b).unwrap();
+        let (router, client) = router_specs(&b).unwrap().unwrap();
         assert_eq!(router.connect, vec!["tcp/10.0.0.1:7447".to_string()]);
         let specs = services_here(&b, &client);
         let names: Vec<&str> = specs.iter().map(|s| s.name.as_str()).collect();
@@ -718,12 +780,33 @@ mod tests {
         );
     }
 
+    /// A deployment rig as its PCs read it: from its folder, beside the `certs/` that
+    /// `deploy/make-certs.sh` makes (here empty files: the router is not opened).
+    fn deployed(text: &str, host: &str) -> Context {
+        let dir = std::env::temp_dir().join(format!("stereoscope-deployed-{}", std::process::id()));
+        std::fs::create_dir_all(dir.join("certs")).unwrap();
+        for h in [
+            "capture1", "capture2", "fusion", "station", "ca", "pc0", "pc1", "pc2", "pc3", "pc4",
+            "pc5",
+        ] {
+            for ext in ["pem", "key"] {
+                std::fs::write(dir.join("certs").join(format!("{h}.{ext}")), "").unwrap();
+            }
+        }
+        let path = dir.join("rig.toml");
+        std::fs::write(&path, text).unwrap();
+        let mut c = ctx(text, host);
+        c.rig = Rig::load(&path).unwrap();
+        c.rig_path = path;
+        c
+    }
+
     /// The deployment rigs in `deploy/rigs/` load, and each host runs what their comments say.
     #[test]
     fn the_deployment_rigs_give_each_host_its_services() {
         let names = |text: &str, host: &str| -> Vec<String> {
-            let c = ctx(text, host);
-            let (_, client) = router_specs(&c).unwrap();
+            let c = deployed(text, host);
+            let (_, client) = router_specs(&c).unwrap().unwrap();
             services_here(&c, &client)
                 .into_iter()
                 .map(|s| s.name)
@@ -749,10 +832,24 @@ mod tests {
             ]
         );
         assert_eq!(names(three, "fusion"), ["fusion"]);
-        let c = ctx(three, "capture1");
-        let (router, client) = router_specs(&c).unwrap();
-        assert_eq!(router.connect, ["tcp/192.168.10.20:7447"]);
-        assert_eq!(client.connect, ["tcp/127.0.0.1:7447"]);
+        let c = deployed(three, "capture1");
+        let (router, client) = router_specs(&c).unwrap().unwrap();
+        assert_eq!(router.connect, ["tls/192.168.10.20:7447"]);
+        // The router also listens on loopback for its services, which connect there.
+        assert_eq!(
+            router.listen,
+            ["tls/192.168.10.11:7447", "tcp/127.0.0.1:7446"]
+        );
+        assert_eq!(client.connect, ["tcp/127.0.0.1:7446"]);
+        let tls = router.tls.unwrap();
+        assert!(tls.cert.ends_with("certs/capture1.pem"), "{tls:?}");
+        let acl: serde_json::Value = serde_json::from_str(&router.access_control.unwrap()).unwrap();
+        assert_eq!(acl["default_permission"], "deny");
+        // Without its certificate a PC does not start its router, and says which file.
+        std::fs::remove_file(c.rig_path.parent().unwrap().join("certs/capture1.key")).unwrap();
+        let e = router_specs(&c).unwrap_err();
+        assert_eq!(e.key, "host[0].tls.key");
+        assert!(e.message.contains("capture1.key"), "{e}");
         let ring = include_str!("../../../deploy/rigs/one-pc-per-camera.toml");
         for k in 0..6 {
             assert_eq!(

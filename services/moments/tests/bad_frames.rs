@@ -31,6 +31,8 @@ fn inconsistent_frame_is_rejected_and_the_next_one_processed() {
             mode: ZenohMode::Peer,
             connect: vec![],
             listen: vec![endpoint.clone()],
+            tls: None,
+            access_control: None,
         },
     };
     let n = node(&prefix, "test-writer").unwrap();
@@ -55,6 +57,8 @@ fn inconsistent_frame_is_rejected_and_the_next_one_processed() {
             mode: ZenohMode::Peer,
             connect: vec![endpoint],
             listen: vec![],
+            tls: None,
+            access_control: None,
         };
         net::open(&spec).unwrap()
     };

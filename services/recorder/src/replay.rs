@@ -432,6 +432,8 @@ pub fn frames_rig(
         zenoh_listen: vec![listen.to_string()],
         zenoh_connect: Vec::new(),
         iceoryx2_prefix: Some(iox_prefix.to_string()),
+        tls: None,
+        local_listen: None,
     }];
     Ok(file.to_toml()?)
 }

@@ -78,12 +78,16 @@ fn zenoh_latency(w: u32, h: u32, frames: usize) -> (f64, f64) {
         mode: ZenohMode::Peer,
         connect: vec![],
         listen: vec![ep.clone()],
+        tls: None,
+        access_control: None,
     })
     .unwrap();
     let b = net::open(&ZenohSpec {
         mode: ZenohMode::Peer,
         connect: vec![ep],
         listen: vec![],
+        tls: None,
+        access_control: None,
     })
     .unwrap();
     let (tx, rx) = mpsc::channel();

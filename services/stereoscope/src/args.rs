@@ -150,6 +150,9 @@ pub struct StatusArgs {
     /// Flag a camera with no processed frame for this long, milliseconds.
     #[arg(long, default_value_t = 2000)]
     pub stall_ms: u64,
+    /// Certificates for a tls/ router (from another PC).
+    #[command(flatten)]
+    pub tls: stereoscope_rig::context::TlsArgs,
 }
 
 /// `stereoscope replay`: its options.

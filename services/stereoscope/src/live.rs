@@ -24,6 +24,7 @@ pub fn run_rig(
         zenoh_mode: None,
         zenoh_connect: Vec::new(),
         zenoh_listen: Vec::new(),
+        tls: Default::default(),
     }
     .resolve()?;
     stereoscope_capture::check_supported(&ctx.rig, &ctx.cameras_here())?;
@@ -147,8 +148,8 @@ pub fn status(
     watch: bool,
     json: bool,
     stall_ms: u64,
+    tls: stereoscope_rig::context::TlsArgs,
 ) -> anyhow::Result<usize> {
-    use stereoscope_rig::context::local_endpoint;
     use stereoscope_status::{Monitor, StatusConfig, to_json, to_text};
     use stereoscope_transport::net::ZenohSpec;
     let (name, endpoint) = match &rig {
@@ -158,8 +159,7 @@ pub fn status(
                 .spec
                 .hosts
                 .first()
-                .and_then(|h| h.zenoh_listen.first())
-                .map(|e| local_endpoint(e));
+                .and_then(stereoscope_rig::security::service_endpoint);
             (rig.name, ep)
         }
         None => (
@@ -170,10 +170,12 @@ pub fn status(
     let endpoint = connect
         .or(endpoint)
         .unwrap_or_else(|| "tcp/127.0.0.1:7447".to_string());
+    let mut zenoh = ZenohSpec::client_of(&endpoint);
+    zenoh.tls = tls.files();
     let shutdown = Shutdown::on_signals()?;
     let monitor = Monitor::connect(StatusConfig {
         rig: name,
-        zenoh: ZenohSpec::client_of(&endpoint),
+        zenoh,
         listen: std::time::Duration::from_millis(1500),
         stall: std::time::Duration::from_millis(stall_ms),
     })

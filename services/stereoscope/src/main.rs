@@ -67,6 +67,8 @@ enum ServiceCommand {
     Serial(stereoscope_serial::cli::Args),
     /// Record poses, observations and optionally raw frames into a session folder.
     Recorder(stereoscope_recorder::cli::Args),
+    /// Run only this host's Zenoh router (with the rig's TLS and access control).
+    Router(stereoscope_launcher::router_cli::Args),
 }
 
 fn service(cmd: ServiceCommand) -> anyhow::Result<()> {
@@ -76,6 +78,7 @@ fn service(cmd: ServiceCommand) -> anyhow::Result<()> {
         ServiceCommand::Fusion(a) => stereoscope_fusion::cli::main(a),
         ServiceCommand::Serial(a) => stereoscope_serial::cli::main(a),
         ServiceCommand::Recorder(a) => stereoscope_recorder::cli::main(a),
+        ServiceCommand::Router(a) => stereoscope_launcher::router_cli::main(a),
     }
 }
 
@@ -190,8 +193,9 @@ fn main() -> ExitCode {
             watch,
             json,
             stall_ms,
+            tls,
         }) => finish(stereoscope::live::status(
-            rig, connect, rig_name, watch, json, stall_ms,
+            rig, connect, rig_name, watch, json, stall_ms, tls,
         )),
         Command::Record { args } => match stereoscope_recorder::cli::main(args) {
             Ok(()) => ExitCode::SUCCESS,

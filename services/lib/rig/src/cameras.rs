@@ -409,6 +409,7 @@ mod tests {
             synthetic: None,
             serial: Vec::new(),
             recorder: None,
+            insecure: false,
         };
         let back = Rig::from_toml(&file.to_toml().unwrap()).unwrap();
         let b = back.cameras[0].camera;

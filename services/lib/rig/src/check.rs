@@ -152,14 +152,6 @@ pub(crate) fn check(file: &RigFile, base: Option<&Path>, sources: bool) -> Resul
                 format!("{:?} appears twice", h.name),
             ));
         }
-        for (j, e) in h.zenoh_listen.iter().chain(&h.zenoh_connect).enumerate() {
-            if !e.contains('/') {
-                return Err(err(
-                    format!("host[{i}] zenoh endpoint {j}"),
-                    format!("{e:?} is not of the form tcp/ADDRESS:PORT"),
-                ));
-            }
-        }
         if let Some(p) = &h.iceoryx2_prefix
             && (p.is_empty()
                 || p.len() > 32
@@ -173,6 +165,7 @@ pub(crate) fn check(file: &RigFile, base: Option<&Path>, sources: bool) -> Resul
             ));
         }
     }
+    crate::security::check_hosts(file)?;
     let known_host = |key: String, h: &Option<String>| -> Result<(), RigError> {
         match h {
             Some(h) if !file.hosts.iter().any(|x| &x.name == h) => Err(err(

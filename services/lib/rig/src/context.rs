@@ -39,6 +39,33 @@ pub struct CommonArgs {
     /// A Zenoh endpoint to listen on; repeat for several.
     #[arg(long)]
     pub zenoh_listen: Vec<String>,
+    #[command(flatten)]
+    pub tls: TlsArgs,
+}
+
+// No doc comment here: clap would give it to every command as its description.
+#[derive(Debug, Clone, Default, clap::Args)]
+pub struct TlsArgs {
+    /// For tls/ endpoints: the rig's certificate authority (PEM).
+    #[arg(long, requires_all = ["zenoh_tls_cert", "zenoh_tls_key"])]
+    pub zenoh_tls_ca: Option<PathBuf>,
+    /// For tls/ endpoints: this end's certificate (PEM).
+    #[arg(long, requires_all = ["zenoh_tls_ca", "zenoh_tls_key"])]
+    pub zenoh_tls_cert: Option<PathBuf>,
+    /// For tls/ endpoints: this end's private key (PEM).
+    #[arg(long, requires_all = ["zenoh_tls_ca", "zenoh_tls_cert"])]
+    pub zenoh_tls_key: Option<PathBuf>,
+}
+
+impl TlsArgs {
+    /// The three files, when all were given.
+    pub fn files(&self) -> Option<stereoscope_transport::net::TlsFiles> {
+        Some(stereoscope_transport::net::TlsFiles {
+            ca: self.zenoh_tls_ca.clone()?,
+            cert: self.zenoh_tls_cert.clone()?,
+            key: self.zenoh_tls_key.clone()?,
+        })
+    }
 }
 
 /// A service's resolved start-up context.
@@ -102,11 +129,15 @@ impl CommonArgs {
                 mode: ZenohMode::parse(m).map_err(|e| args("--zenoh-mode", e.to_string()))?,
                 connect: self.zenoh_connect.clone(),
                 listen: self.zenoh_listen.clone(),
+                tls: self.tls.files(),
+                access_control: None,
             },
             None if !self.zenoh_connect.is_empty() || !self.zenoh_listen.is_empty() => ZenohSpec {
                 mode: ZenohMode::Peer,
                 connect: self.zenoh_connect.clone(),
                 listen: self.zenoh_listen.clone(),
+                tls: self.tls.files(),
+                access_control: None,
             },
             None => default_zenoh(host_spec.as_ref()),
         };
@@ -123,13 +154,9 @@ impl CommonArgs {
 /// A client of the host's router (its first listen endpoint, seen from this PC), or a lone
 /// peer when the rig says nothing.
 pub fn default_zenoh(host: Option<&HostSpec>) -> ZenohSpec {
-    match host.and_then(|h| h.zenoh_listen.first()) {
-        Some(e) => ZenohSpec::client_of(&local_endpoint(e)),
-        None => ZenohSpec {
-            mode: ZenohMode::Peer,
-            connect: Vec::new(),
-            listen: Vec::new(),
-        },
+    match host.and_then(crate::security::service_endpoint) {
+        Some(e) => ZenohSpec::client_of(&e),
+        None => ZenohSpec::lone_peer(),
     }
 }
 
@@ -203,8 +230,9 @@ mod tests {
     #[test]
     fn thesis_lab_passes_and_bad_deployments_are_named() {
         Rig::from_toml(RIG).unwrap();
-        let with_host =
-            format!("{RIG}\n[[host]]\nname = \"pc1\"\nzenoh_listen = [\"tcp/0.0.0.0:7447\"]\n");
+        let with_host = format!(
+            "insecure = true\n{RIG}\n[[host]]\nname = \"pc1\"\nzenoh_listen = [\"tcp/0.0.0.0:7447\"]\n"
+        );
         let rig = Rig::from_toml(&with_host).unwrap();
         assert_eq!(
             default_zenoh(rig.spec.hosts.first()).connect,

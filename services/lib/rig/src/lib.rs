@@ -12,6 +12,7 @@ pub mod error;
 pub mod exit;
 pub mod moments;
 pub mod schema;
+pub mod security;
 
 use std::path::{Path, PathBuf};
 

@@ -171,6 +171,10 @@ pub struct RigFile {
     /// A recorder the launcher runs and supervises (`docs/recording.md`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub recorder: Option<RecorderSpec>,
+    /// Accept plain-TCP Zenoh links between PCs (unauthenticated, unencrypted). Without it a
+    /// rig whose hosts listen or connect beyond loopback must use `tls/` endpoints.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub insecure: bool,
 }
 
 /// A supervised recorder: each start (the first, and every restart after a crash) records a
@@ -225,6 +229,24 @@ pub struct HostSpec {
     /// Prefix of this PC's iceoryx2 files (two rigs on one PC need different prefixes).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub iceoryx2_prefix: Option<String>,
+    /// This PC's certificate for its `tls/` endpoints (`docs/deploy.md`, "Security").
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub tls: Option<TlsSpec>,
+    /// The loopback endpoint this PC's own services reach its router on (default: the first
+    /// listen endpoint as seen from this PC when it is plain TCP, else `tcp/127.0.0.1:7446`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub local_listen: Option<String>,
+}
+
+/// PEM files (paths relative to the rig file) of one PC's mutual-TLS identity: the rig's
+/// certificate authority, this PC's certificate (its common name is the `[[host]]` name) and
+/// its private key. `deploy/make-certs.sh` makes a test set.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TlsSpec {
+    pub ca: String,
+    pub cert: String,
+    pub key: String,
 }
 
 /// Where a camera's frames come from.

@@ -84,6 +84,20 @@ pub struct ZenohSpec {
     pub connect: Vec<String>,
     /// Endpoints to listen on.
     pub listen: Vec<String>,
+    /// Certificates for `tls/` endpoints (mutual TLS: both ends show a certificate of the
+    /// rig's authority).
+    pub tls: Option<TlsFiles>,
+    /// A Zenoh `access_control` document (JSON) for a router: who may publish what.
+    pub access_control: Option<String>,
+}
+
+/// PEM files of one end of a mutual-TLS link: the authority both ends trust, and this end's
+/// certificate and private key.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct TlsFiles {
+    pub ca: std::path::PathBuf,
+    pub cert: std::path::PathBuf,
+    pub key: std::path::PathBuf,
 }
 
 impl ZenohSpec {
@@ -93,6 +107,19 @@ impl ZenohSpec {
             mode: ZenohMode::Client,
             connect: vec![endpoint.to_string()],
             listen: Vec::new(),
+            tls: None,
+            access_control: None,
+        }
+    }
+
+    /// A lone peer with no endpoints (a rig without `[[host]]`).
+    pub fn lone_peer() -> Self {
+        ZenohSpec {
+            mode: ZenohMode::Peer,
+            connect: Vec::new(),
+            listen: Vec::new(),
+            tls: None,
+            access_control: None,
         }
     }
 
@@ -106,6 +133,16 @@ impl ZenohSpec {
         for e in &self.listen {
             a.push("--zenoh-listen".into());
             a.push(e.clone());
+        }
+        if let Some(t) = &self.tls {
+            for (flag, path) in [
+                ("--zenoh-tls-ca", &t.ca),
+                ("--zenoh-tls-cert", &t.cert),
+                ("--zenoh-tls-key", &t.key),
+            ] {
+                a.push(flag.into());
+                a.push(path.display().to_string());
+            }
         }
         a
     }
@@ -140,6 +177,26 @@ pub fn open(spec: &ZenohSpec) -> Result<zenoh::Session, TransportError> {
     if spec.mode != ZenohMode::Router {
         // Peers would otherwise listen on every interface; a client listens on nothing.
         set(&mut cfg, "scouting/gossip/enabled", "false")?;
+    }
+    if let Some(t) = &spec.tls {
+        let tls = "transport/link/tls";
+        for (key, path) in [
+            ("root_ca_certificate", &t.ca),
+            ("listen_certificate", &t.cert),
+            ("listen_private_key", &t.key),
+            ("connect_certificate", &t.cert),
+            ("connect_private_key", &t.key),
+        ] {
+            let quoted = serde_json::to_string(&path.display().to_string())
+                .unwrap_or_else(|_| "\"\"".into());
+            set(&mut cfg, &format!("{tls}/{key}"), &quoted)?;
+        }
+        // Both ends show a certificate, and the one dialled must name the address dialled.
+        set(&mut cfg, &format!("{tls}/enable_mtls"), "true")?;
+        set(&mut cfg, &format!("{tls}/verify_name_on_connect"), "true")?;
+    }
+    if let Some(acl) = &spec.access_control {
+        set(&mut cfg, "access_control", acl)?;
     }
     let what = format!(
         "open {} session (connect {:?}, listen {:?})",

@@ -1,0 +1,347 @@
+//! The rig's network security (`docs/deploy.md`, "Security"): which Zenoh endpoints a rig may
+//! use, each PC's router with its mutual-TLS identity, and the access control every router
+//! enforces — derived from the rig, so what a PC may publish follows from what runs on it.
+//!
+//! The trust boundary is the PC: a PC's own services reach its router over loopback; links
+//! between PCs are mutual TLS, and each PC's certificate (common name = its `[[host]]` name)
+//! lets it publish only what its services publish. A certificate of the rig's authority whose
+//! name is not a host (a consumer: the VR or robot PC) may read and nothing else.
+
+use crate::error::err;
+use crate::schema::{HostSpec, RigFile};
+use crate::{RigError, check::resolve};
+use serde_json::{Value, json};
+use std::path::Path;
+use stereoscope_proto::names::zenoh as keys;
+use stereoscope_transport::net::{TlsFiles, ZenohMode, ZenohSpec};
+
+/// Where a PC's own services reach its router when its first listen endpoint is TLS and the
+/// host names no `local_listen`.
+pub const DEFAULT_LOCAL_LISTEN: &str = "tcp/127.0.0.1:7446";
+
+/// What a Zenoh endpoint exposes.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Reach {
+    /// Plain TCP or UDP on a loopback address: this PC only.
+    Loopback,
+    /// Mutual TLS.
+    Tls,
+    /// Plain TCP or UDP beyond this PC.
+    Network,
+}
+
+/// Classifies `tcp/ADDRESS:PORT`, `udp/…` or `tls/…`.
+pub fn reach(endpoint: &str) -> Result<Reach, String> {
+    let (protocol, rest) = endpoint
+        .split_once('/')
+        .ok_or_else(|| format!("{endpoint:?} is not of the form tcp/ADDRESS:PORT"))?;
+    // Zenoh's endpoint options and metadata follow a '?' or '#'.
+    let address = rest.split(['?', '#']).next().unwrap_or(rest);
+    let host = match address.rsplit_once(':') {
+        Some((h, port)) if port.parse::<u16>().is_ok() => h,
+        _ => return Err(format!("{endpoint:?} has no :PORT")),
+    };
+    match protocol {
+        "tls" => Ok(Reach::Tls),
+        "tcp" | "udp" => {
+            let loopback = host == "localhost"
+                || host == "[::1]"
+                || host
+                    .parse::<std::net::Ipv4Addr>()
+                    .is_ok_and(|a| a.is_loopback());
+            Ok(if loopback {
+                Reach::Loopback
+            } else {
+                Reach::Network
+            })
+        }
+        other => Err(format!(
+            "{endpoint:?}: protocol {other:?} is not one this build has (tcp, udp, tls)"
+        )),
+    }
+}
+
+/// Checks every host's endpoints: well formed; `tls/` only with the host's certificate;
+/// plain TCP or UDP beyond loopback only when the rig says `insecure = true`.
+pub(crate) fn check_hosts(file: &RigFile) -> Result<(), RigError> {
+    for (i, h) in file.hosts.iter().enumerate() {
+        let listen = h.zenoh_listen.iter().map(|e| ("zenoh_listen", e));
+        let connect = h.zenoh_connect.iter().map(|e| ("zenoh_connect", e));
+        let mut index = std::collections::HashMap::<&str, usize>::new();
+        for (list, e) in listen.chain(connect) {
+            let j = index.entry(list).or_default();
+            let key = format!("host[{i}].{list}[{j}]");
+            *j += 1;
+            match reach(e).map_err(|m| err(&key, m))? {
+                Reach::Loopback => {}
+                Reach::Tls if h.tls.is_none() => {
+                    return Err(err(
+                        key,
+                        format!(
+                            "{e:?} is a TLS endpoint but host {:?} has no tls = {{ ca, cert, key }} \
+                             (deploy/make-certs.sh makes them)",
+                            h.name
+                        ),
+                    ));
+                }
+                Reach::Tls => {}
+                Reach::Network if !file.insecure => {
+                    return Err(err(
+                        key,
+                        format!(
+                            "{e:?} is plain (unauthenticated, unencrypted) Zenoh beyond this PC: \
+                             use a tls/ endpoint with the host's tls = {{ ca, cert, key }} \
+                             (docs/deploy.md, \"Security\"), or write insecure = true at the top \
+                             of the rig to accept it"
+                        ),
+                    ));
+                }
+                Reach::Network => {}
+            }
+        }
+        if let Some(l) = &h.local_listen
+            && reach(l) != Ok(Reach::Loopback)
+        {
+            return Err(err(
+                format!("host[{i}].local_listen"),
+                format!("{l:?} must be a tcp/ endpoint on 127.0.0.1 (this PC's services only)"),
+            ));
+        }
+        if let Some(t) = &h.tls {
+            for (name, path) in [("ca", &t.ca), ("cert", &t.cert), ("key", &t.key)] {
+                if path.trim().is_empty() {
+                    return Err(err(format!("host[{i}].tls.{name}"), "is empty"));
+                }
+            }
+        }
+    }
+    Ok(())
+}
+
+/// The endpoint a PC's own services reach its router on (`None` for a host that listens on
+/// nothing).
+pub fn service_endpoint(h: &HostSpec) -> Option<String> {
+    if let Some(l) = &h.local_listen {
+        return Some(l.clone());
+    }
+    let first = h.zenoh_listen.first()?;
+    Some(match reach(first) {
+        Ok(Reach::Tls) => DEFAULT_LOCAL_LISTEN.to_string(),
+        _ => crate::context::local_endpoint(first),
+    })
+}
+
+/// The host's TLS files, resolved against the rig file's folder and checked readable.
+pub fn tls_files(
+    h: &HostSpec,
+    index: usize,
+    base: Option<&Path>,
+) -> Result<Option<TlsFiles>, RigError> {
+    let Some(t) = &h.tls else { return Ok(None) };
+    let file = |name: &str, p: &str| {
+        let path = resolve(base, p);
+        match std::fs::File::open(&path) {
+            Ok(_) => Ok(path),
+            Err(e) => Err(err(
+                format!("host[{index}].tls.{name}"),
+                format!("{} cannot be read: {e}", path.display()),
+            )),
+        }
+    };
+    Ok(Some(TlsFiles {
+        ca: file("ca", &t.ca)?,
+        cert: file("cert", &t.cert)?,
+        key: file("key", &t.key)?,
+    }))
+}
+
+/// Host `name`'s router: its endpoints, plus the loopback one for its services when that is
+/// not among them; with TLS, its certificate and the rig's access control.
+pub fn router_spec(
+    file: &RigFile,
+    name: &str,
+    base: Option<&Path>,
+) -> Result<Option<ZenohSpec>, RigError> {
+    let Some((index, h)) = file.hosts.iter().enumerate().find(|(_, h)| h.name == name) else {
+        return Ok(None);
+    };
+    let Some(local) = service_endpoint(h) else {
+        return Ok(None);
+    };
+    let mut listen = h.zenoh_listen.clone();
+    let served = listen
+        .iter()
+        .any(|e| crate::context::local_endpoint(e) == local && reach(e) != Ok(Reach::Tls));
+    if !served {
+        listen.push(local);
+    }
+    let tls = tls_files(h, index, base)?;
+    let access_control = tls.as_ref().map(|_| access_control(file).to_string());
+    Ok(Some(ZenohSpec {
+        mode: ZenohMode::Router,
+        connect: h.zenoh_connect.clone(),
+        listen,
+        tls,
+        access_control,
+    }))
+}
+
+/// The host a service whose section says `host` runs on: that one, or the only host.
+fn runs_on<'a>(file: &'a RigFile, host: &'a Option<String>) -> Option<&'a str> {
+    match (host, file.hosts.as_slice()) {
+        (Some(h), _) => Some(h.as_str()),
+        (None, [only]) => Some(only.name.as_str()),
+        _ => None,
+    }
+}
+
+/// The keys host `name`'s services publish on: its health and liveliness, its cameras'
+/// observations (and the renderer's truth), the poses if fusion runs there.
+pub fn published_by(file: &RigFile, name: &str) -> Vec<String> {
+    let rig = &file.name;
+    let mut out = vec![keys::health(rig, name, "**"), keys::alive(rig, name, "**")];
+    for c in &file.cameras {
+        if runs_on(file, &c.host) == Some(name) {
+            out.push(keys::observations(rig, &c.id));
+            out.push(keys::truth(rig, &c.id));
+        }
+    }
+    if let Some(f) = &file.fusion
+        && runs_on(file, &f.host) == Some(name)
+    {
+        out.push(keys::poses(rig));
+        out.push(keys::all_poses(rig));
+    }
+    out
+}
+
+/// The Zenoh `access_control` document every router of the rig enforces (denied unless a rule
+/// allows it):
+/// - its own PC (the loopback interface): everything;
+/// - any peer with a certificate of the rig's authority (a `tls` link): subscribe and ask on
+///   the rig's keys, and receive what is published there;
+/// - a host's certificate (common name = host name): publish what its services publish
+///   ([`published_by`]), nothing else.
+pub fn access_control(file: &RigFile) -> Value {
+    let everything = [
+        "put",
+        "delete",
+        "declare_subscriber",
+        "query",
+        "declare_queryable",
+        "reply",
+        "liveliness_token",
+        "declare_liveliness_subscriber",
+        "liveliness_query",
+    ];
+    let rig_keys = format!("stereoscope/{}/**", file.name);
+    let mut rules = vec![
+        json!({"id": "this-pc", "key_exprs": ["**"], "messages": everything,
+               "flows": ["ingress", "egress"], "permission": "allow"}),
+        json!({"id": "read", "key_exprs": [rig_keys],
+               "messages": ["declare_subscriber", "declare_liveliness_subscriber",
+                            "liveliness_query", "query", "reply"],
+               "flows": ["ingress", "egress"], "permission": "allow"}),
+        json!({"id": "receive", "key_exprs": [rig_keys],
+               "messages": ["put", "delete", "liveliness_token"],
+               "flows": ["egress"], "permission": "allow"}),
+    ];
+    let mut subjects = vec![
+        json!({"id": "this-pc", "interfaces": ["lo"]}),
+        json!({"id": "rig-certificate", "link_protocols": ["tls"]}),
+    ];
+    let mut policies = vec![
+        json!({"id": "this-pc", "rules": ["this-pc"], "subjects": ["this-pc"]}),
+        json!({"id": "readers", "rules": ["read", "receive"], "subjects": ["rig-certificate"]}),
+    ];
+    for h in &file.hosts {
+        let id = format!("host-{}", h.name);
+        rules.push(json!({"id": id, "key_exprs": published_by(file, &h.name),
+                          "messages": ["put", "delete", "liveliness_token"],
+                          "flows": ["ingress"], "permission": "allow"}));
+        subjects.push(json!({"id": id, "cert_common_names": [h.name],
+                             "link_protocols": ["tls"]}));
+        policies.push(json!({"id": id, "rules": [id], "subjects": [id]}));
+    }
+    json!({
+        "enabled": true,
+        "default_permission": "deny",
+        "rules": rules,
+        "subjects": subjects,
+        "policies": policies,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn endpoints_are_classified() {
+        assert_eq!(reach("tcp/127.0.0.1:7447"), Ok(Reach::Loopback));
+        assert_eq!(reach("tcp/localhost:7447"), Ok(Reach::Loopback));
+        assert_eq!(reach("tcp/[::1]:7447"), Ok(Reach::Loopback));
+        assert_eq!(reach("tcp/0.0.0.0:7447"), Ok(Reach::Network));
+        assert_eq!(reach("udp/192.168.1.2:7447"), Ok(Reach::Network));
+        assert_eq!(reach("tls/192.168.1.2:7447"), Ok(Reach::Tls));
+        assert_eq!(reach("tls/fusion:7447?x=y"), Ok(Reach::Tls));
+        assert!(reach("quic/1.2.3.4:7447").unwrap_err().contains("quic"));
+        assert!(reach("tcp/1.2.3.4").unwrap_err().contains("PORT"));
+        assert!(reach("nothing").is_err());
+    }
+
+    const LAB: &str = include_str!("../../../../deploy/rigs/thesis-lab.toml");
+
+    fn rig(extra: &str, hosts: &str) -> Result<crate::Rig, RigError> {
+        crate::Rig::from_toml(&format!("{extra}\n{LAB}\n{hosts}"))
+    }
+
+    #[test]
+    fn plain_tcp_between_pcs_needs_insecure_said_in_so_many_words() {
+        let hosts = "[[host]]\nname = \"pc1\"\nzenoh_listen = [\"tcp/192.168.1.1:7447\"]\n";
+        let e = rig("", hosts).unwrap_err();
+        assert_eq!(e.key, "host[0].zenoh_listen[0]");
+        assert!(e.message.contains("insecure = true"), "{e}");
+        assert!(e.message.contains("tcp/192.168.1.1:7447"), "{e}");
+        rig("insecure = true", hosts).unwrap();
+    }
+
+    #[test]
+    fn a_tls_endpoint_needs_the_hosts_certificate() {
+        let e = rig(
+            "",
+            "[[host]]\nname = \"pc1\"\n\
+             zenoh_listen = [\"tcp/127.0.0.1:7447\"]\nzenoh_connect = [\"tls/10.0.0.2:7447\"]\n",
+        )
+        .unwrap_err();
+        assert_eq!(e.key, "host[0].zenoh_connect[0]");
+        assert!(e.message.contains("tls = { ca, cert, key }"), "{e}");
+    }
+
+    #[test]
+    fn each_host_may_publish_only_what_its_services_publish() {
+        let lab = LAB
+            .replace("id = \"cam0\"", "id = \"cam0\"\nhost = \"cap\"")
+            .replace("id = \"cam1\"", "id = \"cam1\"\nhost = \"cap\"");
+        let r = crate::Rig::from_toml(&format!(
+            "{lab}\n[fusion]\nhost = \"fus\"\n\
+             [[host]]\nname = \"cap\"\nzenoh_listen = [\"tcp/127.0.0.1:7447\"]\n\
+             [[host]]\nname = \"fus\"\nzenoh_listen = [\"tcp/127.0.0.1:7448\"]\n"
+        ))
+        .unwrap();
+        let cap = published_by(&r.spec, "cap");
+        let n = &r.name;
+        assert!(cap.contains(&format!("stereoscope/{n}/observations/cam0")));
+        assert!(!cap.iter().any(|k| k.contains("pose")), "{cap:?}");
+        let fus = published_by(&r.spec, "fus");
+        assert!(fus.contains(&format!("stereoscope/{n}/poses")));
+        assert!(!fus.iter().any(|k| k.contains("observations")), "{fus:?}");
+        let acl = access_control(&r.spec);
+        assert_eq!(acl["default_permission"], "deny");
+        assert_eq!(acl["subjects"][2]["cert_common_names"][0], "cap");
+        // The document is what Zenoh accepts.
+        let mut cfg = zenoh::Config::default();
+        cfg.insert_json5("access_control", &acl.to_string())
+            .unwrap();
+    }
+}

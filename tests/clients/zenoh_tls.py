@@ -1,0 +1,149 @@
+"""A client the project did not write (the eclipse-zenoh package from PyPI), reaching a rig's
+router over mutual TLS as a PC on the network would, following docs/protocol.md and
+docs/deploy.md ("Security") only.
+
+usage:
+  zenoh_tls.py watch ENDPOINT RIG SECONDS CA CERT KEY
+      Subscribes to the rig's pose frames and its synthetic cameras' truth, and to every key of
+      the rig. Prints one JSON line per pose frame: {"t": wall-clock seconds, "sequence",
+      "cameras", "objects", "error_mm": the median over its poses of the distance to the
+      nearest true target at the nearest truth time (null without truth)}; one line
+      {"forged": KEY} for any sample that is a forged one (a JSON object with the key FORGED);
+      at the end {"done": frames}.
+  zenoh_tls.py forge ENDPOINT RIG CA CERT KEY SUFFIX...
+      Publishes {"FORGED": true} on each key stereoscope/RIG/SUFFIX and declares the
+      liveliness token stereoscope/RIG/alive/fusion/FORGED, for 3 seconds. Prints
+      {"opened": true} once connected.
+  zenoh_tls.py alive ENDPOINT RIG CA CERT KEY
+      Prints {"alive": [the rig's liveliness tokens]}.
+  zenoh_tls.py connect ENDPOINT CA CERT KEY
+      Tries to open a session (3 s); prints {"connected": true|false, "error": text}.
+"""
+import bisect
+import json
+import statistics
+import sys
+import time
+
+import zenoh
+
+
+def config(endpoint, ca, cert, key):
+    return zenoh.Config.from_json5(json.dumps({
+        "mode": "client",
+        "connect": {"endpoints": [endpoint], "timeout_ms": 3000, "exit_on_failure": True},
+        "scouting": {"multicast": {"enabled": False}},
+        "transport": {"link": {"tls": {
+            "root_ca_certificate": ca,
+            "connect_certificate": cert,
+            "connect_private_key": key,
+            "enable_mtls": True,
+        }}},
+    }))
+
+
+def watch(endpoint, rig, seconds, ca, cert, key):
+    session = zenoh.open(config(endpoint, ca, cert, key))
+    frames = session.declare_subscriber(f"stereoscope/{rig}/poses")
+    truths = session.declare_subscriber(f"stereoscope/{rig}/truth/*")
+    everything = session.declare_subscriber(f"stereoscope/{rig}/**")
+    truth_times = []  # sorted timestamp_ns
+    truth_at = {}  # timestamp_ns -> [positions]
+    got = 0
+    end = time.monotonic() + seconds
+    while time.monotonic() < end:
+        idle = True
+        s = everything.try_recv()
+        while s is not None:
+            idle = False
+            try:
+                m = json.loads(s.payload.to_bytes())
+            except ValueError:
+                m = None
+            if isinstance(m, dict) and "FORGED" in m:
+                print(json.dumps({"forged": str(s.key_expr)}), flush=True)
+            s = everything.try_recv()
+        s = truths.try_recv()
+        while s is not None:
+            idle = False
+            t = json.loads(s.payload.to_bytes())
+            ts = t["timestamp_ns"]
+            if ts not in truth_at:
+                bisect.insort(truth_times, ts)
+                truth_at[ts] = [x["position_m"] for x in t["targets"]]
+                if len(truth_times) > 2000:
+                    del truth_at[truth_times.pop(0)]
+            s = truths.try_recv()
+        s = frames.try_recv()
+        if s is not None:
+            idle = False
+            m = json.loads(s.payload.to_bytes())
+            error = None
+            if truth_times and m["poses"]:
+                i = bisect.bisect_left(truth_times, m["timestamp_ns"])
+                near = [truth_times[j] for j in (i - 1, i) if 0 <= j < len(truth_times)]
+                ts = min(near, key=lambda x: abs(x - m["timestamp_ns"]))
+                if abs(ts - m["timestamp_ns"]) < 20_000_000:
+                    targets = truth_at[ts]
+                    error = statistics.median(
+                        min(sum((a - b) ** 2 for a, b in zip(p["position_m"], q)) ** 0.5
+                            for q in targets) * 1000.0
+                        for p in m["poses"])
+            got += 1
+            print(json.dumps({"t": time.time(), "sequence": m["sequence"],
+                              "cameras": m["cameras"], "objects": len(m["poses"]),
+                              "error_mm": error}), flush=True)
+        if idle:
+            time.sleep(0.002)
+    print(json.dumps({"done": got}), flush=True)
+    session.close()
+
+
+def alive(endpoint, rig, ca, cert, key):
+    session = zenoh.open(config(endpoint, ca, cert, key))
+    tokens = sorted(str(r.ok.key_expr) for r in
+                    session.liveliness().get(f"stereoscope/{rig}/alive/**", timeout=2.0)
+                    if r.ok is not None)
+    print(json.dumps({"alive": tokens}), flush=True)
+    session.close()
+
+
+def forge(endpoint, rig, ca, cert, key, suffixes):
+    session = zenoh.open(config(endpoint, ca, cert, key))
+    print(json.dumps({"opened": True}), flush=True)
+    token = session.liveliness().declare_token(f"stereoscope/{rig}/alive/fusion/FORGED")
+    keys = [f"stereoscope/{rig}/{s}" for s in suffixes]
+    end = time.monotonic() + 3.0
+    while time.monotonic() < end:
+        for k in keys:
+            session.put(k, json.dumps({"FORGED": True, "rig": rig}).encode())
+        time.sleep(0.02)
+    token.undeclare()
+    session.close()
+
+
+def connect(endpoint, ca, cert, key):
+    try:
+        session = zenoh.open(config(endpoint, ca, cert, key))
+        session.close()
+        print(json.dumps({"connected": True, "error": None}), flush=True)
+    except Exception as e:  # zenoh raises its own error type
+        print(json.dumps({"connected": False, "error": str(e)}), flush=True)
+
+
+def main():
+    a = sys.argv[1:]
+    if a[0] == "watch":
+        watch(a[1], a[2], float(a[3]), a[4], a[5], a[6])
+    elif a[0] == "forge":
+        forge(a[1], a[2], a[3], a[4], a[5], a[6:])
+    elif a[0] == "alive":
+        alive(a[1], a[2], a[3], a[4], a[5])
+    elif a[0] == "connect":
+        connect(a[1], a[2], a[3], a[4])
+    else:
+        raise SystemExit(__doc__)
+
+
+if __name__ == "__main__":
+    main()
