@@ -167,8 +167,10 @@ pub struct TargetTruth {
     pub has_axis: bool,
     /// The target is symmetric end to end: its heading is only defined modulo 180°.
     pub symmetric: bool,
+    /// Some of the target's image is in the frame.
     pub visible: bool,
     pub area_px: f64,
+    /// The image's centroid; `[0, 0]` when not visible (every number on the wire is finite).
     pub centroid_px: [f64; 2],
 }
 

@@ -187,7 +187,13 @@ impl SyntheticSource {
                 symmetric: true,
                 visible: t.visible,
                 area_px: t.area_px,
-                centroid_px: [t.centroid_px.x, t.centroid_px.y],
+                // Out of view the renderer's centroid is NaN; the protocol's numbers are
+                // finite (a truth with a NaN was refused whole, and the demo scored nothing).
+                centroid_px: if t.visible {
+                    [t.centroid_px.x, t.centroid_px.y]
+                } else {
+                    [0.0, 0.0]
+                },
             })
             .collect();
         Ok(())
@@ -242,5 +248,37 @@ impl FrameSource for SyntheticSource {
 
     fn truth(&self) -> Option<Vec<TargetTruth>> {
         Some(self.last_truth.clone())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use stereoscope_proto::messages::{Message, Truth};
+
+    /// A target out of the camera's view is in the truth as not visible, with finite numbers:
+    /// the truth message passes the receivers' checks (a NaN centroid made it refused whole).
+    #[test]
+    fn a_target_out_of_view_gives_a_valid_truth() {
+        let text = include_str!("../../../deploy/rigs/demo.toml").to_string()
+            + "\n[[synthetic.target]]\nshape = \"sphere\"\nradius = 2.0\n\
+               motion = { kind = \"circle\", centre = [900.0, 0.0, 40.0], radius = 1.0, period_s = 8.0 }\n";
+        let rig = stereoscope_rig::Rig::from_toml(&text).unwrap();
+        let mut src =
+            SyntheticSource::new(&rig.spec, rig.cameras[0].camera, 0, 30.0, None, None).unwrap();
+        let (w, h) = src.size();
+        let mut buf = vec![0u8; (w * h) as usize];
+        src.read(0, 1.0, &mut buf).unwrap();
+        let targets = src.truth().unwrap();
+        let out = targets.last().unwrap();
+        assert!(!out.visible && out.centroid_px == [0.0, 0.0], "{out:?}");
+        let truth = Truth {
+            schema: 1,
+            camera: "cam0".into(),
+            sequence: 0,
+            timestamp_ns: 1,
+            targets,
+        };
+        Truth::from_json(&truth.to_json()).unwrap();
     }
 }

@@ -341,6 +341,9 @@ impl FusionService {
         let detail = &mut counters.detail;
         detail.insert("cameras_live".into(), live.join(","));
         detail.insert("late".into(), self.pairer.late.to_string());
+        if self.pairer.before_start > 0 {
+            detail.insert("before_start".into(), self.pairer.before_start.to_string());
+        }
         if let Some((c, sequence)) = self.pairer.last_lost {
             let camera = rig.cameras.get(c).map(|c| c.id.as_str()).unwrap_or("?");
             detail.insert("last_lost".into(), format!("{camera} frame {sequence}"));

@@ -116,8 +116,12 @@ pub struct Pairer {
     pub discarded: u64,
     /// Of those, observations that came after their set had gone out without them.
     pub late: u64,
-    /// The last released set: its reference time and the cameras in it.
-    released: Option<(u64, Vec<bool>)>,
+    /// A starting camera's first observations that came after their set had gone out (the
+    /// set did not wait for a camera not yet heard from): thrown away, not counted as lost.
+    pub before_start: u64,
+    /// The last released set: its reference time, the cameras in it, and the cameras it
+    /// could wait for (live then; not one still starting).
+    released: Option<(u64, Vec<bool>, Vec<bool>)>,
     /// When the first observation of any camera arrived.
     first_arrival_ns: Option<u64>,
     /// Recorded sets not formed yet: reference time → the cameras in it.
@@ -206,6 +210,7 @@ impl Pairer {
             discarded: 0,
             late: 0,
             released: None,
+            before_start: 0,
             first_arrival_ns: None,
             schedule: BTreeMap::new(),
             scheduled: false,
@@ -275,10 +280,19 @@ impl Pairer {
         Ok(())
     }
 
-    /// Whether camera `c` counts as live at `now_ns`.
+    /// Whether camera `c` counts as live at `now_ns`: it delivered within the camera
+    /// timeout, or it has delivered nothing yet and the first observation of any camera came
+    /// less than `max_wait` ago (cameras started together pair from their first frame). A
+    /// camera still starting after that is not waited for: waiting the full `max_wait` for it
+    /// made every set late until it started (a 25 ms tail on the first 0.1–0.5 s of a run at
+    /// 120 fps, performance.md).
     pub fn live(&self, c: usize, now_ns: u64) -> bool {
-        let since = self.queues[c].last_arrival_ns.or(self.first_arrival_ns);
-        since.is_some_and(|t| now_ns.saturating_sub(t) <= self.cfg.camera_timeout_ns)
+        match self.queues[c].last_arrival_ns {
+            Some(t) => now_ns.saturating_sub(t) <= self.cfg.camera_timeout_ns,
+            None => self
+                .first_arrival_ns
+                .is_some_and(|t| now_ns.saturating_sub(t) <= self.cfg.max_wait_ns),
+        }
     }
 
     /// The next complete (or given-up-on) set: `(camera, observation)` pairs.
@@ -296,7 +310,7 @@ impl Pairer {
         }
         // Drop what came too late for a set already released: anything not newer than it, and
         // a missing camera's observation within its window.
-        if let Some((t, ref cameras)) = self.released {
+        if let Some((t, ref cameras, ref awaited)) = self.released {
             let skew = self.cfg.max_skew_ns;
             for (c, q) in self.queues.iter_mut().enumerate() {
                 let limit = if cameras[c] {
@@ -310,9 +324,15 @@ impl Pairer {
                     .is_some_and(|(o, _)| o.timestamp_ns <= limit)
                 {
                     if let Some((o, _)) = q.items.pop_front() {
-                        self.discarded += 1;
-                        self.late += 1;
-                        self.last_lost = Some((c, o.sequence));
+                        // A camera's first frames, from before it was live, were never waited
+                        // for: not a loss.
+                        if cameras[c] || awaited[c] {
+                            self.discarded += 1;
+                            self.late += 1;
+                            self.last_lost = Some((c, o.sequence));
+                        } else {
+                            self.before_start += 1;
+                        }
                     }
                 }
             }
@@ -399,7 +419,12 @@ impl Pairer {
             }
         }
         let mut set = Vec::new();
-        self.released = Some((ref_ts, chosen.iter().map(Option::is_some).collect()));
+        let awaited = (0..n).map(|c| self.live(c, now_ns)).collect();
+        self.released = Some((
+            ref_ts,
+            chosen.iter().map(Option::is_some).collect(),
+            awaited,
+        ));
         for c in 0..n {
             let q = &mut self.queues[c].items;
             if let Some(i) = chosen[c] {
@@ -515,6 +540,19 @@ mod tests {
         // Just started: cam0, not heard yet, is waited for (up to max_wait).
         assert!(p.pop(0).is_none());
         assert_eq!(p.pop(21 * MS).unwrap().len(), 1);
+        // A camera not heard from by then is still starting: later sets do not wait for it.
+        let mut q = Pairer::new(2, cfg());
+        q.push(1, obs("b", 0), 0).unwrap();
+        assert_eq!(q.pop(21 * MS).unwrap().len(), 1);
+        q.push(1, obs("b", 33), 33 * MS).unwrap();
+        assert_eq!(q.pop(33 * MS).unwrap().len(), 1);
+        assert!(!q.live(0, 33 * MS));
+        // Its first frame, when it comes after its set left, is dropped but is not a loss.
+        q.push(0, obs("a", 33), 40 * MS).unwrap();
+        q.push(1, obs("b", 66), 66 * MS).unwrap();
+        q.push(0, obs("a", 66), 66 * MS).unwrap();
+        assert_eq!(q.pop(66 * MS).unwrap().len(), 2);
+        assert_eq!((q.late, q.discarded, q.before_start), (0, 0, 1));
         p.push(0, obs("a", 10), 10 * MS).unwrap();
         assert!(p.pop(15 * MS).is_none());
         let s = p.pop(31 * MS).unwrap();
