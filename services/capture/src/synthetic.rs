@@ -234,7 +234,7 @@ impl FrameSource for SyntheticSource {
 
     fn read(&mut self, index: u64, t_s: f64, out: &mut [u8]) -> Result<Read, SourceError> {
         if let Some(frames) = &self.looped {
-            let (buf, truth) = &frames[(index % frames.len() as u64) as usize];
+            let (buf, truth) = &frames[ping_pong(index, frames.len())];
             out.copy_from_slice(buf);
             self.last_truth = truth.clone();
         } else {
@@ -251,10 +251,31 @@ impl FrameSource for SyntheticSource {
     }
 }
 
+/// The `index`-th frame of `n` pre-rendered ones played forward, then backward, then forward
+/// again (0, 1, …, n−1, n−2, …, 1, 0, 1, …): the targets turn back instead of jumping from
+/// their last position to their first, which a tracker would see as every object lost and
+/// new ones found at each loop.
+pub fn ping_pong(index: u64, n: usize) -> usize {
+    if n < 2 {
+        return 0;
+    }
+    let period = 2 * (n as u64 - 1);
+    let p = index % period;
+    (if p < n as u64 { p } else { period - p }) as usize
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
     use stereoscope_proto::messages::{Message, Truth};
+
+    #[test]
+    fn looped_frames_turn_back_instead_of_jumping() {
+        let seq: Vec<usize> = (0..10).map(|i| ping_pong(i, 4)).collect();
+        assert_eq!(seq, [0, 1, 2, 3, 2, 1, 0, 1, 2, 3]);
+        assert_eq!(ping_pong(7, 1), 0);
+        assert_eq!(ping_pong(u64::MAX, 240), ping_pong(u64::MAX % 478, 240));
+    }
 
     /// A target out of the camera's view is in the truth as not visible, with finite numbers:
     /// the truth message passes the receivers' checks (a NaN centroid made it refused whole).

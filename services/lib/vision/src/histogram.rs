@@ -74,6 +74,20 @@ impl Histogram {
         Self::of_rect(img, img.full_rect())
     }
 
+    /// The histogram of every `step`-th row of the image (from row 0): the same distribution
+    /// for a threshold at a fraction of the reads, where rows are many.
+    pub fn of_rows<P: Pixel>(img: &GrayView<'_, P>, step: u32) -> Self {
+        let mut h = Self::new::<P>();
+        let levels = h.counts.len();
+        for y in (0..img.height()).step_by(step.max(1) as usize) {
+            for p in img.row(y) {
+                h.counts[(p.value() as usize).min(levels - 1)] += 1;
+            }
+            h.total += img.width() as u64;
+        }
+        h
+    }
+
     /// Counts the pixels of `rect` (clipped to the image) into this histogram.
     pub fn add_rect<P: Pixel>(&mut self, img: &GrayView<'_, P>, rect: PixelRect) {
         if rect.x0 >= img.width()
@@ -293,6 +307,24 @@ mod tests {
             ..Default::default()
         });
         ex.extract(img.view(), t, &[]).unwrap().len()
+    }
+
+    #[test]
+    fn every_kth_row_is_counted() {
+        let data: Vec<u8> = (0..6 * 5).map(|i| (i / 6) as u8 * 10).collect();
+        let img = GrayView::new(&data, 6, 5, 6).unwrap();
+        assert_eq!(Histogram::of_rows(&img, 1), Histogram::of(&img));
+        let h = Histogram::of_rows(&img, 2);
+        assert_eq!(h.total(), 18);
+        assert_eq!(
+            (
+                h.counts()[0],
+                h.counts()[10],
+                h.counts()[20],
+                h.counts()[40]
+            ),
+            (6, 0, 6, 6)
+        );
     }
 
     #[test]

@@ -18,12 +18,18 @@
 //! Each object keeps its id while tracked or lost; ids are never reused. New objects are taken
 //! only from full-frame searches, which run while no object is tracked, when a lost object's
 //! window has grown to the frame, and every `search_every_frames` frames while fewer than
-//! `max_objects` are tracked.
+//! `max_objects` are tracked. A periodic search first reads the frame for any foreground pixel
+//! outside the windows ([`crate::extract::any_foreground_outside`], about a tenth of the cost
+//! of labelling it); with none, the windows' union holds every blob of the frame, so the
+//! windowed step stands for the search (new objects are taken from it) and the frame is not
+//! labelled whole.
 //!
 //! Pixel conventions: `docs/conventions.md`.
 
 use crate::error::VisionError;
-use crate::extract::{Blob, BlobFlags, ExtractConfig, ExtractStats, Extractor, Window};
+use crate::extract::{
+    Blob, BlobFlags, ExtractConfig, ExtractStats, Extractor, Window, any_foreground_outside,
+};
 use crate::histogram::{Histogram, ThresholdMethod};
 use crate::image::{GrayView, Pixel, PixelRect};
 use crate::moments::{directed_angle_deg, validate_par};
@@ -273,6 +279,10 @@ impl Tracker {
         self.step_frame(img, threshold, frame)
     }
 
+    fn window_rects(&self) -> Vec<PixelRect> {
+        self.windows.iter().map(|w| w.rect).collect()
+    }
+
     /// [`Tracker::step`] for frame number `frame` (the camera's sequence number): the periodic
     /// search for new objects runs on the first frame of each period of
     /// `search_every_frames` numbers, so trackers fed the same frames search on the same ones
@@ -311,14 +321,19 @@ impl Tracker {
         let new_period = self.last_frame.is_none_or(|l| frame / every != l / every);
         self.last_frame = Some(frame);
         let searching = self.tracks.len() < self.cfg.max_objects && new_period;
-        let full_frame = needs_full || searching;
+        // Nothing bright outside the windows: the windowed step finds every blob there is.
+        let searched_in_windows = searching
+            && !needs_full
+            && self.cfg.window_threshold.is_none()
+            && !any_foreground_outside(&img, threshold, &self.window_rects());
+        let full_frame = needs_full || (searching && !searched_in_windows);
         if full_frame {
             self.windows.clear();
         }
         self.extractor.extract(img, threshold, &self.windows)?;
         let blobs = self.extractor.blobs();
         let mut step = TrackStep {
-            full_frame,
+            full_frame: full_frame || searched_in_windows,
             extract: self.extractor.stats(),
             ..Default::default()
         };
@@ -377,7 +392,7 @@ impl Tracker {
         step.dropped = before - self.tracks.len();
 
         // New objects, only from full-frame searches: largest unclaimed, whole blobs first.
-        if full_frame && self.tracks.len() < self.cfg.max_objects {
+        if (full_frame || searched_in_windows) && self.tracks.len() < self.cfg.max_objects {
             let mut fresh: Vec<usize> = (0..blobs.len())
                 .filter(|&j| {
                     !self.taken[j]
@@ -491,6 +506,74 @@ mod tests {
             counted.tracks().len() == 2
         });
         assert_eq!(first_two, Some(20));
+    }
+
+    /// A periodic search labels the whole frame only when something bright lies outside the
+    /// windows: with nothing new it reads the frame and labels only the windows; a new object
+    /// far from the others is found as before; one that appears inside another's window is
+    /// found too (the windows' union held every blob).
+    #[test]
+    fn a_search_labels_the_frame_only_when_something_is_outside_the_windows() {
+        let cfg = TrackerConfig {
+            search_every_frames: 10,
+            ..Default::default()
+        };
+        let pixels = 320 * 240;
+        let mut tr = Tracker::new(cfg, ExtractConfig::default()).unwrap();
+        let first = tr
+            .step_frame(frame(&[(60.0, 80.0, 5.0)]).view(), 128, 0)
+            .unwrap();
+        assert_eq!(first.extract.pixels_scanned, pixels);
+        for f in 1..10u64 {
+            tr.step_frame(frame(&[(60.0, 80.0, 5.0)]).view(), 128, f)
+                .unwrap();
+        }
+        // Frame 10 opens a search period; nothing new: only the window is labelled.
+        let s = tr
+            .step_frame(frame(&[(60.0, 80.0, 5.0)]).view(), 128, 10)
+            .unwrap();
+        assert!(
+            s.full_frame && s.extract.pixels_scanned < pixels / 10,
+            "{s:?}"
+        );
+        assert_eq!((s.new, tr.tracks().len()), (0, 1));
+        // A second object 12 px away, inside the first one's window, at the next search.
+        let two = [(60.0, 80.0, 5.0), (72.0, 80.0, 3.0)];
+        let w = tr.tracks()[0].window;
+        assert!(w.contains(72.0, 80.0), "{w:?}");
+        let s = tr.step_frame(frame(&two).view(), 128, 20).unwrap();
+        assert!(s.extract.pixels_scanned < pixels / 10, "{s:?}");
+        assert_eq!((s.new, tr.tracks().len()), (1, 2));
+        // A third far away: the frame is labelled whole and it is found.
+        let three = [(60.0, 80.0, 5.0), (72.0, 80.0, 3.0), (250.0, 200.0, 5.0)];
+        let s = tr.step_frame(frame(&three).view(), 128, 30).unwrap();
+        assert_eq!(s.extract.pixels_scanned, pixels);
+        assert_eq!((s.new, tr.tracks().len()), (1, 3));
+    }
+
+    #[test]
+    fn any_foreground_outside_sees_only_what_no_window_covers() {
+        let img = frame(&[(100.0, 100.0, 4.0)]);
+        let v = img.view();
+        let around = PixelRect {
+            x0: 90,
+            y0: 90,
+            x1: 110,
+            y1: 110,
+        };
+        let beside = PixelRect {
+            x0: 90,
+            y0: 90,
+            x1: 99,
+            y1: 110,
+        };
+        assert!(any_foreground_outside(&v, 128, &[]));
+        assert!(!any_foreground_outside(&v, 128, &[around]));
+        assert!(any_foreground_outside(&v, 128, &[beside]));
+        // Two windows that together cover it.
+        let rest = PixelRect { x0: 100, ..around };
+        assert!(!any_foreground_outside(&v, 128, &[rest, beside]));
+        assert!(!any_foreground_outside(&v, 255, &[]));
     }
 
     #[test]

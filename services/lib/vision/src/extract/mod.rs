@@ -503,6 +503,52 @@ fn emit_blobs(
     stats
 }
 
+/// Whether any pixel of `img` is `>= threshold` outside every rectangle of `windows`: one
+/// read of the frame, 64 pixels at a time, with nothing labelled or stored. The tracker's
+/// periodic search for new objects runs this first and labels the whole frame only when it
+/// is true; when it is false every foreground pixel is inside the windows, so their union's
+/// blobs are the frame's blobs.
+pub fn any_foreground_outside<P: Pixel>(
+    img: &GrayView<'_, P>,
+    threshold: u32,
+    windows: &[PixelRect],
+) -> bool {
+    let w = img.width() as usize;
+    let mut covering: Vec<(usize, usize)> = Vec::with_capacity(windows.len());
+    for y in 0..img.height() {
+        covering.clear();
+        covering.extend(
+            windows
+                .iter()
+                .filter(|r| r.y0 <= y && y <= r.y1 && r.x0 <= r.x1)
+                .map(|r| (r.x0 as usize, (r.x1 as usize).min(w.saturating_sub(1)))),
+        );
+        covering.sort_unstable();
+        let row = img.row(y);
+        let mut x = 0usize;
+        for &(a, b) in &covering {
+            if a > x && any_at_least(&row[x..a.min(w)], threshold) {
+                return true;
+            }
+            x = x.max(b + 1);
+        }
+        if x < w && any_at_least(&row[x..w], threshold) {
+            return true;
+        }
+    }
+    false
+}
+
+fn any_at_least<P: Pixel>(pixels: &[P], threshold: u32) -> bool {
+    let mut chunks = pixels.chunks_exact(64);
+    for c in &mut chunks {
+        if P::any_foreground64(c, threshold) {
+            return true;
+        }
+    }
+    chunks.remainder().iter().any(|p| p.value() >= threshold)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
