@@ -101,6 +101,11 @@ impl Fuser {
         self.objects.len()
     }
 
+    /// Whether object `id` is still followed (seen, or unseen for less than `drop_after`).
+    pub fn has_object(&self, id: u32) -> bool {
+        self.objects.iter().any(|o| o.id == id)
+    }
+
     /// Numbers new objects from `first` on (a restarted fusion continuing its session).
     pub fn with_first_id(mut self, first: u32) -> Self {
         self.next_id = first.max(1);

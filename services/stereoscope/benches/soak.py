@@ -149,8 +149,10 @@ def main():
     for name, s in samples.items():
         after = [kb for t, kb in s if t >= warm]
         if len(after) >= 2:
+            # One sample a minute, to tell a steady climb from a step.
+            per_minute = [kb for t, kb in s if t >= warm][::6]
             growth[name] = {"first_kb": after[0], "last_kb": after[-1], "max_kb": max(after),
-                            "growth_kb": after[-1] - after[0]}
+                            "growth_kb": after[-1] - after[0], "per_minute_kb": per_minute}
     # CPU share (of one core) after warm-up, per process and in all.
     busy = {}
     for name, s in cpu.items():

@@ -7,7 +7,7 @@
 # Installs opencv-python-headless and numpy from PyPI into target/opencv-venv (once).
 set -euo pipefail
 here=$(cd "$(dirname "$0")" && pwd)
-root=$(cd "$here/../../.." && pwd)
+root=$(cd "$here/../../../.." && pwd)
 venv="$root/target/opencv-venv"
 if [ ! -x "$venv/bin/python" ] || ! "$venv/bin/python" -c "import cv2, numpy" 2>/dev/null; then
   python3 -m venv "$venv"

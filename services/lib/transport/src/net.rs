@@ -268,6 +268,22 @@ impl KeyedPublisher {
         }
     }
 
+    /// Undeclares the publishers of the keys for which `keep` is false (an object that is
+    /// gone): a long run makes new objects for ever, and each declared key costs memory here
+    /// and in every router.
+    pub fn retain(&mut self, mut keep: impl FnMut(&str) -> bool) {
+        self.publishers.retain(|k, _| keep(k));
+    }
+
+    /// Keys with a declared publisher.
+    pub fn len(&self) -> usize {
+        self.publishers.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.publishers.is_empty()
+    }
+
     pub fn put_bytes(&mut self, key: &str, bytes: Vec<u8>) -> Result<(), TransportError> {
         if !self.publishers.contains_key(key) {
             let p = JsonPublisher::new(&self.session, key)?;
@@ -328,6 +344,22 @@ mod tests {
     /// A port handed out stays reserved: its lock file cannot be taken by anyone else (a lock
     /// on another open of the file fails as another process's would), and this process does
     /// not hand it out twice.
+    /// Publishers of gone keys are undeclared.
+    #[test]
+    fn keyed_publishers_of_gone_keys_are_forgotten() {
+        let session = open(&ZenohSpec::lone_peer()).unwrap();
+        let mut p = KeyedPublisher::new(&session);
+        for id in 1..=3 {
+            p.put_bytes(&format!("t/pose/{id}"), b"{}".to_vec())
+                .unwrap();
+        }
+        assert_eq!(p.len(), 3);
+        p.retain(|k| k.ends_with("/2"));
+        assert_eq!(p.len(), 1);
+        p.put_bytes("t/pose/2", b"{}".to_vec()).unwrap();
+        assert_eq!(p.len(), 1);
+    }
+
     #[test]
     fn a_free_port_is_reserved_for_this_process() {
         let a = free_loopback_port().unwrap();

@@ -8,7 +8,7 @@
 # Rust benchmark (which writes its frames as PGM), times OpenCV on those frames, and merges.
 set -euo pipefail
 here=$(cd "$(dirname "$0")" && pwd)
-root=$(cd "$here/../../.." && pwd)
+root=$(cd "$here/../../../.." && pwd)
 out="$root/target/bench-opencv"
 quick=()
 [ "${1:-}" = "--quick" ] && quick=(--quick)

@@ -33,21 +33,22 @@ def main():
             continue
         win = r["window_1t_ms"]
         win_s = "-" if win is None else f"{win:.4f}"
-        ratio_s = "-" if win is None else f"{r['full_1t_ms'] / win:.0f}×"
+        ratio_s = "-" if win is None else f"{r['window_frame_full_1t_ms'] / win:.0f}×"
         print(f"| {r['width']}×{r['height']} | {r['blobs']} (found {r['found']}) | {o['threshold_ms']:.4f} | {o['ccstats_ms']:.3f} | "
               f"{o['contours_ms']:.3f} | {r['full_1t_ms']:.4f} | {r['full_all_ms']:.4f} | "
               f"{win_s} | {o['contours_ms'] / r['full_1t_ms']:.1f}× faster | "
               f"{r['full_1t_ms'] / o['threshold_ms']:.2f}× its time | "
               f"{ratio_s} |")
-    # The goal row: 1920×1080, 50 blobs, single thread; windowed 4 objects vs that full pass.
+    # The goal row: 1920×1080, 50 blobs, single thread; windowed tracking of 4 objects against a
+    # full pass of the same frame (the bench checks both found the same 4 blobs).
     g = rust.get("1920x1080_50")
     w = rust.get("1920x1080_4")
     if g and w and w["window_1t_ms"] and "1920x1080_50" in ocv:
         o = ocv["1920x1080_50"]
         print(f"\nGoal check at 1920×1080, 50 blobs, one thread: {o['contours_ms'] / g['full_1t_ms']:.1f}× faster than "
               f"findContours+moments (goal ≥ 3×); {g['full_1t_ms'] / o['threshold_ms']:.2f}× the bare threshold "
-              f"(goal ≤ 3×); windowed tracking of 4 objects {g['full_1t_ms'] / w['window_1t_ms']:.0f}× cheaper than "
-              f"that full-frame pass (goal ≥ 50×).")
+              f"(goal ≤ 3×). Windowed tracking of 4 objects {w['window_frame_full_1t_ms'] / w['window_1t_ms']:.0f}× cheaper "
+              f"than a full-frame pass of the same frame, same 4 blobs found (goal ≥ 50×).")
 
 
 if __name__ == "__main__":

@@ -1,0 +1,578 @@
+//! Rigid bodies of markers (issue: the VR feed). Not from the thesis, whose targets are single
+//! blobs (its §5.2 two-ball target is a body of two markers); the method is the one every
+//! motion-capture system uses (`../shared/DESIGN.md` §6):
+//!
+//! - a body is its markers' positions in its own frame and a tolerance; [`check_bodies`]
+//!   refuses one with fewer than three markers (two: a pointer, whose roll is unobservable),
+//!   collinear ones, or a layout that matches itself under a relabelling of its markers (a
+//!   symmetric layout: its pose would flip) or matches another body;
+//! - each frame, [`identify`] finds every body's markers among the triangulated points by their
+//!   pairwise distances (each within the body's tolerance of the defined one), a marker may be
+//!   missing while three are seen, and the bodies' candidate matches are chosen together so that
+//!   no point serves two bodies and the most markers are explained (not body by body);
+//! - [`kabsch`] gives `world_from_body` by the weighted least-squares rotation and translation
+//!   (Kabsch/Umeyama without scale, SVD of the weighted cross-covariance) and the RMS residual,
+//!   which rejects a wrong assignment.
+//!
+//! Units: metres throughout (the rig file's unit is converted by its loader).
+
+use nalgebra::{Isometry3, Matrix3, Point3, Translation3, UnitQuaternion, Vector3};
+
+/// The most markers a body may have (the relabelling search is over their permutations).
+pub const MAX_MARKERS: usize = 8;
+
+/// A body as defined: markers in its own frame, metres.
+#[derive(Debug, Clone, PartialEq)]
+pub struct BodyDef {
+    pub name: String,
+    pub markers_m: Vec<Point3<f64>>,
+    /// How far a measured inter-marker distance may be from the defined one, metres.
+    pub tolerance_m: f64,
+}
+
+/// A definition that cannot be used, naming the body and what to change.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum BodyError {
+    #[error("body {body:?}: {count} markers; a body needs 3 to {MAX_MARKERS} (2 for a pointer)")]
+    MarkerCount { body: String, count: usize },
+    #[error("body {body:?}: marker {marker} is not a finite position")]
+    NotFinite { body: String, marker: usize },
+    #[error("body {body:?}: tolerance {value} m must be above 0 and below 0.1 m")]
+    Tolerance { body: String, value: f64 },
+    #[error(
+        "body {body:?}: markers {a} and {b} are {distance_m:.4} m apart, not more than twice the tolerance: they cannot be told apart"
+    )]
+    TooClose {
+        body: String,
+        a: usize,
+        b: usize,
+        distance_m: f64,
+    },
+    #[error(
+        "body {body:?}: its markers lie on one line (within {spread_m:.4} m), so its roll about that line is unobservable; move one marker off the line"
+    )]
+    Collinear { body: String, spread_m: f64 },
+    #[error("body names: {0:?} appears twice")]
+    DuplicateName(String),
+    #[error("{0}")]
+    Ambiguous(Ambiguity),
+}
+
+/// Two ways of matching one layout: a body with itself under a relabelling (symmetric), or a
+/// body's markers into another body's.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Ambiguity {
+    pub body: String,
+    /// The other body, or `None` for a symmetric layout.
+    pub other: Option<String>,
+    /// `(marker of body, marker of other)` pairs of the matching.
+    pub mapping: Vec<(usize, usize)>,
+    /// The largest difference of a matched pair of distances, metres.
+    pub worst_difference_m: f64,
+    /// How much more that difference must grow before the two can be told apart, metres.
+    pub needed_m: f64,
+    /// The markers whose distance differs most.
+    pub pair: (usize, usize),
+}
+
+impl std::fmt::Display for Ambiguity {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let pairs: Vec<String> = self
+            .mapping
+            .iter()
+            .map(|(a, b)| format!("{a}→{b}"))
+            .collect();
+        match &self.other {
+            None => write!(
+                f,
+                "body {:?} is symmetric: relabelling its markers ({}) keeps every distance within {:.1} mm, so its pose can flip; move marker {} or {} so that their distance changes by at least {:.1} mm",
+                self.body,
+                pairs.join(", "),
+                self.worst_difference_m * 1e3,
+                self.pair.0,
+                self.pair.1,
+                self.needed_m * 1e3
+            ),
+            Some(o) => write!(
+                f,
+                "body {:?} matches body {:?} (markers {}) with every distance within {:.1} mm, so one can be taken for the other; move marker {} or {} of {:?} so that their distance changes by at least {:.1} mm",
+                self.body,
+                o,
+                pairs.join(", "),
+                self.worst_difference_m * 1e3,
+                self.pair.0,
+                self.pair.1,
+                self.body,
+                self.needed_m * 1e3
+            ),
+        }
+    }
+}
+
+fn dist(a: &Point3<f64>, b: &Point3<f64>) -> f64 {
+    (a - b).norm()
+}
+
+/// Checks each definition alone, then every body against itself relabelled and against every
+/// other body: two layouts are ambiguous when a matching keeps every distance within twice the
+/// tolerance (each measured distance may be off by the tolerance).
+pub fn check_bodies(defs: &[BodyDef]) -> Result<(), BodyError> {
+    let mut names = std::collections::HashSet::new();
+    for d in defs {
+        if !names.insert(d.name.as_str()) {
+            return Err(BodyError::DuplicateName(d.name.clone()));
+        }
+        check_one(d)?;
+    }
+    for (i, a) in defs.iter().enumerate() {
+        // A pointer's two ends always swap: its direction comes from elsewhere (the blob's
+        // moments, or motion), and its roll is unobservable.
+        if a.markers_m.len() > 2
+            && let Some(x) = embedding(a, a, true)
+        {
+            return Err(BodyError::Ambiguous(x));
+        }
+        for b in defs.iter().skip(i + 1) {
+            // The smaller (or equal) layout embedded in the larger.
+            let (small, big) = if a.markers_m.len() <= b.markers_m.len() {
+                (a, b)
+            } else {
+                (b, a)
+            };
+            if let Some(x) = embedding(small, big, false) {
+                return Err(BodyError::Ambiguous(x));
+            }
+        }
+    }
+    Ok(())
+}
+
+fn check_one(d: &BodyDef) -> Result<(), BodyError> {
+    let n = d.markers_m.len();
+    let body = || d.name.clone();
+    if !(2..=MAX_MARKERS).contains(&n) {
+        return Err(BodyError::MarkerCount {
+            body: body(),
+            count: n,
+        });
+    }
+    if let Some(marker) = d
+        .markers_m
+        .iter()
+        .position(|p| !p.coords.iter().all(|v| v.is_finite()))
+    {
+        return Err(BodyError::NotFinite {
+            body: body(),
+            marker,
+        });
+    }
+    if !(d.tolerance_m > 0.0 && d.tolerance_m < 0.1) {
+        return Err(BodyError::Tolerance {
+            body: body(),
+            value: d.tolerance_m,
+        });
+    }
+    for a in 0..n {
+        for b in a + 1..n {
+            let distance_m = dist(&d.markers_m[a], &d.markers_m[b]);
+            if distance_m <= 2.0 * d.tolerance_m {
+                return Err(BodyError::TooClose {
+                    body: body(),
+                    a,
+                    b,
+                    distance_m,
+                });
+            }
+        }
+    }
+    if n >= 3 {
+        // Spread off the line through the two farthest markers.
+        let (mut a, mut b, mut best) = (0, 1, 0.0);
+        for i in 0..n {
+            for j in i + 1..n {
+                let dd = dist(&d.markers_m[i], &d.markers_m[j]);
+                if dd > best {
+                    (a, b, best) = (i, j, dd);
+                }
+            }
+        }
+        let axis = (d.markers_m[b] - d.markers_m[a]) / best;
+        let spread_m = d
+            .markers_m
+            .iter()
+            .map(|p| {
+                let v = p - d.markers_m[a];
+                (v - axis * v.dot(&axis)).norm()
+            })
+            .fold(0.0, f64::max);
+        if spread_m <= 2.0 * d.tolerance_m {
+            return Err(BodyError::Collinear {
+                body: body(),
+                spread_m,
+            });
+        }
+    }
+    Ok(())
+}
+
+/// A matching of `small`'s markers into distinct markers of `big` keeping every distance within
+/// twice the larger tolerance (for `same`, a relabelling other than the identity).
+fn embedding(small: &BodyDef, big: &BodyDef, same: bool) -> Option<Ambiguity> {
+    let tol = 2.0 * small.tolerance_m.max(big.tolerance_m);
+    let n = small.markers_m.len();
+    let mut map = vec![usize::MAX; n];
+    let mut used = vec![false; big.markers_m.len()];
+    let mut found = None;
+    search_embedding(small, big, tol, same, 0, &mut map, &mut used, &mut found);
+    found.map(|map: Vec<usize>| {
+        let mut worst = (0.0, (0, 1));
+        for a in 0..n {
+            for b in a + 1..n {
+                let diff = (dist(&small.markers_m[a], &small.markers_m[b])
+                    - dist(&big.markers_m[map[a]], &big.markers_m[map[b]]))
+                .abs();
+                if diff >= worst.0 {
+                    worst = (diff, (a, b));
+                }
+            }
+        }
+        Ambiguity {
+            body: small.name.clone(),
+            other: (!same).then(|| big.name.clone()),
+            mapping: map.iter().enumerate().map(|(a, &b)| (a, b)).collect(),
+            worst_difference_m: worst.0,
+            needed_m: (tol - worst.0).max(0.0),
+            pair: worst.1,
+        }
+    })
+}
+
+#[allow(clippy::too_many_arguments)]
+fn search_embedding(
+    small: &BodyDef,
+    big: &BodyDef,
+    tol: f64,
+    same: bool,
+    k: usize,
+    map: &mut [usize],
+    used: &mut [bool],
+    found: &mut Option<Vec<usize>>,
+) {
+    if found.is_some() {
+        return;
+    }
+    if k == map.len() {
+        if !same || map.iter().enumerate().any(|(a, &b)| a != b) {
+            *found = Some(map.to_vec());
+        }
+        return;
+    }
+    for c in 0..big.markers_m.len() {
+        if used[c] {
+            continue;
+        }
+        let fits = (0..k).all(|j| {
+            (dist(&small.markers_m[k], &small.markers_m[j])
+                - dist(&big.markers_m[c], &big.markers_m[map[j]]))
+            .abs()
+                <= tol
+        });
+        if fits {
+            map[k] = c;
+            used[c] = true;
+            search_embedding(small, big, tol, same, k + 1, map, used, found);
+            used[c] = false;
+            map[k] = usize::MAX;
+        }
+    }
+}
+
+/// `world_from_body` minimising `Σ wᵢ |R·bodyᵢ + t − worldᵢ|²` (Kabsch/Umeyama, no scale), and
+/// the weighted RMS residual, metres. `None` with fewer than 3 points of positive weight, or
+/// when they are collinear.
+pub fn kabsch(
+    body: &[Point3<f64>],
+    world: &[Point3<f64>],
+    weights: &[f64],
+) -> Option<(Isometry3<f64>, f64)> {
+    let n = body.len();
+    if n != world.len() || n != weights.len() {
+        return None;
+    }
+    let total: f64 = weights.iter().filter(|w| **w > 0.0).sum();
+    if weights.iter().filter(|w| **w > 0.0).count() < 3 || total <= 0.0 {
+        return None;
+    }
+    let mean = |pts: &[Point3<f64>]| {
+        pts.iter()
+            .zip(weights)
+            .filter(|(_, w)| **w > 0.0)
+            .fold(Vector3::zeros(), |acc, (p, w)| acc + p.coords * *w)
+            / total
+    };
+    let (cb, cw) = (mean(body), mean(world));
+    let mut h = Matrix3::zeros();
+    for ((b, p), w) in body.iter().zip(world).zip(weights) {
+        if *w > 0.0 {
+            h += (b.coords - cb) * (p.coords - cw).transpose() * *w;
+        }
+    }
+    let svd = h.svd(true, true);
+    let (u, v_t) = (svd.u?, svd.v_t?);
+    // The second singular value is zero for collinear points: the rotation about them is free.
+    if svd.singular_values[1] <= 1e-12 * svd.singular_values[0].max(1e-300) {
+        return None;
+    }
+    let v = v_t.transpose();
+    let d = (v * u.transpose()).determinant().signum();
+    let r = v * Matrix3::from_diagonal(&Vector3::new(1.0, 1.0, d)) * u.transpose();
+    let rotation = UnitQuaternion::from_matrix(&r);
+    let t = cw - rotation * cb;
+    let pose = Isometry3::from_parts(Translation3::from(t), rotation);
+    let sq: f64 = body
+        .iter()
+        .zip(world)
+        .zip(weights)
+        .filter(|(_, w)| **w > 0.0)
+        .map(|((b, p), w)| (pose * b - p).norm_squared() * w)
+        .sum();
+    Some((pose, (sq / total).sqrt()))
+}
+
+/// One body found in a frame.
+#[derive(Debug, Clone, PartialEq)]
+pub struct BodyMatch {
+    /// Index into the definitions.
+    pub body: usize,
+    /// For each marker of the body, the index of the point it was found at (`None`: missing).
+    pub markers: Vec<Option<usize>>,
+    pub world_from_body: Isometry3<f64>,
+    /// RMS distance of the seen markers from where the pose puts them, metres.
+    pub residual_m: f64,
+}
+
+impl BodyMatch {
+    pub fn seen(&self) -> usize {
+        self.markers.iter().filter(|m| m.is_some()).count()
+    }
+}
+
+/// A candidate match of one body: points per marker and the sum of squared distance errors.
+#[derive(Debug, Clone)]
+struct Candidate {
+    markers: Vec<Option<usize>>,
+    seen: usize,
+    cost: f64,
+}
+
+/// Candidates kept per body for the joint choice.
+const CANDIDATES_PER_BODY: usize = 4;
+
+/// Finds the bodies among `points` (world, metres). Each body's candidates are the ways to
+/// give its markers distinct points with every pairwise distance within its tolerance (whole
+/// if it can be; else any markers missing as long as three are seen; none for a pointer); the
+/// choice
+/// over all bodies together uses no point twice, explains the most markers and then has the
+/// least squared distance error. A choice whose pose leaves a seen marker more than the
+/// tolerance from its point is rejected (a wrong assignment). Bodies not found are absent.
+pub fn identify(defs: &[BodyDef], points: &[Point3<f64>]) -> Vec<BodyMatch> {
+    let m = points.len();
+    let mut d = vec![0.0; m * m];
+    for i in 0..m {
+        for j in i + 1..m {
+            let v = dist(&points[i], &points[j]);
+            d[i * m + j] = v;
+            d[j * m + i] = v;
+        }
+    }
+    let candidates: Vec<Vec<Candidate>> =
+        defs.iter().map(|def| body_candidates(def, &d, m)).collect();
+    // Joint choice: depth-first over bodies, each taking one of its candidates or none.
+    let mut best: (usize, f64, Vec<Option<usize>>) = (0, f64::INFINITY, vec![None; defs.len()]);
+    let mut choice = vec![None; defs.len()];
+    let mut used = vec![false; m];
+    choose(&candidates, 0, &mut choice, &mut used, 0, 0.0, &mut best);
+    let mut out = Vec::new();
+    for (b, c) in best.2.iter().enumerate() {
+        let Some(ci) = *c else { continue };
+        let cand = &candidates[b][ci];
+        let def = &defs[b];
+        let (mut body_pts, mut world_pts) = (Vec::new(), Vec::new());
+        for (k, p) in cand.markers.iter().enumerate() {
+            if let Some(p) = p {
+                body_pts.push(def.markers_m[k]);
+                world_pts.push(points[*p]);
+            }
+        }
+        let weights = vec![1.0; body_pts.len()];
+        let Some((pose, residual_m)) = kabsch(&body_pts, &world_pts, &weights) else {
+            continue;
+        };
+        let worst = body_pts
+            .iter()
+            .zip(&world_pts)
+            .map(|(b, w)| (pose * b - w).norm())
+            .fold(0.0, f64::max);
+        if worst > def.tolerance_m {
+            continue;
+        }
+        out.push(BodyMatch {
+            body: b,
+            markers: cand.markers.clone(),
+            world_from_body: pose,
+            residual_m,
+        });
+    }
+    out
+}
+
+fn choose(
+    candidates: &[Vec<Candidate>],
+    b: usize,
+    choice: &mut Vec<Option<usize>>,
+    used: &mut [bool],
+    seen: usize,
+    cost: f64,
+    best: &mut (usize, f64, Vec<Option<usize>>),
+) {
+    if b == candidates.len() {
+        if seen > best.0 || (seen == best.0 && cost < best.1) {
+            *best = (seen, cost, choice.clone());
+        }
+        return;
+    }
+    // Bound: even taking every remaining body's best cannot beat the best so far.
+    let rest: usize = candidates[b..]
+        .iter()
+        .map(|c| c.first().map_or(0, |x| x.seen))
+        .sum();
+    if seen + rest < best.0 {
+        return;
+    }
+    for (i, c) in candidates[b].iter().enumerate() {
+        if c.markers.iter().flatten().any(|p| used[*p]) {
+            continue;
+        }
+        for p in c.markers.iter().flatten() {
+            used[*p] = true;
+        }
+        choice[b] = Some(i);
+        choose(
+            candidates,
+            b + 1,
+            choice,
+            used,
+            seen + c.seen,
+            cost + c.cost,
+            best,
+        );
+        choice[b] = None;
+        for p in c.markers.iter().flatten() {
+            used[*p] = false;
+        }
+    }
+    choose(candidates, b + 1, choice, used, seen, cost, best);
+}
+
+fn body_candidates(def: &BodyDef, d: &[f64], m: usize) -> Vec<Candidate> {
+    let n = def.markers_m.len();
+    // Every marker of a pointer; three of any larger body (a pose needs three).
+    let min_seen = n.min(3);
+    let mut dd = vec![0.0; n * n];
+    for a in 0..n {
+        for b in 0..n {
+            dd[a * n + b] = dist(&def.markers_m[a], &def.markers_m[b]);
+        }
+    }
+    let mut out: Vec<Candidate> = Vec::new();
+    let mut map = vec![None; n];
+    let mut used = vec![false; m];
+    // Whole first (no branch for a missing marker: the usual frame, and far fewer branches);
+    // only a body not found whole is searched again with markers allowed to be missing.
+    for need in [n, min_seen] {
+        let ctx = Ctx {
+            n,
+            m,
+            d,
+            dd: &dd,
+            tol: def.tolerance_m,
+            min_seen: need,
+        };
+        search_body(&ctx, 0, 0, 0.0, &mut map, &mut used, &mut out);
+        if !out.is_empty() {
+            break;
+        }
+    }
+    out.sort_by(|a, b| b.seen.cmp(&a.seen).then(a.cost.total_cmp(&b.cost)));
+    out.truncate(CANDIDATES_PER_BODY);
+    out
+}
+
+struct Ctx<'a> {
+    n: usize,
+    m: usize,
+    d: &'a [f64],
+    dd: &'a [f64],
+    tol: f64,
+    min_seen: usize,
+}
+
+/// Hard cap on the candidates a body's search collects before keeping the best few.
+const MAX_CANDIDATES: usize = 256;
+
+fn search_body(
+    c: &Ctx<'_>,
+    k: usize,
+    seen: usize,
+    cost: f64,
+    map: &mut [Option<usize>],
+    used: &mut [bool],
+    out: &mut Vec<Candidate>,
+) {
+    if out.len() >= MAX_CANDIDATES {
+        return;
+    }
+    if k == c.n {
+        if seen >= c.min_seen {
+            out.push(Candidate {
+                markers: map.to_vec(),
+                seen,
+                cost,
+            });
+        }
+        return;
+    }
+    // Not enough markers left to reach the minimum.
+    if seen + (c.n - k) < c.min_seen {
+        return;
+    }
+    for p in 0..c.m {
+        if used[p] {
+            continue;
+        }
+        let mut add = 0.0;
+        let mut fits = true;
+        for (j, q) in map.iter().enumerate().take(k) {
+            if let Some(q) = q {
+                let e = c.d[p * c.m + q] - c.dd[k * c.n + j];
+                if e.abs() > c.tol {
+                    fits = false;
+                    break;
+                }
+                add += e * e;
+            }
+        }
+        if fits {
+            map[k] = Some(p);
+            used[p] = true;
+            search_body(c, k + 1, seen + 1, cost + add, map, used, out);
+            used[p] = false;
+            map[k] = None;
+        }
+    }
+    // This marker missing.
+    search_body(c, k + 1, seen, cost, map, used, out);
+}
+
+#[cfg(test)]
+mod tests;
