@@ -110,25 +110,25 @@ impl DemoSummary {
             .iter()
             .map(|t| {
                 format!(
-                    "{{\"target\":{},\"matched\":{},\"missed\":{},\"position_rms_m\":{:.6},\"heading_rms_deg\":{},\"id_switches\":{}}}",
+                    "{{\"target\":{},\"matched\":{},\"missed\":{},\"position_rms_m\":{},\"heading_rms_deg\":{},\"id_switches\":{}}}",
                     t.target,
                     t.matched,
                     t.missed,
-                    t.position_rms_m,
+                    json_number(t.position_rms_m, 6),
                     t.heading_rms_deg.map(|h| format!("{h:.4}")).unwrap_or("null".into()),
                     t.id_switches
                 )
             })
             .collect();
         format!(
-            "{{\"seconds\":{:.3},\"pose_frames\":{},\"poses_per_s\":{:.2},\"latency_p50_ms\":{:.4},\"latency_p99_ms\":{:.4},\"exposure_latency_p50_ms\":{:.4},\"position_rms_m\":{:.6},\"heading_rms_deg\":{},\"complete_frames\":{},\"restarts\":{},\"targets\":[{}],\"losses\":{}}}",
+            "{{\"seconds\":{:.3},\"pose_frames\":{},\"poses_per_s\":{:.2},\"latency_p50_ms\":{},\"latency_p99_ms\":{},\"exposure_latency_p50_ms\":{},\"position_rms_m\":{},\"heading_rms_deg\":{},\"complete_frames\":{},\"restarts\":{},\"targets\":[{}],\"losses\":{}}}",
             self.seconds,
             self.pose_frames,
             self.poses_per_s,
-            self.latency_p50_ms,
-            self.latency_p99_ms,
-            self.exposure_latency_p50_ms,
-            self.position_rms_m,
+            json_number(self.latency_p50_ms, 4),
+            json_number(self.latency_p99_ms, 4),
+            json_number(self.exposure_latency_p50_ms, 4),
+            json_number(self.position_rms_m, 6),
             self.heading_rms_deg
                 .map(|h| format!("{h:.4}"))
                 .unwrap_or("null".into()),
@@ -164,6 +164,15 @@ struct Acc {
     missed: u64,
     last_id: Option<u32>,
     switches: u32,
+}
+
+/// A number for the JSON summary: `null` when not finite (no frame scored).
+fn json_number(v: f64, decimals: usize) -> String {
+    if v.is_finite() {
+        format!("{v:.decimals$}")
+    } else {
+        "null".into()
+    }
 }
 
 /// Runs the demo until `seconds` of poses were measured or shutdown.
@@ -379,7 +388,10 @@ fn watch(
         while truths.len() > 600 {
             truths.pop_front();
         }
-        // Score pose frames whose truth has arrived (or give up on them after 100 frames).
+        // Score pose frames whose truth has arrived; give up on one whose truth can no longer
+        // come (a later truth arrived: it came before the truth subscription, or was lost) or
+        // after 100 frames. Waiting on such a frame used to hold back every later one: a run
+        // whose first pose frame had no truth scored nothing.
         while let Some(p) = pending.front() {
             let t = truths
                 .iter()
@@ -393,7 +405,11 @@ fn watch(
                     latest = Some((p.clone(), scored));
                     pending.pop_front();
                 }
-                None if pending.len() > 100 => {
+                None if pending.len() > 100
+                    || truths
+                        .back()
+                        .is_some_and(|t| t.timestamp_ns > p.timestamp_ns + 1_000_000) =>
+                {
                     pending.pop_front();
                 }
                 None => break,

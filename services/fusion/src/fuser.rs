@@ -32,7 +32,19 @@ pub struct FuserConfig {
     pub drop_after_ns: u64,
     /// Above this roundness a blob's axis is not used for heading.
     pub max_roundness: f64,
+    /// A new point becomes an object — gets an id and is published — once it was continued in
+    /// this many consecutive sets; until then it is tentative and dropped the first set it is
+    /// missing from. A ghost of a wrong correspondence (start-up, two targets on one epipolar
+    /// line) rarely lasts that long, and never takes an id.
+    pub confirm_sets: u32,
+    /// Two triangulated points of one set closer than this are one marker seen twice (by two
+    /// groups of cameras the correspondence paired separately): the one from more cameras (then
+    /// the smaller residual) is kept. Markers cannot be closer than their diameter.
+    pub merge_m: f64,
 }
+
+/// [`FuserConfig::confirm_sets`] by default.
+pub const DEFAULT_CONFIRM_SETS: u32 = 3;
 
 impl Default for FuserConfig {
     fn default() -> Self {
@@ -42,6 +54,8 @@ impl Default for FuserConfig {
             gate_growth_m_per_s: 0.5,
             drop_after_ns: 2_000_000_000,
             max_roundness: 0.9,
+            confirm_sets: DEFAULT_CONFIRM_SETS,
+            merge_m: 0.01,
         }
     }
 }
@@ -59,7 +73,10 @@ pub struct Point {
 
 #[derive(Debug, Clone)]
 struct Object {
+    /// 0 while tentative (not yet continued in `confirm_sets` sets).
     id: u32,
+    /// Consecutive sets it was continued in, while tentative.
+    hits: u32,
     position_m: Point3<f64>,
     velocity_m_per_s: Vector3<f64>,
     last_seen_ns: u64,
@@ -78,6 +95,29 @@ pub struct Fuser {
     objects: Vec<Object>,
     next_id: u32,
     assigner: Assigner,
+    /// The time of the last set fused.
+    last_set_ns: Option<u64>,
+}
+
+/// Points closer than `merge_m` are one marker seen twice: keeps, of each such group, the point
+/// from the most cameras (then the smallest residual).
+fn merge_duplicates(mut points: Vec<Point>, merge_m: f64) -> Vec<Point> {
+    points.sort_by(|a, b| {
+        b.blobs
+            .len()
+            .cmp(&a.blobs.len())
+            .then(a.residual_px.total_cmp(&b.residual_px))
+    });
+    let mut kept: Vec<Point> = Vec::with_capacity(points.len());
+    for p in points {
+        if !kept
+            .iter()
+            .any(|k| (k.position_m - p.position_m).norm() < merge_m)
+        {
+            kept.push(p);
+        }
+    }
+    kept
 }
 
 fn usable(b: &BlobObservation) -> bool {
@@ -94,16 +134,18 @@ impl Fuser {
             objects: Vec::new(),
             next_id: 1,
             assigner: Assigner::default(),
+            last_set_ns: None,
         }
     }
 
+    /// Objects with an id (tentative ones not counted).
     pub fn objects(&self) -> usize {
-        self.objects.len()
+        self.objects.iter().filter(|o| o.id != 0).count()
     }
 
     /// Whether object `id` is still followed (seen, or unseen for less than `drop_after`).
     pub fn has_object(&self, id: u32) -> bool {
-        self.objects.iter().any(|o| o.id == id)
+        id != 0 && self.objects.iter().any(|o| o.id == id)
     }
 
     /// Numbers new objects from `first` on (a restarted fusion continuing its session).
@@ -159,6 +201,8 @@ impl Fuser {
                 });
             }
         }
+        // One marker triangulated twice: keep the point from more cameras.
+        let mut points = merge_duplicates(points, self.cfg.merge_m);
         // Blobs no other camera matched: depth from their area, where the camera has a model.
         for (s, (c, o)) in set.iter().enumerate() {
             let Some(model) = self.depth[*c] else {
@@ -231,10 +275,17 @@ impl Fuser {
         let points = self.points(set);
         let headings: Vec<Option<(f64, bool)>> =
             points.iter().map(|p| self.heading_of(set, p)).collect();
-        // Forget objects unseen for too long.
+        // Forget objects unseen for too long, and tentative ones missing from the last set.
         let drop_after = self.cfg.drop_after_ns;
-        self.objects
-            .retain(|o| timestamp_ns.saturating_sub(o.last_seen_ns) <= drop_after);
+        let last_set = self.last_set_ns;
+        self.objects.retain(|o| {
+            if o.id == 0 {
+                last_set.is_none_or(|t| o.last_seen_ns >= t)
+            } else {
+                timestamp_ns.saturating_sub(o.last_seen_ns) <= drop_after
+            }
+        });
+        self.last_set_ns = Some(timestamp_ns);
         // Assign points to predictions.
         let mut cost = Vec::with_capacity(self.objects.len() * points.len());
         for o in &self.objects {
@@ -270,11 +321,20 @@ impl Fuser {
                     }
                     o.position_m = p.position_m;
                     o.last_seen_ns = timestamp_ns;
+                    if o.id == 0 {
+                        o.hits += 1;
+                        if o.hits >= self.cfg.confirm_sets {
+                            o.id = self.next_id;
+                            self.next_id += 1;
+                        }
+                    }
                     oi
                 }
                 None => {
+                    let confirmed = self.cfg.confirm_sets <= 1;
                     self.objects.push(Object {
-                        id: self.next_id,
+                        id: if confirmed { self.next_id } else { 0 },
+                        hits: 1,
                         position_m: p.position_m,
                         velocity_m_per_s: Vector3::zeros(),
                         last_seen_ns: timestamp_ns,
@@ -286,7 +346,9 @@ impl Fuser {
                         heading_deg: None,
                         heading_directed: false,
                     });
-                    self.next_id += 1;
+                    if confirmed {
+                        self.next_id += 1;
+                    }
                     self.objects.len() - 1
                 }
             };
@@ -298,6 +360,9 @@ impl Fuser {
                     .update(wrap_half_turn_deg(h), 0.0, directed.then_some(h));
                 o.heading_deg = Some(u.heading_deg);
                 o.heading_directed = o.heading_directed || directed;
+            }
+            if o.id == 0 {
+                continue;
             }
             let mut cams: Vec<String> = p
                 .blobs
@@ -379,9 +444,62 @@ mod tests {
     /// An object gone for 0.6 s (a camera restart, an occlusion) and back 0.15 m from its
     /// prediction keeps its id; one gone longer than `drop_after` gets a new one.
     #[test]
-    fn an_object_back_from_a_short_loss_keeps_its_id() {
+    fn one_marker_triangulated_twice_is_one_point() {
+        let pt = |x: f64, cams: usize, residual_px: f64| Point {
+            position_m: Point3::new(x, 0.0, 1.0),
+            method: PoseMethod::Triangulated,
+            blobs: (0..cams).map(|c| (c, 0)).collect(),
+            residual_px,
+            out_of_range: false,
+        };
+        // 3.5 mm apart (seen in the 8-camera soak): one marker; 30 mm apart: two.
+        let out = merge_duplicates(
+            vec![pt(0.0, 2, 0.1), pt(0.0035, 4, 0.3), pt(0.03, 2, 0.2)],
+            0.01,
+        );
+        assert_eq!(out.len(), 2);
+        assert_eq!(out[0].blobs.len(), 4, "the point from more cameras is kept");
+        assert!((out[1].position_m.x - 0.03).abs() < 1e-12);
+        let out = merge_duplicates(vec![pt(0.0, 3, 0.5), pt(0.002, 3, 0.2)], 0.01);
+        assert_eq!(out.len(), 1);
+        assert!(
+            (out[0].residual_px - 0.2).abs() < 1e-12,
+            "then the smaller residual"
+        );
+    }
+
+    #[test]
+    fn a_point_becomes_an_object_only_when_it_lasts() {
         let rig = Rig::from_toml(RIG).unwrap();
         let mut f = Fuser::new(&rig, FuserConfig::default());
+        let dt = 33_333_333u64;
+        let p = Point3::new(0.05, -0.03, 0.6);
+        // A ghost seen in two sets, then gone: never published, never takes an id.
+        let ghost = Point3::new(-0.2, 0.1, 0.9);
+        assert!(f.fuse(&set_at(&rig, ghost, dt), dt).is_empty());
+        assert!(f.fuse(&set_at(&rig, ghost, 2 * dt), 2 * dt).is_empty());
+        assert!(f.fuse(&set_at(&rig, p, 3 * dt), 3 * dt).is_empty());
+        assert_eq!((f.objects(), f.next_id()), (0, 1));
+        // A real one, continued in three sets: published from the third, as object 1.
+        assert!(f.fuse(&set_at(&rig, p, 4 * dt), 4 * dt).is_empty());
+        let poses = f.fuse(&set_at(&rig, p, 5 * dt), 5 * dt);
+        assert_eq!(poses.iter().map(|x| x.object_id).collect::<Vec<_>>(), [1]);
+        assert!(f.has_object(1) && !f.has_object(0));
+        // Missing from one set, a confirmed object keeps its id.
+        let poses = f.fuse(&set_at(&rig, p, 7 * dt), 7 * dt);
+        assert_eq!(poses[0].object_id, 1);
+    }
+
+    #[test]
+    fn an_object_back_from_a_short_loss_keeps_its_id() {
+        let rig = Rig::from_toml(RIG).unwrap();
+        let mut f = Fuser::new(
+            &rig,
+            FuserConfig {
+                confirm_sets: 1,
+                ..FuserConfig::default()
+            },
+        );
         let s = 1_000_000_000u64;
         let p = Point3::new(0.05, -0.03, 0.6);
         let id = |poses: &[Pose]| {

@@ -15,7 +15,7 @@ pub mod fuser;
 pub mod identity;
 pub mod pairing;
 
-use fuser::{Fuser, FuserConfig};
+use fuser::{DEFAULT_CONFIRM_SETS, Fuser, FuserConfig};
 use pairing::{Pairer, PairingConfig};
 use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -80,6 +80,7 @@ pub fn settings(file: &RigFile) -> (PairingConfig, FuserConfig, bool) {
         },
         gate_m: f.association_gate.map(|g| g * scale).unwrap_or(0.1),
         drop_after_ns: (f.drop_after_s.unwrap_or(2.0) * 1e9) as u64,
+        confirm_sets: f.confirm_sets.unwrap_or(DEFAULT_CONFIRM_SETS),
         ..FuserConfig::default()
     };
     let all_zenoh = f.observations == Some(ObservationRoute::Zenoh);

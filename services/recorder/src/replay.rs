@@ -425,6 +425,9 @@ pub fn frames_rig(
         );
         f.max_wait_ms = Some(2_000.0);
         f.camera_timeout_ms = Some(10_000.0);
+        // A recording starts with its objects already confirmed: holding them back for the
+        // replay's first sets would lose poses the recording has.
+        f.confirm_sets = Some(1);
     }
     file.serial.clear();
     file.hosts = vec![HostSpec {

@@ -137,6 +137,9 @@ fn bits_of(source: Option<&SourceSpec>) -> Option<u32> {
 
 /// Checks everything of `file` but its cameras' optics (`cameras.rs`); `base` is the rig
 /// file's folder, where relative source paths start.
+/// Most consecutive sets a new object may be required to be seen in before it is published.
+pub const MAX_CONFIRM_SETS: u32 = 120;
+
 pub(crate) fn check(file: &RigFile, base: Option<&Path>, sources: bool) -> Result<(), RigError> {
     segment("name", &file.name, "it is part of network keys")?;
     let mut seen = HashSet::new();
@@ -315,6 +318,14 @@ pub(crate) fn check(file: &RigFile, base: Option<&Path>, sources: bool) -> Resul
             if let Some(v) = v {
                 positive_at_most(&format!("fusion.{k}"), v, hi, what)?;
             }
+        }
+        if let Some(n) = f.confirm_sets
+            && !(1..=MAX_CONFIRM_SETS).contains(&n)
+        {
+            return Err(err(
+                "fusion.confirm_sets",
+                format!("{n} is not between 1 and {MAX_CONFIRM_SETS}"),
+            ));
         }
     }
     let mut ports = HashSet::new();

@@ -425,9 +425,13 @@ pub struct FusionSpec {
     /// (default 0.1 m).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub association_gate: Option<f64>,
-    /// An object unseen this long is dropped (default 1 s).
+    /// An object unseen this long is dropped (default 2 s).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub drop_after_s: Option<f64>,
+    /// A new point becomes an object (an id, published) once it was continued in this many
+    /// consecutive sets (default 3; 1 publishes at once).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub confirm_sets: Option<u32>,
     /// "auto" (default: iceoryx2 for cameras on fusion's host, Zenoh for the others),
     /// "zenoh" (every camera over the network).
     #[serde(default, skip_serializing_if = "Option::is_none")]
