@@ -410,6 +410,7 @@ mod tests {
             serial: Vec::new(),
             recorder: None,
             insecure: false,
+            bodies: Vec::new(),
         };
         let back = Rig::from_toml(&file.to_toml().unwrap()).unwrap();
         let b = back.cameras[0].camera;

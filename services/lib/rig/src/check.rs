@@ -137,6 +137,50 @@ fn bits_of(source: Option<&SourceSpec>) -> Option<u32> {
 
 /// Checks everything of `file` but its cameras' optics (`cameras.rs`); `base` is the rig
 /// file's folder, where relative source paths start.
+/// The rig's bodies in metres, as the bodies library takes them.
+pub fn body_defs(file: &RigFile) -> Vec<stereoscope_bodies::BodyDef> {
+    let m = file.units.metres();
+    file.bodies
+        .iter()
+        .map(|b| stereoscope_bodies::BodyDef {
+            name: b.name.clone(),
+            markers_m: b
+                .markers
+                .iter()
+                .map(|p| nalgebra::Point3::new(p[0] * m, p[1] * m, p[2] * m))
+                .collect(),
+            tolerance_m: b.tolerance.map_or(0.003, |t| t * m),
+        })
+        .collect()
+}
+
+/// Every body usable and none ambiguous (`stereoscope_bodies::check_bodies`), the error naming
+/// the body's key.
+fn check_bodies(file: &RigFile) -> Result<(), RigError> {
+    for (i, b) in file.bodies.iter().enumerate() {
+        segment(
+            &format!("body[{i}].name"),
+            &b.name,
+            "it is part of network keys",
+        )?;
+    }
+    let defs = body_defs(file);
+    stereoscope_bodies::check_bodies(&defs).map_err(|e| {
+        use stereoscope_bodies::BodyError as E;
+        let name = match &e {
+            E::MarkerCount { body, .. }
+            | E::NotFinite { body, .. }
+            | E::Tolerance { body, .. }
+            | E::TooClose { body, .. }
+            | E::Collinear { body, .. } => body.clone(),
+            E::DuplicateName(n) => n.clone(),
+            E::Ambiguous(a) => a.body.clone(),
+        };
+        let i = file.bodies.iter().position(|b| b.name == name).unwrap_or(0);
+        err(format!("body[{i}]"), e.to_string())
+    })
+}
+
 /// Most consecutive sets a new object may be required to be seen in before it is published.
 pub const MAX_CONFIRM_SETS: u32 = 120;
 
@@ -169,6 +213,7 @@ pub(crate) fn check(file: &RigFile, base: Option<&Path>, sources: bool) -> Resul
         }
     }
     crate::security::check_hosts(file)?;
+    check_bodies(file)?;
     let known_host = |key: String, h: &Option<String>| -> Result<(), RigError> {
         match h {
             Some(h) if !file.hosts.iter().any(|x| &x.name == h) => Err(err(

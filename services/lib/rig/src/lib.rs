@@ -19,7 +19,7 @@ use std::path::{Path, PathBuf};
 pub use cameras::{DepthFromArea, RigCamera, camera_spec};
 pub use check::{
     FPS_RANGE, MAX_BAUD, MAX_CONFIRM_SETS, MAX_DROP_AFTER_S, MAX_LOOP_BYTES, MAX_PIXELS,
-    MAX_REPLAY_SPEED, MAX_SIDE_PX, MAX_TOLERANCE_PX, MAX_WAIT_MS,
+    MAX_REPLAY_SPEED, MAX_SIDE_PX, MAX_TOLERANCE_PX, MAX_WAIT_MS, body_defs,
 };
 pub use context::{CommonArgs, Context, HostArgs};
 pub use error::{RigError, RigErrorKind};

@@ -171,10 +171,24 @@ pub struct RigFile {
     /// A recorder the launcher runs and supervises (`docs/recording.md`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub recorder: Option<RecorderSpec>,
+    /// Rigid bodies of markers (`docs/bodies.md`): checked for ambiguity when the rig loads.
+    #[serde(rename = "body", default, skip_serializing_if = "Vec::is_empty")]
+    pub bodies: Vec<BodySpec>,
     /// Accept plain-TCP Zenoh links between PCs (unauthenticated, unencrypted). Without it a
     /// rig whose hosts listen or connect beyond loopback must use `tls/` endpoints.
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]
     pub insecure: bool,
+}
+
+/// A rigid body: its markers in its own frame (file unit) and the tolerance of a measured
+/// inter-marker distance (file unit, default 3 mm).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct BodySpec {
+    pub name: String,
+    pub markers: Vec<[f64; 3]>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub tolerance: Option<f64>,
 }
 
 /// A supervised recorder: each start (the first, and every restart after a crash) records a

@@ -276,6 +276,27 @@ pub fn access_control(file: &RigFile) -> Value {
 mod tests {
     use super::*;
 
+    /// Bodies are checked when the rig loads: a symmetric one is refused naming its key and
+    /// what to move; good ones load, in metres whatever the file's unit.
+    #[test]
+    fn bodies_are_checked_at_load() {
+        // The lab's file is in centimetres.
+        let square = "[[body]]\nname = \"square\"\nmarkers = [[0, 0, 0], [10, 0, 0], [10, 10, 0], [0, 10, 0]]\n";
+        let e = crate::Rig::from_toml(&format!("{LAB}\n{square}")).unwrap_err();
+        assert_eq!(e.key, "body[0]", "{e}");
+        assert!(
+            e.message.contains("symmetric") && e.message.contains("move marker"),
+            "{e}"
+        );
+        let good = "[[body]]\nname = \"head\"\nmarkers = [[0, 0, 0], [9, 0, 0], [0, 5, 0], [3, 2, 7]]\ntolerance = 0.2\n";
+        let r = crate::Rig::from_toml(&format!("{LAB}\n{good}")).unwrap();
+        let defs = crate::check::body_defs(&r.spec);
+        assert!((defs[0].markers_m[1].x - 0.09).abs() < 1e-12);
+        assert!((defs[0].tolerance_m - 0.002).abs() < 1e-12);
+        let e = crate::Rig::from_toml(&format!("{LAB}\n{good}{good}")).unwrap_err();
+        assert!(e.message.contains("appears twice"), "{e}");
+    }
+
     #[test]
     fn endpoints_are_classified() {
         assert_eq!(reach("tcp/127.0.0.1:7447"), Ok(Reach::Loopback));
