@@ -332,8 +332,8 @@ impl FusionService {
 
     fn report_detail(&mut self) {
         // Once a second: forget the per-object publishers of objects fusion no longer follows.
-        let prefix = keys::pose(&self.cfg.ctx.rig.name, 0);
-        let prefix = prefix.trim_end_matches('0');
+        let key0 = keys::pose(&self.cfg.ctx.rig.name, 0);
+        let prefix = key0.strip_suffix('0').unwrap_or(&key0);
         let fuser = &self.fuser;
         self.per_object.retain(|key| {
             key.strip_prefix(prefix)

@@ -30,16 +30,27 @@ pub enum Reach {
     Network,
 }
 
+/// A Zenoh endpoint this build cannot use.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum EndpointError {
+    #[error("{0:?} is not of the form tcp/ADDRESS:PORT")]
+    Form(String),
+    #[error("{0:?} has no :PORT")]
+    NoPort(String),
+    #[error("{endpoint:?}: protocol {protocol:?} is not one this build has (tcp, udp, tls)")]
+    Protocol { endpoint: String, protocol: String },
+}
+
 /// Classifies `tcp/ADDRESS:PORT`, `udp/…` or `tls/…`.
-pub fn reach(endpoint: &str) -> Result<Reach, String> {
+pub fn reach(endpoint: &str) -> Result<Reach, EndpointError> {
     let (protocol, rest) = endpoint
         .split_once('/')
-        .ok_or_else(|| format!("{endpoint:?} is not of the form tcp/ADDRESS:PORT"))?;
+        .ok_or_else(|| EndpointError::Form(endpoint.to_string()))?;
     // Zenoh's endpoint options and metadata follow a '?' or '#'.
     let address = rest.split(['?', '#']).next().unwrap_or(rest);
     let host = match address.rsplit_once(':') {
         Some((h, port)) if port.parse::<u16>().is_ok() => h,
-        _ => return Err(format!("{endpoint:?} has no :PORT")),
+        _ => return Err(EndpointError::NoPort(endpoint.to_string())),
     };
     match protocol {
         "tls" => Ok(Reach::Tls),
@@ -55,9 +66,10 @@ pub fn reach(endpoint: &str) -> Result<Reach, String> {
                 Reach::Network
             })
         }
-        other => Err(format!(
-            "{endpoint:?}: protocol {other:?} is not one this build has (tcp, udp, tls)"
-        )),
+        other => Err(EndpointError::Protocol {
+            endpoint: endpoint.to_string(),
+            protocol: other.to_string(),
+        }),
     }
 }
 
@@ -72,7 +84,7 @@ pub(crate) fn check_hosts(file: &RigFile) -> Result<(), RigError> {
             let j = index.entry(list).or_default();
             let key = format!("host[{i}].{list}[{j}]");
             *j += 1;
-            match reach(e).map_err(|m| err(&key, m))? {
+            match reach(e).map_err(|m| err(&key, m.to_string()))? {
                 Reach::Loopback => {}
                 Reach::Tls if h.tls.is_none() => {
                     return Err(err(
@@ -306,9 +318,14 @@ mod tests {
         assert_eq!(reach("udp/192.168.1.2:7447"), Ok(Reach::Network));
         assert_eq!(reach("tls/192.168.1.2:7447"), Ok(Reach::Tls));
         assert_eq!(reach("tls/fusion:7447?x=y"), Ok(Reach::Tls));
-        assert!(reach("quic/1.2.3.4:7447").unwrap_err().contains("quic"));
-        assert!(reach("tcp/1.2.3.4").unwrap_err().contains("PORT"));
-        assert!(reach("nothing").is_err());
+        let e = reach("quic/1.2.3.4:7447").unwrap_err();
+        assert!(matches!(&e, EndpointError::Protocol { protocol, .. } if protocol == "quic"));
+        assert!(e.to_string().contains("quic"), "{e}");
+        assert!(matches!(
+            reach("tcp/1.2.3.4"),
+            Err(EndpointError::NoPort(_))
+        ));
+        assert!(matches!(reach("nothing"), Err(EndpointError::Form(_))));
     }
 
     const LAB: &str = include_str!("../../../../deploy/rigs/thesis-lab.toml");
