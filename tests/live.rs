@@ -1378,7 +1378,9 @@ fn a_long_session_exports_to_c3d_with_every_frame() {
                 cameras: vec!["cam0".into(), "cam1".into()],
                 residual_px: 0.1,
                 out_of_range: false,
+                body: None,
             }],
+            bodies: Vec::new(),
         };
         poses.push_str(std::str::from_utf8(&f.to_json()).unwrap());
         poses.push('\n');

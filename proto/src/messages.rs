@@ -2,6 +2,10 @@
 //! carried as JSON on Zenoh (so a client in any language can read them) and as postcard, a
 //! compact binary form of the same type, in iceoryx2 samples on the same PC.
 //!
+//! Optional fields added later carry `#[serde(default)]` so older JSON still reads, and are
+//! always written (never `skip_serializing_if`: postcard's fields are positional, and a
+//! skipped one would shift every field after it).
+//!
 //! Units are in the field names: `_px` image pixels (`docs/conventions.md`), `_m` metres in the
 //! rig's world frame, `_deg` degrees, `_ns` nanoseconds since the Unix epoch (CLOCK_REALTIME).
 
@@ -110,6 +114,47 @@ pub struct Pose {
     pub residual_px: f64,
     /// Depth from area was outside its calibrated range (the value is not to be trusted).
     pub out_of_range: bool,
+    /// The rigid body this marker was identified as part of, and its index in the body's
+    /// definition (`docs/bodies.md`); `None` for a loose marker.
+    #[serde(default)]
+    pub body: Option<BodyLabel>,
+}
+
+/// Which body, and which of its markers, a point is.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct BodyLabel {
+    pub name: String,
+    pub marker: u32,
+}
+
+/// One rigid body's pose (`docs/bodies.md`): `world_from_body` as a position and a unit
+/// quaternion, with how it was measured.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct BodyPose {
+    /// The body's name from the rig's `[[body]]` table.
+    pub name: String,
+    /// The body origin in the world frame, metres.
+    pub position_m: [f64; 3],
+    /// `world_from_body` rotation, unit quaternion in the order x, y, z, w.
+    pub orientation_xyzw: [f64; 4],
+    /// Velocity of the origin, metres per second (0 until two frames were seen).
+    pub velocity_m_per_s: [f64; 3],
+    /// Angular velocity in the world frame, radians per second.
+    pub angular_velocity_rad_per_s: [f64; 3],
+    /// RMS distance between the measured markers and the posed definition, millimetres.
+    pub residual_mm: f64,
+    /// Markers identified in this frame, and how many the body has.
+    pub markers_seen: u32,
+    pub markers: u32,
+    /// Not seen in this frame: the pose is the last measured one, held (for at most the rig's
+    /// `[fusion] body_hold_ms`), so the body keeps its identity through a short occlusion.
+    pub held: bool,
+    /// A two-marker body (a pointer, the thesis's two-ball target): the rotation about its
+    /// axis is unobservable and reported as zero twist from the shortest rotation of the
+    /// definition's axis onto the measured one — never a measured roll.
+    pub roll_unobservable: bool,
 }
 
 /// All poses fusion recovered from one set of frames.
@@ -129,6 +174,23 @@ pub struct PoseFrame {
     /// Cameras whose observations are in the set.
     pub cameras: Vec<String>,
     pub poses: Vec<Pose>,
+    /// Rigid bodies found among the poses (absent in recordings made before bodies existed).
+    #[serde(default)]
+    pub bodies: Vec<BodyPose>,
+}
+
+/// One body's pose on its own key (`stereoscope/<rig>/bodies/<name>`), with the times of the
+/// frame set it came from.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct BodyUpdate {
+    pub schema: u32,
+    pub rig: String,
+    pub sequence: u64,
+    pub timestamp_ns: u64,
+    pub frame_published_ns: u64,
+    pub published_ns: u64,
+    pub body: BodyPose,
 }
 
 /// One object's pose on its own key (`stereoscope/<rig>/pose/<object_id>`), with the times
@@ -172,6 +234,11 @@ pub struct TargetTruth {
     pub area_px: f64,
     /// The image's centroid; `[0, 0]` when not visible (every number on the wire is finite).
     pub centroid_px: [f64; 2],
+    /// A rigid body target: its name in the rig and its `world_from_body` rotation (x, y, z, w).
+    #[serde(default)]
+    pub body: Option<String>,
+    #[serde(default)]
+    pub orientation_xyzw: Option<[f64; 4]>,
 }
 
 /// A service's periodic report of itself.
@@ -252,6 +319,8 @@ pub mod limits {
     pub const MAX_IMAGE_SIDE_PX: u32 = 8192;
     /// Longest free text (a health report's last error, a detail value), bytes.
     pub const MAX_TEXT_BYTES: usize = 512;
+    /// Most bodies in one pose frame (a rig defines at most this many).
+    pub const MAX_BODIES: usize = 32;
     /// Most `detail` entries in a health report.
     pub const MAX_DETAIL_ENTRIES: usize = 32;
 }
@@ -423,9 +492,44 @@ impl Pose {
             c.finite("heading_deg", &[h])?;
         }
         c.names("cameras", &self.cameras)?;
+        if let Some(b) = &self.body {
+            c.name("body.name", &b.name)?;
+        }
         c.range("residual_px", self.residual_px, 0.0, f64::MAX)
     }
 }
+
+impl BodyPose {
+    fn validate(&self, c: &mut Checker) -> Checked {
+        c.name("name", &self.name)?;
+        c.finite("position_m", &self.position_m)?;
+        c.finite("velocity_m_per_s", &self.velocity_m_per_s)?;
+        c.finite(
+            "angular_velocity_rad_per_s",
+            &self.angular_velocity_rad_per_s,
+        )?;
+        c.finite("orientation_xyzw", &self.orientation_xyzw)?;
+        let norm = self
+            .orientation_xyzw
+            .iter()
+            .map(|v| v * v)
+            .sum::<f64>()
+            .sqrt();
+        c.range("orientation_xyzw", norm, 0.999, 1.001)?;
+        c.range("residual_mm", self.residual_mm, 0.0, f64::MAX)?;
+        c.range("markers", self.markers as f64, 2.0, MAX_BODY_MARKERS as f64)?;
+        c.range(
+            "markers_seen",
+            self.markers_seen as f64,
+            0.0,
+            self.markers as f64,
+        )
+    }
+}
+
+/// The most markers a body may have (`stereoscope-bodies`' `MAX_MARKERS`, repeated here so the
+/// protocol crate stays free of algorithm crates; a test in that crate checks they agree).
+pub const MAX_BODY_MARKERS: u32 = 8;
 
 impl BlobObservation {
     fn validate(&self, c: &mut Checker) -> Checked {
@@ -469,7 +573,18 @@ impl PoseFrame {
         for (i, p) in self.poses.iter().enumerate() {
             c.within(format!("poses[{i}]"), |c| p.validate(c))?;
         }
+        c.count("bodies", self.bodies.len(), limits::MAX_BODIES)?;
+        for (i, b) in self.bodies.iter().enumerate() {
+            c.within(format!("bodies[{i}]"), |c| b.validate(c))?;
+        }
         Ok(())
+    }
+}
+
+impl BodyUpdate {
+    fn validate(&self, c: &mut Checker) -> Checked {
+        c.name("rig", &self.rig)?;
+        c.within("body".into(), |c| self.body.validate(c))
     }
 }
 
@@ -488,7 +603,11 @@ impl Truth {
             c.within(format!("targets[{i}]"), |c| {
                 c.finite("position_m", &t.position_m)?;
                 c.finite("heading_deg", &[t.heading_deg, t.area_px])?;
-                c.finite("centroid_px", &t.centroid_px)
+                c.finite("centroid_px", &t.centroid_px)?;
+                if let Some(b) = &t.body {
+                    c.name("body", b)?;
+                }
+                c.finite("orientation_xyzw", &t.orientation_xyzw.unwrap_or_default())
             })?;
         }
         Ok(())
@@ -571,7 +690,14 @@ macro_rules! message {
         }
     )*};
 }
-message!(Observation, PoseFrame, PoseUpdate, Truth, Health);
+message!(
+    Observation,
+    PoseFrame,
+    PoseUpdate,
+    BodyUpdate,
+    Truth,
+    Health
+);
 
 /// Nanoseconds since the Unix epoch now (CLOCK_REALTIME).
 pub fn now_ns() -> u64 {
@@ -642,12 +768,32 @@ mod tests {
                 cameras: vec!["cam0".into(), "cam1".into()],
                 residual_px: 0.2,
                 out_of_range: false,
+                body: Some(BodyLabel {
+                    name: "head".into(),
+                    marker: 2,
+                }),
+            }],
+            bodies: vec![BodyPose {
+                name: "head".into(),
+                position_m: [0.1, 0.2, 0.3],
+                orientation_xyzw: [0.0, 0.0, 0.6, 0.8],
+                velocity_m_per_s: [0.0; 3],
+                angular_velocity_rad_per_s: [0.0, 0.0, 1.5],
+                residual_mm: 0.4,
+                markers_seen: 3,
+                markers: 4,
+                held: false,
+                roll_unobservable: false,
             }],
         }
     }
 
     #[test]
     fn both_encodings_round_trip() {
+        let mut loose = sample();
+        loose.poses[0].body = None;
+        loose.bodies.clear();
+        assert_eq!(PoseFrame::from_binary(&loose.to_binary()).unwrap(), loose);
         let p = sample();
         assert_eq!(PoseFrame::from_json(&p.to_json()).unwrap(), p);
         assert_eq!(PoseFrame::from_binary(&p.to_binary()).unwrap(), p);
@@ -756,6 +902,29 @@ mod tests {
             (field.as_str(), problem),
             ("poses[0].cameras[1]", Invalid::Empty)
         );
+        // A body's rotation must be a unit quaternion, its markers seen at most its markers.
+        let mut p = sample();
+        p.bodies[0].orientation_xyzw = [0.0, 0.0, 0.0, 2.0];
+        let (field, _) = invalid(PoseFrame::from_json(&p.to_json()));
+        assert_eq!(field, "bodies[0].orientation_xyzw");
+        let mut p = sample();
+        p.bodies[0].markers_seen = 5;
+        let (field, _) = invalid(PoseFrame::from_json(&p.to_json()));
+        assert_eq!(field, "bodies[0].markers_seen");
+        // A frame recorded before bodies existed still reads.
+        let old = String::from_utf8(sample().to_json())
+            .unwrap()
+            .split(",\"bodies\"")
+            .next()
+            .unwrap()
+            .to_string()
+            + "}";
+        assert!(
+            PoseFrame::from_json(old.as_bytes())
+                .unwrap()
+                .bodies
+                .is_empty()
+        );
         let big = vec![b' '; limits::MAX_MESSAGE_BYTES + 1];
         assert!(matches!(
             PoseFrame::from_json(&big),
@@ -819,12 +988,24 @@ mod tests {
                 visible: true,
                 area_px: 40.0,
                 centroid_px: [10.0, 20.0],
+                body: None,
+                orientation_xyzw: None,
             }],
+        };
+        let body = BodyUpdate {
+            schema: SCHEMA_VERSION,
+            rig: "lab".into(),
+            sequence: 1,
+            timestamp_ns: 2,
+            frame_published_ns: 3,
+            published_ns: 4,
+            body: frame.bodies[0].clone(),
         };
         let mut decoded = 0;
         for seed in 0..5 {
             decoded += each(&frame, seed);
             decoded += each(&update, seed);
+            decoded += each(&body, seed);
             decoded += each(&truth, seed);
         }
         // The variants reach past the first byte: some still decode.

@@ -80,6 +80,15 @@ pub mod zenoh {
         format!("stereoscope/{rig}/pose/*")
     }
 
+    /// One rigid body's pose (a `BodyUpdate`): `stereoscope/<rig>/bodies/<name>`.
+    pub fn body(rig: &str, name: &str) -> String {
+        format!("stereoscope/{rig}/bodies/{name}")
+    }
+
+    pub fn all_bodies(rig: &str) -> String {
+        format!("stereoscope/{rig}/bodies/*")
+    }
+
     pub fn truth(rig: &str, camera: &str) -> String {
         format!("stereoscope/{rig}/truth/{camera}")
     }

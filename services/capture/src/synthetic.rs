@@ -11,7 +11,7 @@ use stereoscope_proto::messages::TargetTruth;
 use stereoscope_render::{
     Actor, Background, Motion, RenderOptions, Scene, Shape, render_u8, render_u16, scene_at,
 };
-use stereoscope_rig::schema::{MotionSpec, RigFile, SyntheticSpec, TargetShape};
+use stereoscope_rig::schema::{BodySpec, MotionSpec, RigFile, SyntheticSpec, TargetShape};
 
 pub struct SyntheticSource {
     camera: Camera,
@@ -23,6 +23,8 @@ pub struct SyntheticSource {
     looped: Option<Vec<(Vec<u8>, Vec<TargetTruth>)>>,
     last_truth: Vec<TargetTruth>,
     has_axis: Vec<bool>,
+    /// Each target's body name, for a rigid-body target.
+    body: Vec<Option<String>>,
 }
 
 impl std::fmt::Debug for SyntheticSource {
@@ -36,16 +38,30 @@ fn p3(v: [f64; 3], s: f64) -> Point3<f64> {
 }
 
 /// The scene's actors (metres) from the rig file's `[synthetic]` section (file units).
-pub fn actors(spec: &SyntheticSpec, scale: f64) -> Vec<(Actor, bool)> {
+pub fn actors(spec: &SyntheticSpec, bodies: &[BodySpec], scale: f64) -> Vec<(Actor, bool)> {
     spec.targets
         .iter()
         .map(|t| {
             let r = t.radius * scale;
-            // (shape, has an axis); all three are symmetric end to end.
+            // (shape, has an axis); the first three are symmetric end to end.
             let (shape, has_axis) = match t.shape {
                 TargetShape::DoubleSphere => (Shape::DoubleSphere { radius_m: r }, true),
                 TargetShape::Disc => (Shape::Disc { radius_m: r }, false),
                 TargetShape::Sphere => (Shape::Sphere { radius_m: r }, false),
+                // The rig's check makes sure the body exists.
+                TargetShape::Body => {
+                    let markers = t
+                        .body
+                        .as_ref()
+                        .and_then(|n| bodies.iter().find(|b| &b.name == n))
+                        .map(|b| b.markers.clone())
+                        .unwrap_or_default();
+                    let spheres = markers
+                        .iter()
+                        .map(|m| (Vector3::new(m[0], m[1], m[2]) * scale, r))
+                        .collect();
+                    (Shape::Markers { spheres }, true)
+                }
             };
             let motion = match &t.motion {
                 MotionSpec::Static {
@@ -75,6 +91,19 @@ pub fn actors(spec: &SyntheticSpec, scale: f64) -> Vec<(Actor, bool)> {
                 } => Motion::Spin {
                     position: p3(*position, scale),
                     deg_per_s: *deg_per_s,
+                },
+                MotionSpec::Head {
+                    centre,
+                    radius,
+                    period_s,
+                    turn_period_s,
+                    nod_deg,
+                } => Motion::Head {
+                    centre: p3(*centre, scale),
+                    radius_m: radius * scale,
+                    period_s: *period_s,
+                    turn_period_s: *turn_period_s,
+                    nod_deg: *nod_deg,
                 },
                 MotionSpec::Wander {
                     centre,
@@ -109,7 +138,8 @@ impl SyntheticSource {
     ) -> Result<Self, SourceError> {
         let spec = file.synthetic.as_ref().ok_or(SourceError::NoScene)?;
         let scale = file.units.metres();
-        let (actors, has_axis): (Vec<Actor>, Vec<bool>) = actors(spec, scale).into_iter().unzip();
+        let (actors, has_axis): (Vec<Actor>, Vec<bool>) =
+            actors(spec, &file.bodies, scale).into_iter().unzip();
         let base = Scene {
             background: Background {
                 level: spec.background.unwrap_or(20.0),
@@ -139,6 +169,15 @@ impl SyntheticSource {
             looped: None,
             last_truth: Vec::new(),
             has_axis,
+            body: spec
+                .targets
+                .iter()
+                .map(|t| {
+                    (t.shape == TargetShape::Body)
+                        .then(|| t.body.clone())
+                        .flatten()
+                })
+                .collect(),
         };
         if let Some(n) = loop_frames {
             let (w, h) = s.size();
@@ -194,6 +233,11 @@ impl SyntheticSource {
                 } else {
                     [0.0, 0.0]
                 },
+                body: self.body.get(i).cloned().flatten(),
+                orientation_xyzw: self.body.get(i).and_then(|b| b.as_ref()).map(|_| {
+                    let q = s.world_from_body().rotation;
+                    [q.i, q.j, q.k, q.w]
+                }),
             })
             .collect();
         Ok(())

@@ -81,6 +81,18 @@ pub struct TargetStats {
     pub id_switches: u32,
 }
 
+/// Error statistics of one rigid body.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct BodyStats {
+    pub name: String,
+    /// Frames with the body measured (not held) while its truth was visible.
+    pub matched: u64,
+    /// Frames with its truth visible and the body absent or held.
+    pub missed: u64,
+    pub position_rms_m: f64,
+    pub rotation_rms_deg: f64,
+}
+
 /// What the demo measured.
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct DemoSummary {
@@ -97,6 +109,11 @@ pub struct DemoSummary {
     /// Pose frames with every visible target matched within 5 cm.
     pub complete_frames: u64,
     pub targets: Vec<TargetStats>,
+    pub bodies: Vec<BodyStats>,
+    /// The VR feed's frame published → sent to its clients, from its last health report,
+    /// microseconds (`None` without a VR feed).
+    pub vr_latency_p50_us: Option<f64>,
+    pub vr_latency_p99_us: Option<f64>,
     pub restarts: u32,
     /// What the services' last health reports say they lost (frames dropped and which,
     /// inputs rejected, observations late): where a missed target can be traced to.
@@ -120,8 +137,23 @@ impl DemoSummary {
                 )
             })
             .collect();
+        let bodies: Vec<String> = self
+            .bodies
+            .iter()
+            .map(|b| {
+                format!(
+                    "{{\"name\":{},\"matched\":{},\"missed\":{},\"position_rms_m\":{},\"rotation_rms_deg\":{}}}",
+                    serde_json::to_string(&b.name).unwrap_or_default(),
+                    b.matched,
+                    b.missed,
+                    json_number(b.position_rms_m, 6),
+                    json_number(b.rotation_rms_deg, 4)
+                )
+            })
+            .collect();
+        let opt = |v: Option<f64>| v.map_or("null".to_string(), |v| json_number(v, 1));
         format!(
-            "{{\"seconds\":{:.3},\"pose_frames\":{},\"poses_per_s\":{:.2},\"latency_p50_ms\":{},\"latency_p99_ms\":{},\"exposure_latency_p50_ms\":{},\"position_rms_m\":{},\"heading_rms_deg\":{},\"complete_frames\":{},\"restarts\":{},\"targets\":[{}],\"losses\":{}}}",
+            "{{\"seconds\":{:.3},\"pose_frames\":{},\"poses_per_s\":{:.2},\"latency_p50_ms\":{},\"latency_p99_ms\":{},\"exposure_latency_p50_ms\":{},\"position_rms_m\":{},\"heading_rms_deg\":{},\"complete_frames\":{},\"restarts\":{},\"targets\":[{}],\"bodies\":[{}],\"vr_latency_p50_us\":{},\"vr_latency_p99_us\":{},\"losses\":{}}}",
             self.seconds,
             self.pose_frames,
             self.poses_per_s,
@@ -135,6 +167,9 @@ impl DemoSummary {
             self.complete_frames,
             self.restarts,
             targets.join(","),
+            bodies.join(","),
+            opt(self.vr_latency_p50_us),
+            opt(self.vr_latency_p99_us),
             serde_json::to_string(&self.losses).unwrap_or_else(|_| "[]".into())
         )
     }
@@ -153,6 +188,14 @@ type Scored = (u32, Option<u32>, f64);
 
 enum Event {
     Poses(PoseFrame),
+}
+
+#[derive(Default)]
+struct BodyAcc {
+    sq: f64,
+    rsq: f64,
+    n: u64,
+    missed: u64,
 }
 
 #[derive(Default)]
@@ -353,6 +396,7 @@ fn watch(
     let mut frames = 0u64;
     let mut complete = 0u64;
     let mut acc: BTreeMap<u32, Acc> = BTreeMap::new();
+    let mut body_acc: BTreeMap<String, BodyAcc> = BTreeMap::new();
     let mut last_print = Instant::now();
     let mut latest: Option<(PoseFrame, Vec<Scored>)> = None;
     let out = std::io::stdout();
@@ -399,6 +443,7 @@ fn watch(
             match t {
                 Some(t) => {
                     let scored = score(p, t, &mut acc);
+                    score_bodies(p, t, &mut body_acc);
                     if scored.iter().all(|(_, id, e)| id.is_some() && *e < 0.05) {
                         complete += 1;
                     }
@@ -430,6 +475,20 @@ fn watch(
                     o,
                     "  obj        x m      y m      z m   heading  method         err mm"
                 );
+                for b in &p.bodies {
+                    let _ = writeln!(
+                        o,
+                        "  body {:<8} {:>8.4} {:>8.4} {:>8.4}  {}/{} markers, residual {:.2} mm{}",
+                        b.name,
+                        b.position_m[0],
+                        b.position_m[1],
+                        b.position_m[2],
+                        b.markers_seen,
+                        b.markers,
+                        b.residual_mm,
+                        if b.held { " (held)" } else { "" }
+                    );
+                }
                 for pose in &p.poses {
                     let err = scored
                         .iter()
@@ -496,6 +555,26 @@ fn watch(
         heading_rms_deg: (hn > 0).then(|| (hsq / hn as f64).sqrt()),
         complete_frames: complete,
         targets,
+        bodies: body_acc
+            .into_iter()
+            .map(|(name, a)| BodyStats {
+                name,
+                matched: a.n,
+                missed: a.missed,
+                position_rms_m: if a.n > 0 {
+                    (a.sq / a.n as f64).sqrt()
+                } else {
+                    f64::NAN
+                },
+                rotation_rms_deg: if a.n > 0 {
+                    (a.rsq / a.n as f64).sqrt()
+                } else {
+                    f64::NAN
+                },
+            })
+            .collect(),
+        vr_latency_p50_us: vr_detail(&health, "latency_p50_us"),
+        vr_latency_p99_us: vr_detail(&health, "latency_p99_us"),
         restarts: 0,
         losses: health
             .lock()
@@ -504,11 +583,45 @@ fn watch(
     })
 }
 
+/// A number from the VR feed's last health report.
+fn vr_detail(health: &Mutex<BTreeMap<String, Health>>, key: &str) -> Option<f64> {
+    let m = health.lock().ok()?;
+    m.get("vrfeed")?.detail.get(key)?.parse().ok()
+}
+
+/// Scores each body target of the truth against the frame's body of that name: position of
+/// its origin, angle between the rotations.
+fn score_bodies(p: &PoseFrame, t: &Truth, acc: &mut BTreeMap<String, BodyAcc>) {
+    for tt in t.targets.iter().filter(|x| x.visible) {
+        let (Some(name), Some(q)) = (&tt.body, tt.orientation_xyzw) else {
+            continue;
+        };
+        let a = acc.entry(name.clone()).or_default();
+        match p.bodies.iter().find(|b| &b.name == name && !b.held) {
+            Some(b) => {
+                let d2: f64 = (0..3)
+                    .map(|i| (b.position_m[i] - tt.position_m[i]).powi(2))
+                    .sum();
+                let dot: f64 = (0..4).map(|i| b.orientation_xyzw[i] * q[i]).sum();
+                let angle = 2.0 * dot.abs().min(1.0).acos();
+                a.sq += d2;
+                a.rsq += angle.to_degrees().powi(2);
+                a.n += 1;
+            }
+            None => a.missed += 1,
+        }
+    }
+}
+
 /// Matches one pose frame to its truth; returns `(target, object id, error m)` per visible
 /// target.
 fn score(p: &PoseFrame, t: &Truth, acc: &mut BTreeMap<u32, Acc>) -> Vec<Scored> {
-    let visible: Vec<&stereoscope_proto::messages::TargetTruth> =
-        t.targets.iter().filter(|x| x.visible).collect();
+    // Rigid bodies are scored as bodies (`score_bodies`); their markers are not loose targets.
+    let visible: Vec<&stereoscope_proto::messages::TargetTruth> = t
+        .targets
+        .iter()
+        .filter(|x| x.visible && x.body.is_none())
+        .collect();
     let gate = 0.05;
     let cost: Vec<Vec<f64>> = visible
         .iter()
@@ -516,6 +629,9 @@ fn score(p: &PoseFrame, t: &Truth, acc: &mut BTreeMap<u32, Acc>) -> Vec<Scored> 
             p.poses
                 .iter()
                 .map(|pose| {
+                    if pose.body.is_some() {
+                        return f64::INFINITY;
+                    }
                     let d = (0..3)
                         .map(|i| (pose.position_m[i] - tt.position_m[i]).powi(2))
                         .sum::<f64>()

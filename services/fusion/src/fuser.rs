@@ -384,6 +384,7 @@ impl Fuser {
                 cameras: cams,
                 residual_px: p.residual_px,
                 out_of_range: p.out_of_range,
+                body: None,
             });
         }
         poses.sort_by_key(|p| p.object_id);

@@ -10,6 +10,7 @@
 //! do not decode, or come from a camera the rig does not have, are counted, named in the log
 //! and in health, and ignored.
 
+pub mod bodies;
 pub mod cli;
 pub mod fuser;
 pub mod identity;
@@ -23,7 +24,7 @@ use std::sync::mpsc;
 use std::time::Duration;
 use stereoscope_geometry::correspond::CorrespondConfig;
 use stereoscope_proto::messages::{
-    Message, Observation, PoseFrame, PoseUpdate, SCHEMA_VERSION, now_ns,
+    BodyUpdate, Message, Observation, PoseFrame, PoseUpdate, SCHEMA_VERSION, now_ns,
 };
 use stereoscope_proto::names::{iox as iox_names, zenoh as keys};
 use stereoscope_rig::Context;
@@ -113,6 +114,8 @@ pub struct FusionService {
     wait: Duration,
     poses: Outlet<PoseFrame>,
     per_object: KeyedPublisher,
+    per_body: KeyedPublisher,
+    bodies: bodies::Bodies,
     pairer: Pairer,
     fuser: Fuser,
     sequence: u64,
@@ -179,6 +182,18 @@ impl FusionService {
         let waker = Waker::new(&node.iox, &iox_names::observations_ready(&rig))?;
         let poses = node.outlet(&iox_names::poses(&rig), &[], &keys::poses(&rig))?;
         let per_object = KeyedPublisher::new(&node.session);
+        let per_body = KeyedPublisher::new(&node.session);
+        let hold_ms = ctx
+            .rig
+            .spec
+            .fusion
+            .as_ref()
+            .and_then(|f| f.body_hold_ms)
+            .unwrap_or(stereoscope_bodies::tracker::DEFAULT_HOLD_NS as f64 * 1e-6);
+        let bodies = bodies::Bodies::new(
+            stereoscope_rig::body_defs(&ctx.rig.spec),
+            (hold_ms * 1e6) as u64,
+        );
         tracing::info!(
             local = local.len(),
             remote = remote_subs.len(),
@@ -235,6 +250,8 @@ impl FusionService {
             wait,
             poses,
             per_object,
+            per_body,
+            bodies,
             pairer,
             fuser,
             sequence,
@@ -296,7 +313,8 @@ impl FusionService {
             .iter()
             .map(|(c, _)| rig.cameras[*c].id.clone())
             .collect();
-        let fused = self.fuser.fuse(set, timestamp_ns);
+        let mut fused = self.fuser.fuse(set, timestamp_ns);
+        let bodies = self.bodies.update(&mut fused, timestamp_ns);
         let published_ns = now_ns();
         let frame = PoseFrame {
             schema: SCHEMA_VERSION,
@@ -307,6 +325,7 @@ impl FusionService {
             published_ns,
             cameras,
             poses: fused,
+            bodies,
         };
         let counters = &mut self.node.counters;
         self.poses.publish(&frame, counters);
@@ -323,6 +342,21 @@ impl FusionService {
             counters.note(
                 self.per_object
                     .put_bytes(&keys::pose(&rig.name, p.object_id), u.to_json()),
+            );
+        }
+        for b in &frame.bodies {
+            let u = BodyUpdate {
+                schema: SCHEMA_VERSION,
+                rig: rig.name.clone(),
+                sequence: self.sequence,
+                timestamp_ns,
+                frame_published_ns,
+                published_ns,
+                body: b.clone(),
+            };
+            counters.note(
+                self.per_body
+                    .put_bytes(&keys::body(&rig.name, &b.name), u.to_json()),
             );
         }
         self.sequence += 1;

@@ -625,6 +625,7 @@ mod tests {
                 published_ns: 0,
                 cameras: cameras.iter().map(|c| c.to_string()).collect(),
                 poses: vec![],
+                bodies: vec![],
             };
             String::from_utf8(f.to_json()).unwrap()
         };

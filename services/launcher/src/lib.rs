@@ -149,6 +149,16 @@ pub fn services_here(ctx: &Context, service_zenoh: &ZenohSpec) -> Vec<ServiceSpe
             args,
         });
     }
+    if let Some(v) = &ctx.rig.spec.vr
+        && v.host.as_deref().is_none_or(|h| h == ctx.host)
+    {
+        let mut args = vec!["vrfeed".to_string()];
+        args.extend(common.clone());
+        out.push(ServiceSpec {
+            name: "vrfeed".into(),
+            args,
+        });
+    }
     if let Some(r) = &ctx.rig.spec.recorder
         && r.host.as_deref().is_none_or(|h| h == ctx.host)
     {

@@ -579,8 +579,10 @@ mod tests {
                     cameras: vec!["cam0".into(), "cam1".into()],
                     residual_px: 0.0,
                     out_of_range: false,
+                    body: None,
                 })
                 .collect(),
+            bodies: Vec::new(),
         }
     }
 

@@ -208,7 +208,9 @@ mod tests {
                 cameras: vec!["a".into()],
                 residual_px: 0.0,
                 out_of_range: true,
+                body: None,
             }],
+            bodies: Vec::new(),
         }
     }
 

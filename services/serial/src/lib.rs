@@ -381,6 +381,7 @@ mod tests {
             cameras: vec![],
             residual_px: 0.0,
             out_of_range: false,
+            body: None,
         }
     }
 
@@ -394,6 +395,7 @@ mod tests {
             published_ns: 0,
             cameras: vec![],
             poses,
+            bodies: Vec::new(),
         }
     }
 

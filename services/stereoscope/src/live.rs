@@ -93,6 +93,26 @@ pub fn summary_text(s: &DemoSummary) -> String {
             t.id_switches
         ));
     }
+    if !s.bodies.is_empty() {
+        out.push_str("  body      measured  missed  position RMS mm  rotation RMS\n");
+        for b in &s.bodies {
+            out.push_str(&format!(
+                "  {:<8}  {:>8}  {:>6}  {:>15.2}  {:>11.3}°\n",
+                b.name,
+                b.matched,
+                b.missed,
+                b.position_rms_m * 1000.0,
+                b.rotation_rms_deg
+            ));
+        }
+    }
+    if let (Some(p50), Some(p99)) = (s.vr_latency_p50_us, s.vr_latency_p99_us) {
+        out.push_str(&format!(
+            "  VR feed, frame published → sent (VRPN, VMT, opentrack): p50 {:.2} ms, p99 {:.2} ms\n",
+            p50 / 1000.0,
+            p99 / 1000.0
+        ));
+    }
     if s.restarts > 0 {
         out.push_str(&format!("  services restarted: {}\n", s.restarts));
     }

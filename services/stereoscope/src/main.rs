@@ -65,6 +65,8 @@ enum ServiceCommand {
     Fusion(stereoscope_fusion::cli::Args),
     /// Send the pose stream to a serial port (the thesis's packet or the framed one).
     Serial(stereoscope_serial::cli::Args),
+    /// Send rigid bodies to VR and robot applications (VRPN, VMT/VMC over OSC, opentrack).
+    Vrfeed(stereoscope_vrfeed::cli::Args),
     /// Record poses, observations and optionally raw frames into a session folder.
     Recorder(stereoscope_recorder::cli::Args),
     /// Run only this host's Zenoh router (with the rig's TLS and access control).
@@ -77,6 +79,7 @@ fn service(cmd: ServiceCommand) -> anyhow::Result<()> {
         ServiceCommand::Moments(a) => stereoscope_moments::cli::main(a),
         ServiceCommand::Fusion(a) => stereoscope_fusion::cli::main(a),
         ServiceCommand::Serial(a) => stereoscope_serial::cli::main(a),
+        ServiceCommand::Vrfeed(a) => stereoscope_vrfeed::cli::main(a),
         ServiceCommand::Recorder(a) => stereoscope_recorder::cli::main(a),
         ServiceCommand::Router(a) => stereoscope_launcher::router_cli::main(a),
     }

@@ -339,6 +339,37 @@ pub fn kabsch(
     Some((pose, (sq / total).sqrt()))
 }
 
+/// The pose of a two-marker body (a pointer) from its two points, `world` in marker order:
+/// the rotation is the shortest one taking the defined axis (marker 0 → 1) onto the measured
+/// one, so its roll about the axis is not measured (zero twist by construction); the origin is
+/// placed so both markers are off by the same amount along the axis. The residual is half the
+/// length error.
+pub fn pointer_pose(def: &BodyDef, world: &[Point3<f64>]) -> Option<(Isometry3<f64>, f64)> {
+    let ([b0, b1], [w0, w1]) = (def.markers_m.as_slice(), world) else {
+        return None;
+    };
+    let (axis_b, axis_w) = (b1 - b0, w1 - w0);
+    let rotation = UnitQuaternion::rotation_between(&axis_b, &axis_w).or_else(|| {
+        // Opposite axes: any half turn about an axis perpendicular to them.
+        let perp = axis_b
+            .cross(&Vector3::x())
+            .try_normalize(1e-9)
+            .or_else(|| axis_b.cross(&Vector3::y()).try_normalize(1e-9))?;
+        Some(UnitQuaternion::from_axis_angle(
+            &nalgebra::Unit::new_unchecked(perp),
+            std::f64::consts::PI,
+        ))
+    })?;
+    let mid_b = nalgebra::center(b0, b1);
+    let mid_w = nalgebra::center(w0, w1);
+    let t = mid_w.coords - rotation * mid_b.coords;
+    let residual = (axis_w.norm() - axis_b.norm()).abs() / 2.0;
+    Some((
+        Isometry3::from_parts(Translation3::from(t), rotation),
+        residual,
+    ))
+}
+
 /// One body found in a frame.
 #[derive(Debug, Clone, PartialEq)]
 pub struct BodyMatch {
@@ -376,6 +407,19 @@ const CANDIDATES_PER_BODY: usize = 4;
 /// least squared distance error. A choice whose pose leaves a seen marker more than the
 /// tolerance from its point is rejected (a wrong assignment). Bodies not found are absent.
 pub fn identify(defs: &[BodyDef], points: &[Point3<f64>]) -> Vec<BodyMatch> {
+    identify_near(defs, points, &[])
+}
+
+/// [`identify`] with each body's pose in the previous frame, where known (`near[b]`; missing
+/// or `None`: unknown). A body seen only in part can fit its points in more than one way (three
+/// markers forming a nearly isosceles triangle fit the definition's triangle turned over): the
+/// way nearest its previous pose is taken, and without one such a body is not reported —
+/// never a pose that may be turned round.
+pub fn identify_near(
+    defs: &[BodyDef],
+    points: &[Point3<f64>],
+    near: &[Option<Isometry3<f64>>],
+) -> Vec<BodyMatch> {
     let m = points.len();
     let mut d = vec![0.0; m * m];
     for i in 0..m {
@@ -385,8 +429,9 @@ pub fn identify(defs: &[BodyDef], points: &[Point3<f64>]) -> Vec<BodyMatch> {
             d[j * m + i] = v;
         }
     }
-    let candidates: Vec<Vec<Candidate>> =
-        defs.iter().map(|def| body_candidates(def, &d, m)).collect();
+    let all: Vec<Vec<Candidate>> = defs.iter().map(|def| body_candidates(def, &d, m)).collect();
+    // The joint choice is over point sets: the best few distinct sets of each body.
+    let candidates: Vec<Vec<Candidate>> = all.iter().map(|c| distinct_sets(c)).collect();
     // Joint choice: depth-first over bodies, each taking one of its candidates or none.
     let mut best: (usize, f64, Vec<Option<usize>>) = (0, f64::INFINITY, vec![None; defs.len()]);
     let mut choice = vec![None; defs.len()];
@@ -395,35 +440,106 @@ pub fn identify(defs: &[BodyDef], points: &[Point3<f64>]) -> Vec<BodyMatch> {
     let mut out = Vec::new();
     for (b, c) in best.2.iter().enumerate() {
         let Some(ci) = *c else { continue };
-        let cand = &candidates[b][ci];
         let def = &defs[b];
-        let (mut body_pts, mut world_pts) = (Vec::new(), Vec::new());
-        for (k, p) in cand.markers.iter().enumerate() {
-            if let Some(p) = p {
-                body_pts.push(def.markers_m[k]);
-                world_pts.push(points[*p]);
-            }
-        }
-        let weights = vec![1.0; body_pts.len()];
-        let Some((pose, residual_m)) = kabsch(&body_pts, &world_pts, &weights) else {
-            continue;
-        };
-        let worst = body_pts
+        let set = point_set(&candidates[b][ci]);
+        // Every way of giving that set of points to the body's markers.
+        let ways: Vec<(Isometry3<f64>, f64, &Candidate)> = all[b]
             .iter()
-            .zip(&world_pts)
-            .map(|(b, w)| (pose * b - w).norm())
-            .fold(0.0, f64::max);
-        if worst > def.tolerance_m {
-            continue;
-        }
+            .filter(|c| point_set(c) == set)
+            .filter_map(|c| pose_of(def, c, points).map(|(p, r)| (p, r, c)))
+            .collect();
+        let prev = near.get(b).copied().flatten();
+        // Beside its previous pose, a body cannot have turned further than this since: a way
+        // that would have it so is a fit of the wrong markers (the right ones hidden or too
+        // noisy to fit), and the body is left unseen this frame.
+        let ways: Vec<_> = match prev {
+            Some(p) => ways
+                .into_iter()
+                .filter(|w| w.0.rotation.angle_to(&p.rotation) <= MAX_TURN_RAD)
+                .collect(),
+            None => ways,
+        };
+        let chosen = match (ways.len(), prev) {
+            (0, _) => continue,
+            (1, _) => &ways[0],
+            (_, Some(prev)) => {
+                let turn = |p: &Isometry3<f64>| p.rotation.angle_to(&prev.rotation);
+                let Some(w) = ways.iter().min_by(|a, b| turn(&a.0).total_cmp(&turn(&b.0))) else {
+                    continue;
+                };
+                w
+            }
+            // A pointer's two ends look alike: its first sighting takes either (then it is
+            // followed).
+            (_, None) if def.markers_m.len() == 2 => &ways[0],
+            // Several ways and nothing to tell them apart: not reported.
+            (_, None) => continue,
+        };
         out.push(BodyMatch {
             body: b,
-            markers: cand.markers.clone(),
-            world_from_body: pose,
-            residual_m,
+            markers: chosen.2.markers.clone(),
+            world_from_body: chosen.0,
+            residual_m: chosen.1,
         });
     }
     out
+}
+
+/// The most a body may turn between its previous pose and this one (45°: 1350°/s at 30 Hz,
+/// beyond a head's fastest turn).
+pub const MAX_TURN_RAD: f64 = std::f64::consts::FRAC_PI_4;
+
+/// The points a candidate uses, sorted.
+fn point_set(c: &Candidate) -> Vec<usize> {
+    let mut s: Vec<usize> = c.markers.iter().flatten().copied().collect();
+    s.sort_unstable();
+    s
+}
+
+/// The best candidate of each distinct point set, best first, at most
+/// [`CANDIDATES_PER_BODY`].
+fn distinct_sets(all: &[Candidate]) -> Vec<Candidate> {
+    let mut out: Vec<Candidate> = Vec::new();
+    let mut sets: Vec<Vec<usize>> = Vec::new();
+    for c in all {
+        let s = point_set(c);
+        if !sets.contains(&s) {
+            sets.push(s);
+            out.push(c.clone());
+            if out.len() == CANDIDATES_PER_BODY {
+                break;
+            }
+        }
+    }
+    out
+}
+
+/// The pose a candidate gives, if every seen marker lands within the tolerance of its point
+/// (a wrong assignment does not).
+fn pose_of(
+    def: &BodyDef,
+    cand: &Candidate,
+    points: &[Point3<f64>],
+) -> Option<(Isometry3<f64>, f64)> {
+    let (mut body_pts, mut world_pts) = (Vec::new(), Vec::new());
+    for (k, p) in cand.markers.iter().enumerate() {
+        if let Some(p) = p {
+            body_pts.push(def.markers_m[k]);
+            world_pts.push(points[*p]);
+        }
+    }
+    let weights = vec![1.0; body_pts.len()];
+    let (pose, residual_m) = if def.markers_m.len() == 2 {
+        pointer_pose(def, &world_pts)
+    } else {
+        kabsch(&body_pts, &world_pts, &weights)
+    }?;
+    let worst = body_pts
+        .iter()
+        .zip(&world_pts)
+        .map(|(b, w)| (pose * b - w).norm())
+        .fold(0.0, f64::max);
+    (worst <= def.tolerance_m).then_some((pose, residual_m))
 }
 
 fn choose(
@@ -504,7 +620,6 @@ fn body_candidates(def: &BodyDef, d: &[f64], m: usize) -> Vec<Candidate> {
         }
     }
     out.sort_by(|a, b| b.seen.cmp(&a.seen).then(a.cost.total_cmp(&b.cost)));
-    out.truncate(CANDIDATES_PER_BODY);
     out
 }
 
@@ -573,6 +688,9 @@ fn search_body(
     // This marker missing.
     search_body(c, k + 1, seen, cost, map, used, out);
 }
+
+pub mod filter;
+pub mod tracker;
 
 #[cfg(test)]
 mod tests;

@@ -11,14 +11,18 @@ use stereoscope_numeric::SplitMix64;
 pub struct State {
     pub position: Point3<f64>,
     pub heading_deg: f64,
+    /// A rotation in the body frame before the heading (a head's nod and tilt); identity for
+    /// targets that only turn about the vertical.
+    pub tilt: UnitQuaternion<f64>,
 }
 
 impl State {
-    /// The body pose: at `position`, turned `heading_deg` about world +z.
+    /// The body pose: at `position`, tilted by `tilt`, then turned `heading_deg` about world +z.
     pub fn world_from_body(&self) -> Isometry3<f64> {
         Isometry3::from_parts(
             Translation3::from(self.position.coords),
-            UnitQuaternion::from_axis_angle(&Vector3::z_axis(), self.heading_deg.to_radians()),
+            UnitQuaternion::from_axis_angle(&Vector3::z_axis(), self.heading_deg.to_radians())
+                * self.tilt,
         )
     }
 }
@@ -53,6 +57,16 @@ pub enum Motion {
         centre: Point3<f64>,
         extent_m: Vector3<f64>,
         seed: u64,
+    },
+    /// A head: round a horizontal circle of `radius_m` about `centre` every `period_s`, turning
+    /// through 360° about the vertical every `turn_period_s` (independently of the path), while
+    /// nodding (pitch) and tilting (roll) by up to `nod_deg`.
+    Head {
+        centre: Point3<f64>,
+        radius_m: f64,
+        period_s: f64,
+        turn_period_s: f64,
+        nod_deg: f64,
     },
     /// A random walk: every `step_s` seconds a Gaussian step of `step_m` standard deviation per
     /// axis, reflected back inside `extent_m` of `centre`; straight between steps, heading along
@@ -123,6 +137,7 @@ impl Motion {
             } => State {
                 position: *position,
                 heading_deg: *heading_deg,
+                tilt: UnitQuaternion::identity(),
             },
             Motion::Line { from, to, period_s } => {
                 let phase = (t_s / period_s.max(1e-9)).rem_euclid(1.0);
@@ -136,6 +151,7 @@ impl Motion {
                 State {
                     position: from + d * s,
                     heading_deg: heading.rem_euclid(360.0),
+                    tilt: UnitQuaternion::identity(),
                 }
             }
             Motion::Circle {
@@ -147,6 +163,25 @@ impl Motion {
                 State {
                     position: centre + Vector3::new(radius_m * a.cos(), radius_m * a.sin(), 0.0),
                     heading_deg: (a.to_degrees() + 90.0).rem_euclid(360.0),
+                    tilt: UnitQuaternion::identity(),
+                }
+            }
+            Motion::Head {
+                centre,
+                radius_m,
+                period_s,
+                turn_period_s,
+                nod_deg,
+            } => {
+                let tau = std::f64::consts::TAU;
+                let a = tau * t_s / period_s.max(1e-9);
+                let nod = nod_deg.to_radians();
+                let pitch = nod * (tau * 0.31 * t_s).sin();
+                let roll = 0.6 * nod * (tau * 0.17 * t_s + 1.0).sin();
+                State {
+                    position: centre + Vector3::new(radius_m * a.cos(), radius_m * a.sin(), 0.0),
+                    heading_deg: (360.0 * t_s / turn_period_s.max(1e-9)).rem_euclid(360.0),
+                    tilt: UnitQuaternion::from_euler_angles(roll, pitch, 0.0),
                 }
             }
             Motion::Spin {
@@ -155,6 +190,7 @@ impl Motion {
             } => State {
                 position: *position,
                 heading_deg: (deg_per_s * t_s).rem_euclid(360.0),
+                tilt: UnitQuaternion::identity(),
             },
             Motion::RandomWalk {
                 centre,
@@ -171,6 +207,7 @@ impl Motion {
                 State {
                     position: a + d * (t - k as f64),
                     heading_deg: d.y.atan2(d.x).to_degrees().rem_euclid(360.0),
+                    tilt: UnitQuaternion::identity(),
                 }
             }
             Motion::Wander {
@@ -195,6 +232,7 @@ impl Motion {
                 State {
                     position: centre + p,
                     heading_deg: v.y.atan2(v.x).to_degrees().rem_euclid(360.0),
+                    tilt: UnitQuaternion::identity(),
                 }
             }
         }

@@ -30,6 +30,7 @@ fn one(shape: Shape, at: Point3<f64>, heading_deg: f64) -> Scene {
     let state = State {
         position: at,
         heading_deg,
+        tilt: nalgebra::UnitQuaternion::identity(),
     };
     Scene {
         targets: vec![Target {

@@ -33,6 +33,7 @@ impl Lab {
         let state = State {
             position: Point3::new(x, y, height_m + BALL_RADIUS_M),
             heading_deg,
+            tilt: nalgebra::UnitQuaternion::identity(),
         };
         let scene = Scene {
             targets: vec![Target {

@@ -411,6 +411,7 @@ mod tests {
             recorder: None,
             insecure: false,
             bodies: Vec::new(),
+            vr: None,
         };
         let back = Rig::from_toml(&file.to_toml().unwrap()).unwrap();
         let b = back.cameras[0].camera;

@@ -5,7 +5,7 @@
 //! stops `stereoscope run` at once instead of failing a service on every restart.
 
 use crate::error::{RigError, err};
-use crate::schema::{MotionSpec, RigFile, SourceSpec, SyntheticSpec};
+use crate::schema::{BodySpec, MotionSpec, RigFile, SourceSpec, SyntheticSpec, TargetShape};
 use std::collections::HashSet;
 use std::path::Path;
 use stereoscope_proto::names::valid_segment;
@@ -214,6 +214,7 @@ pub(crate) fn check(file: &RigFile, base: Option<&Path>, sources: bool) -> Resul
     }
     crate::security::check_hosts(file)?;
     check_bodies(file)?;
+    crate::vr::settings(file)?;
     let known_host = |key: String, h: &Option<String>| -> Result<(), RigError> {
         match h {
             Some(h) if !file.hosts.iter().any(|x| &x.name == h) => Err(err(
@@ -339,6 +340,7 @@ pub(crate) fn check(file: &RigFile, base: Option<&Path>, sources: bool) -> Resul
             ("max_wait_ms", f.max_wait_ms, MAX_WAIT_MS, "ms"),
             ("camera_timeout_ms", f.camera_timeout_ms, MAX_WAIT_MS, "ms"),
             ("clock_window_ms", f.clock_window_ms, MAX_WAIT_MS, "ms"),
+            ("body_hold_ms", f.body_hold_ms, MAX_WAIT_MS, "ms"),
             (
                 "max_epipolar_px",
                 f.max_epipolar_px,
@@ -394,6 +396,9 @@ pub(crate) fn check(file: &RigFile, base: Option<&Path>, sources: bool) -> Resul
             ));
         }
     }
+    if let Some(v) = &file.vr {
+        known_host("vr.host".into(), &v.host)?;
+    }
     if let Some(r) = &file.recorder {
         known_host("recorder.host".into(), &r.host)?;
         if r.folder.trim().is_empty() {
@@ -433,12 +438,12 @@ pub(crate) fn check(file: &RigFile, base: Option<&Path>, sources: bool) -> Resul
         }
     }
     if let Some(s) = &file.synthetic {
-        check_synthetic(s)?;
+        check_synthetic(s, &file.bodies)?;
     }
     Ok(())
 }
 
-fn check_synthetic(s: &SyntheticSpec) -> Result<(), RigError> {
+fn check_synthetic(s: &SyntheticSpec, bodies: &[BodySpec]) -> Result<(), RigError> {
     for (k, v, hi) in [
         ("noise_sigma", s.noise_sigma, 1000.0),
         ("blur_sigma_px", s.blur_sigma_px, 100.0),
@@ -502,6 +507,44 @@ fn check_synthetic(s: &SyntheticSpec) -> Result<(), RigError> {
                 finite(&format!("{mkey}.centre"), centre)?;
                 finite(&format!("{mkey}.extent"), extent)?;
             }
+            MotionSpec::Head {
+                centre,
+                radius,
+                period_s,
+                turn_period_s,
+                nod_deg,
+            } => {
+                finite(&format!("{mkey}.centre"), centre)?;
+                finite(&format!("{mkey}.radius"), &[*radius])?;
+                positive_at_most(&format!("{mkey}.period_s"), *period_s, 1e6, "s")?;
+                positive_at_most(&format!("{mkey}.turn_period_s"), *turn_period_s, 1e6, "s")?;
+                in_range(&format!("{mkey}.nod_deg"), *nod_deg, 0.0, 80.0, "degrees")?;
+            }
+        }
+        match (t.shape, &t.body) {
+            (TargetShape::Body, Some(name)) if !bodies.iter().any(|b| &b.name == name) => {
+                return Err(err(
+                    format!("{key}.body"),
+                    format!(
+                        "{name:?} is not a [[body]] of this rig (bodies: {:?})",
+                        bodies.iter().map(|b| &b.name).collect::<Vec<_>>()
+                    ),
+                ));
+            }
+            (TargetShape::Body, None) => {
+                return Err(err(
+                    format!("{key}.body"),
+                    "missing: a target of shape \"body\" names the [[body]] whose markers it carries",
+                ));
+            }
+            (TargetShape::Body, Some(_)) => {}
+            (_, Some(_)) => {
+                return Err(err(
+                    format!("{key}.body"),
+                    "only a target of shape \"body\" carries a body's markers",
+                ));
+            }
+            (_, None) => {}
         }
     }
     Ok(())

@@ -134,6 +134,8 @@ pub enum TargetShape {
     DoubleSphere,
     /// A flat disc facing up.
     Disc,
+    /// A rigid body's markers (spheres of `radius` at the `[[body]]`'s marker positions).
+    Body,
 }
 
 /// The form of a single-camera depth-from-area model (thesis Eq. 4.15–4.27).
@@ -174,6 +176,9 @@ pub struct RigFile {
     /// Rigid bodies of markers (`docs/bodies.md`): checked for ambiguity when the rig loads.
     #[serde(rename = "body", default, skip_serializing_if = "Vec::is_empty")]
     pub bodies: Vec<BodySpec>,
+    /// The VR feed (`docs/vr.md`): VRPN, VirtualMotionTracker/VMC over OSC, opentrack.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub vr: Option<VrSpec>,
     /// Accept plain-TCP Zenoh links between PCs (unauthenticated, unencrypted). Without it a
     /// rig whose hosts listen or connect beyond loopback must use `tls/` endpoints.
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]
@@ -189,6 +194,107 @@ pub struct BodySpec {
     pub markers: Vec<[f64; 3]>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub tolerance: Option<f64>,
+    /// One Euro smoothing of the pose the VR feed sends (off when absent).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub smoothing: Option<SmoothingSpec>,
+    /// Send the pose predicted this many milliseconds ahead (constant velocity; default 0).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub predict_ms: Option<f64>,
+}
+
+/// One Euro filter settings (`docs/bodies.md`).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SmoothingSpec {
+    /// Cut-off at rest, Hz (default 1): lower is smoother.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub min_cutoff_hz: Option<f64>,
+    /// Rise of the cut-off with speed, per (m/s or rad/s) (default 0.5): higher lags less.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub beta: Option<f64>,
+    /// Cut-off of the speed estimate, Hz (default 1).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub d_cutoff_hz: Option<f64>,
+}
+
+/// The VR feed: one `vrfeed` service on `host` reading the pose stream, serving each protocol
+/// named here (`docs/vr.md`). Addresses default to loopback.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Default)]
+#[serde(deny_unknown_fields)]
+pub struct VrSpec {
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub host: Option<String>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub vrpn: Option<VrpnSpec>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub vmt: Option<VmtSpec>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub vmc: Option<OscFeedSpec>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub opentrack: Option<OpentrackSpec>,
+}
+
+/// A VRPN tracker server: each body a tracker named after it, sensor 0.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Default)]
+#[serde(deny_unknown_fields)]
+pub struct VrpnSpec {
+    /// Address to listen on, TCP and UDP (default "127.0.0.1:3883").
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub listen: Option<String>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub frame: Option<FrameSpec>,
+}
+
+/// VirtualMotionTracker: `/VMT/Room/Driver` for each body, its tracker index by order.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Default)]
+#[serde(deny_unknown_fields)]
+pub struct VmtSpec {
+    /// Where VMT listens (default "127.0.0.1:39570").
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub send_to: Option<String>,
+    /// Bodies to send, in tracker-index order (default: every body, in rig order).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub bodies: Vec<String>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub frame: Option<FrameSpec>,
+}
+
+/// An OSC feed (VMC: `/VMC/Ext/Tra/Pos`, default "127.0.0.1:39539").
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Default)]
+#[serde(deny_unknown_fields)]
+pub struct OscFeedSpec {
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub send_to: Option<String>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub frame: Option<FrameSpec>,
+}
+
+/// opentrack's "UDP over network" input: one body (default the first).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Default)]
+#[serde(deny_unknown_fields)]
+pub struct OpentrackSpec {
+    /// Where opentrack listens (default "127.0.0.1:4242").
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub send_to: Option<String>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub body: Option<String>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub frame: Option<FrameSpec>,
+}
+
+/// The consumer's frame: each of its axes as a signed world axis (`"x"`, `"-z"` …), its
+/// origin in world coordinates (file unit), and its length unit. Defaults per consumer are in
+/// `docs/vr.md`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Default)]
+#[serde(deny_unknown_fields)]
+pub struct FrameSpec {
+    /// The world axes the consumer's x, y and z are, e.g. `["x", "z", "-y"]` for a y-up world.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub axes: Option<[String; 3]>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub origin: Option<[f64; 3]>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub units: Option<Units>,
 }
 
 /// A supervised recorder: each start (the first, and every restart after a crash) records a
@@ -446,6 +552,9 @@ pub struct FusionSpec {
     /// consecutive sets (default 3; 1 publishes at once).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub confirm_sets: Option<u32>,
+    /// A body not seen keeps its identity and last pose (flagged held) this long (default 250).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub body_hold_ms: Option<f64>,
     /// "auto" (default: iceoryx2 for cameras on fusion's host, Zenoh for the others),
     /// "zenoh" (every camera over the network).
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -488,6 +597,9 @@ pub struct SyntheticTarget {
     /// "sphere", "double_sphere" (the thesis's two glued balls) or "disc".
     pub shape: TargetShape,
     pub radius: f64,
+    /// For shape "body": the `[[body]]` whose markers this target carries.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub body: Option<String>,
     /// Brightness above the background, grey levels (default 180).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub contrast: Option<f64>,
@@ -521,6 +633,16 @@ pub enum MotionSpec {
         extent: [f64; 3],
         #[serde(default)]
         seed: u64,
+    },
+    /// A head: round a horizontal circle, turning through 360° every `turn_period_s`, nodding
+    /// and tilting by up to `nod_deg`.
+    Head {
+        centre: [f64; 3],
+        radius: f64,
+        period_s: f64,
+        turn_period_s: f64,
+        #[serde(default)]
+        nod_deg: f64,
     },
 }
 

@@ -1,0 +1,158 @@
+//! Fusion's rigid bodies: each set's triangulated objects go to the body tracker
+//! (`stereoscope_bodies::tracker`); the bodies found label their markers' poses (body name and
+//! marker index) and become the frame's `bodies` (`docs/bodies.md`).
+
+use nalgebra::Point3;
+use stereoscope_bodies::tracker::{BodyTracker, TrackedBody};
+use stereoscope_proto::messages::{BodyLabel, BodyPose, MAX_BODY_MARKERS, Pose, PoseMethod};
+
+// The protocol's bound on a body's markers is the library's.
+const _: () = assert!(stereoscope_bodies::MAX_MARKERS as u32 == MAX_BODY_MARKERS);
+
+/// The rig's bodies followed over sets.
+#[derive(Debug, Clone)]
+pub struct Bodies {
+    tracker: BodyTracker,
+}
+
+impl Bodies {
+    pub fn new(defs: Vec<stereoscope_bodies::BodyDef>, hold_ns: u64) -> Self {
+        Bodies {
+            tracker: BodyTracker::new(defs, hold_ns),
+        }
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.tracker.defs().is_empty()
+    }
+
+    /// Finds the bodies among `poses` (only triangulated ones: depth from area is too coarse to
+    /// match distances), labels their markers, and returns the bodies' poses.
+    pub fn update(&mut self, poses: &mut [Pose], timestamp_ns: u64) -> Vec<BodyPose> {
+        if self.is_empty() {
+            return Vec::new();
+        }
+        let index: Vec<usize> = (0..poses.len())
+            .filter(|&i| poses[i].method == PoseMethod::Triangulated)
+            .collect();
+        let points: Vec<Point3<f64>> = index
+            .iter()
+            .map(|&i| Point3::from(poses[i].position_m))
+            .collect();
+        let found = self.tracker.update(&points, timestamp_ns);
+        let defs = self.tracker.defs();
+        found
+            .iter()
+            .map(|b| {
+                let def = &defs[b.body];
+                for (k, p) in b.markers.iter().enumerate() {
+                    if let Some(p) = p {
+                        poses[index[*p]].body = Some(BodyLabel {
+                            name: def.name.clone(),
+                            marker: k as u32,
+                        });
+                    }
+                }
+                body_pose(def, b)
+            })
+            .collect()
+    }
+}
+
+fn body_pose(def: &stereoscope_bodies::BodyDef, b: &TrackedBody) -> BodyPose {
+    let t = b.world_from_body.translation.vector;
+    let q = b.world_from_body.rotation;
+    let (v, w) = (b.velocity_m_per_s, b.angular_velocity_rad_per_s);
+    BodyPose {
+        name: def.name.clone(),
+        position_m: [t.x, t.y, t.z],
+        orientation_xyzw: [q.i, q.j, q.k, q.w],
+        velocity_m_per_s: [v.x, v.y, v.z],
+        angular_velocity_rad_per_s: [w.x, w.y, w.z],
+        residual_mm: b.residual_m * 1e3,
+        markers_seen: b.markers.iter().filter(|m| m.is_some()).count() as u32,
+        markers: def.markers_m.len() as u32,
+        held: b.held,
+        roll_unobservable: def.markers_m.len() == 2,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nalgebra::{Isometry3, Translation3, UnitQuaternion};
+    use stereoscope_proto::messages::{Message, PoseFrame, SCHEMA_VERSION};
+
+    fn pose(id: u32, p: Point3<f64>) -> Pose {
+        Pose {
+            object_id: id,
+            position_m: [p.x, p.y, p.z],
+            velocity_m_per_s: [0.0; 3],
+            heading_deg: None,
+            heading_directed: false,
+            method: PoseMethod::Triangulated,
+            cameras: vec!["cam0".into(), "cam1".into()],
+            residual_px: 0.1,
+            out_of_range: false,
+            body: None,
+        }
+    }
+
+    /// A body among loose markers: its markers labelled, the loose one not, and the frame with
+    /// the body passes the protocol's own checks.
+    #[test]
+    fn markers_are_labelled_and_the_body_posed() {
+        let def = stereoscope_bodies::BodyDef {
+            name: "head".into(),
+            markers_m: vec![
+                Point3::new(0.0, 0.0, 0.0),
+                Point3::new(0.09, 0.0, 0.0),
+                Point3::new(0.0, 0.06, 0.0),
+                Point3::new(0.02, 0.03, 0.045),
+            ],
+            tolerance_m: 0.003,
+        };
+        let world = Isometry3::from_parts(
+            Translation3::new(0.1, -0.2, 0.9),
+            UnitQuaternion::from_euler_angles(0.1, 0.2, 2.5),
+        );
+        let mut poses: Vec<Pose> = def
+            .markers_m
+            .iter()
+            .rev()
+            .enumerate()
+            .map(|(i, m)| pose(i as u32 + 1, world * m))
+            .collect();
+        poses.push(pose(9, Point3::new(0.5, 0.5, 0.5)));
+        let mut b = Bodies::new(vec![def], 250_000_000);
+        let bodies = b.update(&mut poses, 1);
+        assert_eq!(bodies.len(), 1);
+        let got = &bodies[0];
+        assert_eq!((got.markers_seen, got.markers, got.held), (4, 4, false));
+        assert!((Point3::from(got.position_m) - Point3::new(0.1, -0.2, 0.9)).norm() < 1e-9);
+        let q = UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(
+            got.orientation_xyzw[3],
+            got.orientation_xyzw[0],
+            got.orientation_xyzw[1],
+            got.orientation_xyzw[2],
+        ));
+        assert!(q.angle_to(&world.rotation) < 1e-9);
+        // Listed in reverse: object 1 is marker 3.
+        let label = poses[0].body.as_ref().unwrap();
+        assert_eq!((label.name.as_str(), label.marker), ("head", 3));
+        assert!(poses[4].body.is_none());
+        let frame = PoseFrame {
+            schema: SCHEMA_VERSION,
+            rig: "r".into(),
+            sequence: 0,
+            timestamp_ns: 1,
+            frame_published_ns: 1,
+            published_ns: 1,
+            cameras: vec![],
+            poses,
+            bodies,
+        };
+        assert_eq!(PoseFrame::from_json(&frame.to_json()).unwrap(), frame);
+        assert_eq!(PoseFrame::from_binary(&frame.to_binary()).unwrap(), frame);
+    }
+}

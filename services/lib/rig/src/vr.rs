@@ -1,0 +1,369 @@
+//! The rig's `[vr]` section resolved for the VR feed (`docs/vr.md`): each consumer's address
+//! and frame (which world axis each of its axes is, its origin, its unit), each body's
+//! smoothing and prediction. Checked when the rig loads, so the feed never meets a value it
+//! cannot use.
+
+use crate::error::{RigError, err};
+use crate::schema::{FrameSpec, RigFile, Units};
+use nalgebra::{Matrix3, Point3, Rotation3, UnitQuaternion, Vector3};
+use std::net::SocketAddr;
+use stereoscope_bodies::filter::OneEuroConfig;
+
+/// The VRPN port (IANA-registered), also the default of every VRPN client.
+pub const VRPN_PORT: u16 = 3883;
+/// VirtualMotionTracker's default OSC input port.
+pub const VMT_PORT: u16 = 39570;
+/// The VMC protocol's default performer port.
+pub const VMC_PORT: u16 = 39539;
+/// opentrack's "UDP over network" default port.
+pub const OPENTRACK_PORT: u16 = 4242;
+/// Longest prediction a body may ask for, milliseconds.
+pub const MAX_PREDICT_MS: f64 = 100.0;
+
+/// Where a consumer's coordinates come from: `consumer = scale · axes · (world − origin)`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ConsumerFrame {
+    /// Rows: the consumer's x, y, z as world vectors (a signed permutation).
+    pub consumer_from_world: Matrix3<f64>,
+    pub origin_world_m: Point3<f64>,
+    /// Consumer units per metre.
+    pub units_per_m: f64,
+}
+
+impl ConsumerFrame {
+    pub fn identity() -> Self {
+        ConsumerFrame {
+            consumer_from_world: Matrix3::identity(),
+            origin_world_m: Point3::origin(),
+            units_per_m: 1.0,
+        }
+    }
+
+    /// A y-up, right-handed frame (x right, y up, z towards the viewer): Unity's axes mirrored,
+    /// OpenVR's, VMC's (with x mirrored on the wire by VMC itself).
+    pub fn y_up() -> Self {
+        ConsumerFrame {
+            consumer_from_world: Matrix3::new(1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, -1.0, 0.0),
+            ..Self::identity()
+        }
+    }
+
+    /// Whether the frame keeps handedness (a proper rotation; a mirror flips it).
+    pub fn is_proper(&self) -> bool {
+        self.consumer_from_world.determinant() > 0.0
+    }
+
+    pub fn position(&self, world_m: &Point3<f64>) -> Vector3<f64> {
+        self.consumer_from_world * (world_m - self.origin_world_m) * self.units_per_m
+    }
+
+    /// A world rotation in consumer axes, as a quaternion. For a mirrored frame (determinant
+    /// −1) the conjugated matrix `M R Mᵀ` is still a proper rotation, so it is well defined.
+    pub fn rotation(&self, world: &UnitQuaternion<f64>) -> UnitQuaternion<f64> {
+        let m = self.consumer_from_world;
+        let r = m * world.to_rotation_matrix().matrix() * m.transpose();
+        UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix_unchecked(r))
+    }
+}
+
+/// Parses a signed axis name: `"x"`, `"-y"`, `"+z"`.
+fn axis(name: &str) -> Option<Vector3<f64>> {
+    let (sign, a) = match name.trim().strip_prefix('-') {
+        Some(a) => (-1.0, a),
+        None => (1.0, name.trim().trim_start_matches('+')),
+    };
+    let v = match a {
+        "x" => Vector3::x(),
+        "y" => Vector3::y(),
+        "z" => Vector3::z(),
+        _ => return None,
+    };
+    Some(v * sign)
+}
+
+/// The frame a `[vr.*] frame` table asks for, over `default`; `key` names it in errors.
+pub fn consumer_frame(
+    spec: Option<&FrameSpec>,
+    default: ConsumerFrame,
+    file_units: Units,
+    key: &str,
+) -> Result<ConsumerFrame, RigError> {
+    let Some(f) = spec else {
+        return Ok(default);
+    };
+    let mut out = default;
+    if let Some(axes) = &f.axes {
+        let mut m = Matrix3::zeros();
+        for (i, name) in axes.iter().enumerate() {
+            let v = axis(name).ok_or_else(|| {
+                err(
+                    format!("{key}.axes[{i}]"),
+                    format!("{name:?} is not one of x, y, z, -x, -y, -z"),
+                )
+            })?;
+            m.set_row(i, &v.transpose());
+        }
+        if m.determinant().abs() < 0.5 {
+            return Err(err(
+                format!("{key}.axes"),
+                format!("{axes:?} names one world axis twice; each must appear once"),
+            ));
+        }
+        out.consumer_from_world = m;
+    }
+    if let Some(o) = f.origin {
+        if o.iter().any(|v| !v.is_finite()) {
+            return Err(err(format!("{key}.origin"), format!("{o:?} is not finite")));
+        }
+        let s = file_units.metres();
+        out.origin_world_m = Point3::new(o[0] * s, o[1] * s, o[2] * s);
+    }
+    if let Some(u) = f.units {
+        out.units_per_m = 1.0 / u.metres();
+    }
+    Ok(out)
+}
+
+/// An address from the rig (`"127.0.0.1:3883"`), or `default`.
+pub fn address(v: Option<&String>, default: SocketAddr, key: &str) -> Result<SocketAddr, RigError> {
+    match v {
+        None => Ok(default),
+        Some(s) => s.parse().map_err(|_| {
+            err(
+                key.to_string(),
+                format!(
+                    "{s:?} is not an IP address and port, like \"127.0.0.1:{}\"",
+                    default.port()
+                ),
+            )
+        }),
+    }
+}
+
+/// A body's One Euro settings (none: not smoothed) and prediction, seconds.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct BodyOutput {
+    pub smoothing: Option<OneEuroConfig>,
+    pub predict_s: f64,
+}
+
+/// Each body's smoothing and prediction, in rig order.
+pub fn body_outputs(file: &RigFile) -> Result<Vec<BodyOutput>, RigError> {
+    file.bodies
+        .iter()
+        .enumerate()
+        .map(|(i, b)| {
+            let key = format!("body[{i}]");
+            let smoothing = match &b.smoothing {
+                None => None,
+                Some(s) => {
+                    let d = OneEuroConfig::default();
+                    let c = OneEuroConfig {
+                        min_cutoff_hz: s.min_cutoff_hz.unwrap_or(d.min_cutoff_hz),
+                        beta: s.beta.unwrap_or(d.beta),
+                        d_cutoff_hz: s.d_cutoff_hz.unwrap_or(d.d_cutoff_hz),
+                    };
+                    for (k, v, lo, hi) in [
+                        ("min_cutoff_hz", c.min_cutoff_hz, 0.001, 1000.0),
+                        ("beta", c.beta, 0.0, 1000.0),
+                        ("d_cutoff_hz", c.d_cutoff_hz, 0.001, 1000.0),
+                    ] {
+                        if !(v.is_finite() && (lo..=hi).contains(&v)) {
+                            return Err(err(
+                                format!("{key}.smoothing.{k}"),
+                                format!("{v:?} must be between {lo} and {hi}"),
+                            ));
+                        }
+                    }
+                    Some(c)
+                }
+            };
+            let ms = b.predict_ms.unwrap_or(0.0);
+            if !(ms.is_finite() && (0.0..=MAX_PREDICT_MS).contains(&ms)) {
+                return Err(err(
+                    format!("{key}.predict_ms"),
+                    format!("{ms:?} must be between 0 and {MAX_PREDICT_MS} milliseconds"),
+                ));
+            }
+            Ok(BodyOutput {
+                smoothing,
+                predict_s: ms * 1e-3,
+            })
+        })
+        .collect()
+}
+
+/// Loopback at `port`.
+pub fn loopback(port: u16) -> SocketAddr {
+    SocketAddr::from(([127, 0, 0, 1], port))
+}
+
+/// The `[vr]` section resolved.
+#[derive(Debug, Clone, PartialEq)]
+pub struct VrSettings {
+    pub vrpn: Option<(SocketAddr, ConsumerFrame)>,
+    /// Address, frame, and the bodies (indices into the rig's) in tracker-index order.
+    pub vmt: Option<(SocketAddr, ConsumerFrame, Vec<usize>)>,
+    pub vmc: Option<(SocketAddr, ConsumerFrame)>,
+    /// Address, frame, the body sent.
+    pub opentrack: Option<(SocketAddr, ConsumerFrame, usize)>,
+    pub bodies: Vec<BodyOutput>,
+}
+
+/// Resolves (and so checks) the rig's `[vr]` section; `None` when it has none.
+pub fn settings(file: &RigFile) -> Result<Option<VrSettings>, RigError> {
+    let Some(vr) = &file.vr else {
+        return Ok(None);
+    };
+    let u = file.units;
+    let body_index = |key: String, name: &str| {
+        file.bodies
+            .iter()
+            .position(|b| b.name == name)
+            .ok_or_else(|| {
+                err(
+                    key,
+                    format!(
+                        "{name:?} is not a [[body]] of this rig (bodies: {:?})",
+                        file.bodies.iter().map(|b| &b.name).collect::<Vec<_>>()
+                    ),
+                )
+            })
+    };
+    if file.bodies.is_empty() {
+        return Err(err(
+            "vr",
+            "the VR feed sends bodies, and the rig defines no [[body]]",
+        ));
+    }
+    let vrpn = match &vr.vrpn {
+        None => None,
+        Some(s) => Some((
+            address(s.listen.as_ref(), loopback(VRPN_PORT), "vr.vrpn.listen")?,
+            consumer_frame(
+                s.frame.as_ref(),
+                ConsumerFrame::identity(),
+                u,
+                "vr.vrpn.frame",
+            )?,
+        )),
+    };
+    let vmt = match &vr.vmt {
+        None => None,
+        Some(s) => {
+            let bodies = if s.bodies.is_empty() {
+                (0..file.bodies.len()).collect()
+            } else {
+                s.bodies
+                    .iter()
+                    .enumerate()
+                    .map(|(i, n)| body_index(format!("vr.vmt.bodies[{i}]"), n))
+                    .collect::<Result<Vec<_>, _>>()?
+            };
+            Some((
+                address(s.send_to.as_ref(), loopback(VMT_PORT), "vr.vmt.send_to")?,
+                consumer_frame(s.frame.as_ref(), ConsumerFrame::y_up(), u, "vr.vmt.frame")?,
+                bodies,
+            ))
+        }
+    };
+    let vmc = match &vr.vmc {
+        None => None,
+        Some(s) => Some((
+            address(s.send_to.as_ref(), loopback(VMC_PORT), "vr.vmc.send_to")?,
+            consumer_frame(s.frame.as_ref(), ConsumerFrame::y_up(), u, "vr.vmc.frame")?,
+        )),
+    };
+    let opentrack = match &vr.opentrack {
+        None => None,
+        Some(s) => {
+            let body = match &s.body {
+                Some(n) => body_index("vr.opentrack.body".into(), n)?,
+                None => 0,
+            };
+            let cm = ConsumerFrame {
+                units_per_m: 100.0,
+                ..ConsumerFrame::identity()
+            };
+            Some((
+                address(
+                    s.send_to.as_ref(),
+                    loopback(OPENTRACK_PORT),
+                    "vr.opentrack.send_to",
+                )?,
+                consumer_frame(s.frame.as_ref(), cm, u, "vr.opentrack.frame")?,
+                body,
+            ))
+        }
+    };
+    Ok(Some(VrSettings {
+        vrpn,
+        vmt,
+        vmc,
+        opentrack,
+        bodies: body_outputs(file)?,
+    }))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn frames_map_axes_origin_and_units() {
+        let f = consumer_frame(
+            Some(&FrameSpec {
+                axes: Some(["x".into(), "z".into(), "-y".into()]),
+                origin: Some([100.0, 0.0, 0.0]),
+                units: Some(Units::Centimetres),
+            }),
+            ConsumerFrame::identity(),
+            Units::Millimetres,
+            "vr.vrpn.frame",
+        )
+        .unwrap();
+        // World (0.3, 0.2, 0.1) m, origin at x = 0.1 m: consumer (20, 10, −20) cm.
+        let p = f.position(&Point3::new(0.3, 0.2, 0.1));
+        assert!((p - Vector3::new(20.0, 10.0, -20.0)).norm() < 1e-9, "{p}");
+        assert!(f.is_proper());
+        // A turn about world z is a turn about the consumer's y (world z is its y).
+        let q = f.rotation(&UnitQuaternion::from_axis_angle(&Vector3::z_axis(), 0.5));
+        let axis = q.axis().unwrap();
+        assert!((axis.y - 1.0).abs() < 1e-9 && (q.angle() - 0.5).abs() < 1e-9);
+        let bad = |axes: [&str; 3]| {
+            consumer_frame(
+                Some(&FrameSpec {
+                    axes: Some(axes.map(String::from)),
+                    ..FrameSpec::default()
+                }),
+                ConsumerFrame::identity(),
+                Units::Metres,
+                "vr.vmt.frame",
+            )
+            .unwrap_err()
+        };
+        assert_eq!(bad(["x", "x", "z"]).key, "vr.vmt.frame.axes");
+        let e = bad(["x", "w", "z"]);
+        assert_eq!(e.key, "vr.vmt.frame.axes[1]");
+        assert!(e.to_string().contains("\"w\""), "{e}");
+    }
+
+    #[test]
+    fn a_mirrored_frame_still_gives_a_proper_rotation() {
+        let f = ConsumerFrame {
+            consumer_from_world: Matrix3::new(-1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 1.0, 0.0),
+            ..ConsumerFrame::identity()
+        };
+        assert!(!f.is_proper());
+        let world = UnitQuaternion::from_euler_angles(0.2, -0.4, 1.1);
+        let q = f.rotation(&world);
+        // Conjugating by the mirror keeps a rotation matrix (det +1, orthonormal).
+        let m = q.to_rotation_matrix();
+        assert!((m.matrix().determinant() - 1.0).abs() < 1e-9);
+        // And it acts on consumer vectors as the world rotation acts on world vectors.
+        let v = Vector3::new(0.3, -0.1, 0.7);
+        let lhs = q * (f.consumer_from_world * v);
+        let rhs = f.consumer_from_world * (world * v);
+        assert!((lhs - rhs).norm() < 1e-9);
+    }
+}

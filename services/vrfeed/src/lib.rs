@@ -1,0 +1,393 @@
+//! The VR feed (`docs/vr.md`): one process that reads the pose stream (Zenoh
+//! `stereoscope/<rig>/poses`) and sends each rigid body to what the rig's `[vr]` section names:
+//! a VRPN tracker server ([`vrpn`]), VirtualMotionTracker and VMC over OSC, and opentrack's UDP
+//! packet ([`feeds`]), each in its consumer's frame (axes, origin, unit). A body's pose is
+//! smoothed (One Euro) and predicted ahead when its `[[body]]` asks for it
+//! (`stereoscope_bodies::filter`).
+//!
+//! *Latency.* For each pose frame the service notes the time from the newest camera frame's
+//! publication (`frame_published_ns`) to the moment its VRPN bytes were handed to the sockets;
+//! health reports the median and 99th percentile of the last 4096 (`latency_p50_us`,
+//! `latency_p99_us`), and the log says them at exit.
+//!
+//! *Faults.* A frame that does not decode or is another rig's is counted and ignored; a UDP
+//! receiver that is not there is a counted send error; a VRPN client that misbehaves is
+//! dropped and counted ([`vrpn`]). None of it stops the feed.
+
+pub mod cli;
+pub mod feeds;
+pub mod vrpn;
+
+use nalgebra::{Isometry3, Point3, Quaternion, Translation3, UnitQuaternion, Vector3};
+use std::net::{SocketAddr, UdpSocket};
+use std::sync::mpsc;
+use std::sync::{
+    Arc,
+    atomic::{AtomicU64, Ordering},
+};
+use std::time::Duration;
+use stereoscope_bodies::filter::{PoseFilter, predict};
+use stereoscope_proto::messages::{BodyPose, Message, PoseFrame, now_ns};
+use stereoscope_proto::names::zenoh as keys;
+use stereoscope_rig::Context;
+use stereoscope_rig::vr::VrSettings;
+use stereoscope_transport::{Flow, Service, ServiceNode, Shutdown, drive, net};
+
+#[derive(Debug, Clone)]
+pub struct VrFeedConfig {
+    pub ctx: Context,
+    /// Stop after this many pose frames (tests, benchmarks).
+    pub max_frames: Option<u64>,
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum VrFeedError {
+    #[error("vrfeed: the rig has no [vr] section")]
+    NoVr,
+    #[error("vrfeed")]
+    Rig(#[from] stereoscope_rig::RigError),
+    #[error("vrfeed: VRPN cannot listen on {addr} (is another server using the port?)")]
+    VrpnBind {
+        addr: SocketAddr,
+        #[source]
+        source: std::io::Error,
+    },
+    #[error("vrfeed: no UDP socket for the OSC and opentrack feeds")]
+    Udp(#[source] std::io::Error),
+    #[error("vrfeed")]
+    Transport(#[from] stereoscope_transport::TransportError),
+}
+
+/// What the VR feed did: pose frames handled and the latency distribution, microseconds.
+#[derive(Debug, Clone, Default)]
+pub struct VrFeedSummary {
+    pub frames: u64,
+    pub latency_us: Vec<f64>,
+}
+
+enum Input {
+    Frame(Box<PoseFrame>),
+    Bad(&'static str, String),
+}
+
+/// Latencies kept for the percentiles.
+const LATENCY_WINDOW: usize = 4096;
+/// The time `vrpn_Tracker Velocity`'s rotation is given over, seconds.
+const VEL_QUAT_DT_S: f64 = 0.01;
+
+/// Runs until shutdown (or `max_frames`).
+pub fn run(cfg: VrFeedConfig, shutdown: Shutdown) -> Result<VrFeedSummary, VrFeedError> {
+    drive(VrFeedService::setup(cfg)?, &shutdown)
+}
+
+pub struct VrFeedService {
+    cfg: VrFeedConfig,
+    node: ServiceNode,
+    settings: VrSettings,
+    names: Vec<String>,
+    rx: mpsc::Receiver<Input>,
+    _poses: net::NetSubscriber,
+    overflow: Arc<AtomicU64>,
+    vrpn: Option<vrpn::Server>,
+    next_bind: std::time::Instant,
+    udp: UdpSocket,
+    filters: Vec<Option<PoseFilter>>,
+    frames: u64,
+    latency_us: Vec<f64>,
+    send_errors: u64,
+}
+
+impl std::fmt::Debug for VrFeedService {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "VrFeedService({} frames)", self.frames)
+    }
+}
+
+/// A body's pose as a rotation and translation.
+fn isometry(b: &BodyPose) -> Isometry3<f64> {
+    let [x, y, z, w] = b.orientation_xyzw;
+    Isometry3::from_parts(
+        Translation3::from(Vector3::from(b.position_m)),
+        UnitQuaternion::from_quaternion(Quaternion::new(w, x, y, z)),
+    )
+}
+
+impl VrFeedService {
+    pub fn setup(cfg: VrFeedConfig) -> Result<Self, VrFeedError> {
+        let ctx = &cfg.ctx;
+        let settings = stereoscope_rig::vr::settings(&ctx.rig.spec)?.ok_or(VrFeedError::NoVr)?;
+        let names: Vec<String> = ctx.rig.spec.bodies.iter().map(|b| b.name.clone()).collect();
+        // A port in use is reported and tried again every second (`bind_vrpn`); any other
+        // failure to listen (an address not of this PC) stops the service with its reason.
+        let vrpn = match settings.vrpn {
+            Some((addr, _)) => match vrpn::Server::bind(addr, names.clone()) {
+                Ok(s) => Some(s),
+                Err(e) if e.kind() == std::io::ErrorKind::AddrInUse => None,
+                Err(source) => return Err(VrFeedError::VrpnBind { addr, source }),
+            },
+            None => None,
+        };
+        let udp = UdpSocket::bind("0.0.0.0:0").map_err(VrFeedError::Udp)?;
+        udp.set_nonblocking(true).map_err(VrFeedError::Udp)?;
+        let node = ServiceNode::start(stereoscope_transport::NodeSpec {
+            exclusive: stereoscope_transport::Exclusive::Host,
+            ..ctx.node_spec("vrfeed")
+        })?;
+        let (tx, rx) = mpsc::sync_channel::<Input>(64);
+        let overflow = Arc::new(AtomicU64::new(0));
+        let rig = ctx.rig.name.clone();
+        let lost = overflow.clone();
+        let poses = net::subscribe(&node.session, &keys::poses(&rig), move |k, b| {
+            let input = match PoseFrame::from_json(b) {
+                Ok(f) if f.rig == rig => Input::Frame(Box::new(f)),
+                Ok(f) => Input::Bad("foreign", format!("{k}: pose frame of rig {:?}", f.rig)),
+                Err(e) => Input::Bad(e.reason(), format!("{k}: {e}")),
+            };
+            if tx.try_send(input).is_err() {
+                lost.fetch_add(1, Ordering::Relaxed);
+            }
+        })?;
+        match (&vrpn, settings.vrpn) {
+            (Some(s), _) => {
+                if let Ok(a) = s.local_addr() {
+                    tracing::info!("VRPN trackers {names:?} on {a} (TCP and UDP)");
+                }
+            }
+            (None, Some((a, _))) => {
+                tracing::warn!("VRPN port {a} is in use; trying again every second")
+            }
+            (None, None) => {}
+        }
+        if let Some((a, _, b)) = &settings.vmt {
+            tracing::info!("VMT /VMT/Room/Driver to {a} for {} bodies", b.len());
+        }
+        if let Some((a, _)) = &settings.vmc {
+            tracing::info!("VMC /VMC/Ext/Tra/Pos to {a}");
+        }
+        if let Some((a, _, b)) = &settings.opentrack {
+            tracing::info!("opentrack UDP to {a} with body {:?}", names.get(*b));
+        }
+        let filters = settings
+            .bodies
+            .iter()
+            .map(|b| b.smoothing.map(PoseFilter::new))
+            .collect();
+        Ok(VrFeedService {
+            cfg,
+            node,
+            settings,
+            names,
+            rx,
+            _poses: poses,
+            overflow,
+            vrpn,
+            next_bind: std::time::Instant::now(),
+            udp,
+            filters,
+            frames: 0,
+            latency_us: Vec::new(),
+            send_errors: 0,
+        })
+    }
+
+    /// The VRPN server's address (tests ask for port 0).
+    pub fn vrpn_addr(&self) -> Option<SocketAddr> {
+        self.vrpn.as_ref().and_then(|s| s.local_addr().ok())
+    }
+
+    /// Listens for VRPN clients if the rig asks for it and the port was taken: once a second,
+    /// with the reason in health meanwhile.
+    fn bind_vrpn(&mut self) {
+        let Some((addr, _)) = self.settings.vrpn else {
+            return;
+        };
+        if self.vrpn.is_some() || std::time::Instant::now() < self.next_bind {
+            return;
+        }
+        self.next_bind = std::time::Instant::now() + Duration::from_secs(1);
+        match vrpn::Server::bind(addr, self.names.clone()) {
+            Ok(s) => {
+                tracing::info!("VRPN trackers {:?} on {addr} (TCP and UDP)", self.names);
+                self.node
+                    .counters
+                    .detail
+                    .insert("vrpn".into(), "listening".into());
+                self.vrpn = Some(s);
+            }
+            Err(e) => {
+                let m = format!("VRPN cannot listen on {addr}: {e}; trying again every second");
+                if self.node.counters.last_error() != Some(&m) {
+                    tracing::warn!("{m}");
+                }
+                self.node.counters.set_error(&m);
+                self.node
+                    .counters
+                    .detail
+                    .insert("vrpn".into(), "port in use".into());
+            }
+        }
+    }
+
+    fn send_udp(&mut self, bytes: &[u8], to: SocketAddr) {
+        if let Err(e) = self.udp.send_to(bytes, to) {
+            self.send_errors += 1;
+            // Nobody listening gives "connection refused" on the next send: counted, not fatal.
+            if self.send_errors <= 3 || self.send_errors.is_power_of_two() {
+                tracing::debug!("sending to {to}: {e} ({} so far)", self.send_errors);
+            }
+            self.node
+                .counters
+                .set_error(&format!("sending to {to}: {e}"));
+        }
+    }
+
+    /// The pose to send for one body: smoothed and predicted as its `[[body]]` asks.
+    fn output_pose(&mut self, index: usize, b: &BodyPose, t_ns: u64) -> Isometry3<f64> {
+        let mut pose = isometry(b);
+        if let Some(f) = self.filters.get_mut(index).and_then(|f| f.as_mut()) {
+            pose = f.filter(&pose, t_ns);
+        }
+        let ahead = self.settings.bodies.get(index).map_or(0.0, |o| o.predict_s);
+        if ahead > 0.0 && !b.held {
+            pose = predict(
+                &pose,
+                &Vector3::from(b.velocity_m_per_s),
+                &Vector3::from(b.angular_velocity_rad_per_s),
+                ahead,
+            );
+        }
+        pose
+    }
+
+    fn handle(&mut self, frame: &PoseFrame) {
+        let stamp = vrpn::Stamp::from_ns(frame.timestamp_ns);
+        // Bodies absent from this frame start their smoothing afresh when they return.
+        for (i, f) in self.filters.iter_mut().enumerate() {
+            if let Some(f) = f
+                && !frame.bodies.iter().any(|b| b.name == self.names[i])
+            {
+                f.reset();
+            }
+        }
+        for b in &frame.bodies {
+            let Some(index) = self.names.iter().position(|n| *n == b.name) else {
+                continue;
+            };
+            let pose = self.output_pose(index, b, frame.timestamp_ns);
+            let position = Point3::from(pose.translation.vector);
+            if let Some((_, f)) = &self.settings.vrpn {
+                let c = feeds::in_frame(f, &position, &pose.rotation);
+                let w = f.rotation(&UnitQuaternion::from_scaled_axis(
+                    Vector3::from(b.angular_velocity_rad_per_s) * VEL_QUAT_DT_S,
+                ));
+                let v = f.consumer_from_world * Vector3::from(b.velocity_m_per_s) * f.units_per_m;
+                if let Some(s) = self.vrpn.as_mut() {
+                    s.send(
+                        index,
+                        stamp,
+                        c.position,
+                        c.quat_xyzw,
+                        Some(([v.x, v.y, v.z], [w.i, w.j, w.k, w.w], VEL_QUAT_DT_S)),
+                    );
+                }
+            }
+            if let Some((to, f, bodies)) = self.settings.vmt.clone()
+                && let Some(k) = bodies.iter().position(|&x| x == index)
+            {
+                let c = feeds::in_frame(&f, &position, &pose.rotation);
+                self.send_udp(&feeds::vmt_room_driver(k as i32, &c), to);
+            }
+            if let Some((to, f)) = self.settings.vmc {
+                let c = feeds::in_frame(&f, &position, &pose.rotation);
+                let m = feeds::vmc_tracker(&b.name, &c);
+                self.send_udp(&m, to);
+            }
+            if let Some((to, f, body)) = self.settings.opentrack
+                && body == index
+            {
+                let c = feeds::in_frame(&f, &position, &pose.rotation);
+                self.send_udp(&feeds::opentrack(&c), to);
+            }
+        }
+        if let Some(s) = self.vrpn.as_mut() {
+            s.flush();
+        }
+        let now = now_ns();
+        if !frame.bodies.is_empty() && frame.frame_published_ns > 0 {
+            if self.latency_us.len() >= LATENCY_WINDOW {
+                self.latency_us.remove(0);
+            }
+            self.latency_us
+                .push(now.saturating_sub(frame.frame_published_ns) as f64 * 1e-3);
+        }
+        self.frames += 1;
+        self.node.counters.processed = self.frames;
+    }
+
+    fn report_detail(&mut self) {
+        let counters = &mut self.node.counters;
+        counters.dropped = self.overflow.load(Ordering::Relaxed);
+        if let Some(s) = self.vrpn.as_mut() {
+            for (reason, message) in s.dropped.drain(..) {
+                counters.reject(reason, &message);
+            }
+            counters
+                .detail
+                .insert("vrpn_clients".into(), s.clients().to_string());
+        }
+        counters
+            .detail
+            .insert("send_errors".into(), self.send_errors.to_string());
+        if !self.latency_us.is_empty() {
+            let mut v = self.latency_us.clone();
+            v.sort_by(f64::total_cmp);
+            let q = |p: f64| v[((v.len() - 1) as f64 * p).round() as usize];
+            counters
+                .detail
+                .insert("latency_p50_us".into(), format!("{:.0}", q(0.5)));
+            counters
+                .detail
+                .insert("latency_p99_us".into(), format!("{:.0}", q(0.99)));
+        }
+    }
+}
+
+impl Service for VrFeedService {
+    type Summary = VrFeedSummary;
+    type Error = VrFeedError;
+
+    fn node(&mut self) -> &mut ServiceNode {
+        &mut self.node
+    }
+
+    fn step(&mut self, _shutdown: &Shutdown) -> Result<Flow, VrFeedError> {
+        if self.cfg.max_frames.is_some_and(|m| self.frames >= m) {
+            return Ok(Flow::Stop);
+        }
+        self.bind_vrpn();
+        // Wake for a frame, or every 5 ms to serve VRPN clients.
+        let first = self.rx.recv_timeout(Duration::from_millis(5));
+        if let Some(s) = self.vrpn.as_mut() {
+            s.poll();
+        }
+        let mut inputs: Vec<Input> = first.into_iter().collect();
+        inputs.extend(self.rx.try_iter());
+        for input in inputs {
+            match input {
+                Input::Frame(f) => self.handle(&f),
+                Input::Bad(reason, message) => self.node.counters.reject(reason, &message),
+            }
+        }
+        if self.node.report_due() {
+            self.report_detail();
+        }
+        Ok(Flow::Continue)
+    }
+
+    fn summary(&self) -> VrFeedSummary {
+        VrFeedSummary {
+            frames: self.frames,
+            latency_us: self.latency_us.clone(),
+        }
+    }
+}
