@@ -116,10 +116,13 @@ mod tests {
         let b = opentrack(&pose);
         assert_eq!(&b[0..8], &1.5f64.to_le_bytes());
         assert_eq!(&b[16..24], &30.0f64.to_le_bytes());
-        assert_eq!(&b[24..48], &[0u8; 24]);
+        for k in 3..6 {
+            let v = f64::from_le_bytes(b[8 * k..8 * k + 8].try_into().unwrap());
+            assert_eq!(v, 0.0);
+        }
         let m = vmt_room_driver(2, &pose);
         assert!(m.starts_with(b"/VMT/Room/Driver\0\0\0\0,iiffffffff\0"));
         let m = vmc_tracker("head", &pose);
-        assert!(m.starts_with(b"/VMC/Ext/Tra/Pos\0\0\0\0,sfffffff\0\0\0\0head\0\0\0\0"));
+        assert!(m.starts_with(b"/VMC/Ext/Tra/Pos\0\0\0\0,sfffffff\0\0\0head\0\0\0\0"));
     }
 }

@@ -155,7 +155,12 @@ pub enum Drop {
     Slow,
     /// The socket failed.
     Io,
+    /// No cookie within [`COOKIE_WAIT`] of connecting.
+    NoCookie,
 }
+
+/// How long a new client has to send its cookie.
+pub const COOKIE_WAIT: Duration = Duration::from_secs(5);
 
 impl Drop {
     pub fn reason(self) -> &'static str {
@@ -165,6 +170,21 @@ impl Drop {
             Drop::Garbage => "garbage",
             Drop::Slow => "slow_client",
             Drop::Io => "io",
+            Drop::NoCookie => "no_cookie",
+        }
+    }
+
+    /// What happened, for the log and health.
+    pub fn describe(self) -> &'static str {
+        match self {
+            Drop::Closed => "disconnected",
+            Drop::Cookie => "sent something other than a VRPN 07 cookie; dropped",
+            Drop::Garbage => {
+                "sent a message that is not VRPN (length or name out of bounds); dropped"
+            }
+            Drop::Slow => "fell more than 1 MiB behind; dropped",
+            Drop::Io => "socket error; dropped",
+            Drop::NoCookie => "sent no cookie within 5 s; dropped",
         }
     }
 }
@@ -177,6 +197,7 @@ struct Client {
     /// Bytes to send that the socket has not taken yet.
     outbuf: Vec<u8>,
     cookie_ok: bool,
+    connected: std::time::Instant,
     sequence: u32,
     /// The client's type names by its ids (non-negative ones only).
     types: Vec<(i32, String)>,
@@ -194,6 +215,7 @@ impl Client {
             inbuf: Vec::new(),
             outbuf: cookie().to_vec(),
             cookie_ok: false,
+            connected: std::time::Instant::now(),
             sequence: 0,
             types: Vec::new(),
             senders: Vec::new(),
@@ -260,11 +282,16 @@ impl Client {
 
     fn handle(&mut self, our_senders: &[String]) -> Result<(), Drop> {
         if !self.cookie_ok {
-            if self.inbuf.len() < COOKIE_BYTES {
-                return Ok(());
-            }
-            if !self.inbuf.starts_with(COOKIE_MAJOR) {
+            // Refused as soon as what came cannot begin a cookie.
+            let n = self.inbuf.len().min(COOKIE_MAJOR.len());
+            if self.inbuf[..n] != COOKIE_MAJOR[..n] {
                 return Err(Drop::Cookie);
+            }
+            if self.inbuf.len() < COOKIE_BYTES {
+                if self.connected.elapsed() > COOKIE_WAIT {
+                    return Err(Drop::NoCookie);
+                }
+                return Ok(());
             }
             self.inbuf.drain(..COOKIE_BYTES);
             self.cookie_ok = true;
@@ -431,8 +458,11 @@ impl Server {
             .retain_mut(|c| match c.receive(senders).and_then(|_| c.flush()) {
                 Ok(()) => true,
                 Err(d) => {
-                    tracing::info!("VRPN client {} dropped: {}", c.peer, d.reason());
-                    dropped.push((d.reason(), format!("VRPN client {}", c.peer)));
+                    tracing::info!("VRPN client {} {}", c.peer, d.describe());
+                    dropped.push((
+                        d.reason(),
+                        format!("VRPN client {} {}", c.peer, d.describe()),
+                    ));
                     false
                 }
             });
@@ -463,7 +493,10 @@ impl Server {
         self.clients.retain_mut(|c| match c.flush() {
             Ok(()) => true,
             Err(d) => {
-                dropped.push((d.reason(), format!("VRPN client {}", c.peer)));
+                dropped.push((
+                    d.reason(),
+                    format!("VRPN client {} {}", c.peer, d.describe()),
+                ));
                 false
             }
         });

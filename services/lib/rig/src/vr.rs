@@ -39,11 +39,20 @@ impl ConsumerFrame {
         }
     }
 
-    /// A y-up, right-handed frame (x right, y up, z towards the viewer): Unity's axes mirrored,
-    /// OpenVR's, VMC's (with x mirrored on the wire by VMC itself).
+    /// A y-up, right-handed frame: world x stays x, world z (up) is y, world y is −z. OpenVR's
+    /// room space (VirtualMotionTracker) and opentrack's.
     pub fn y_up() -> Self {
         ConsumerFrame {
             consumer_from_world: Matrix3::new(1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, -1.0, 0.0),
+            ..Self::identity()
+        }
+    }
+
+    /// Unity's y-up, left-handed frame (VMC): world x is x, world z (up) is y, world y is z. A
+    /// mirror of the world: rotations turn the other way.
+    pub fn unity() -> Self {
+        ConsumerFrame {
+            consumer_from_world: Matrix3::new(1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 1.0, 0.0),
             ..Self::identity()
         }
     }
@@ -271,7 +280,7 @@ pub fn settings(file: &RigFile) -> Result<Option<VrSettings>, RigError> {
         None => None,
         Some(s) => Some((
             address(s.send_to.as_ref(), loopback(VMC_PORT), "vr.vmc.send_to")?,
-            consumer_frame(s.frame.as_ref(), ConsumerFrame::y_up(), u, "vr.vmc.frame")?,
+            consumer_frame(s.frame.as_ref(), ConsumerFrame::unity(), u, "vr.vmc.frame")?,
         )),
     };
     let opentrack = match &vr.opentrack {
@@ -283,7 +292,7 @@ pub fn settings(file: &RigFile) -> Result<Option<VrSettings>, RigError> {
             };
             let cm = ConsumerFrame {
                 units_per_m: 100.0,
-                ..ConsumerFrame::identity()
+                ..ConsumerFrame::y_up()
             };
             Some((
                 address(

@@ -1,0 +1,48 @@
+"""The VR feed's UDP receivers, decoded by code the project did not write where it exists:
+python-osc's server for VirtualMotionTracker (/VMT/Room/Driver) and VMC (/VMC/Ext/Tra/Pos),
+and opentrack's "UDP over network" packet decoded as opentrack's UDP input reads it (48
+bytes: six little-endian doubles, x y z yaw pitch roll). Listens for SECONDS and prints one
+JSON line per message: {"feed": "vmt" | "vmc" | "opentrack", "values": [...]}.
+
+usage: udp_receivers.py VMT_PORT VMC_PORT OPENTRACK_PORT SECONDS
+"""
+import json
+import socket
+import struct
+import sys
+import threading
+import time
+
+from pythonosc.dispatcher import Dispatcher
+from pythonosc.osc_server import ThreadingOSCUDPServer
+
+
+def osc_server(port, address, feed):
+    d = Dispatcher()
+    d.map(address, lambda _addr, *args: print(json.dumps({"feed": feed, "values": list(args)}), flush=True))
+    server = ThreadingOSCUDPServer(("127.0.0.1", port), d)
+    threading.Thread(target=server.serve_forever, daemon=True).start()
+    return server
+
+
+def main():
+    vmt, vmc, opentrack = (int(a) for a in sys.argv[1:4])
+    seconds = float(sys.argv[4])
+    servers = [osc_server(vmt, "/VMT/Room/Driver", "vmt"), osc_server(vmc, "/VMC/Ext/Tra/Pos", "vmc")]
+    s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    s.bind(("127.0.0.1", opentrack))
+    s.settimeout(0.1)
+    print(json.dumps({"feed": "ready", "values": []}), flush=True)
+    end = time.time() + seconds
+    while time.time() < end:
+        try:
+            data = s.recv(2048)
+        except socket.timeout:
+            continue
+        if len(data) == 48:
+            print(json.dumps({"feed": "opentrack", "values": list(struct.unpack("<6d", data))}), flush=True)
+    for server in servers:
+        server.shutdown()
+
+
+main()
