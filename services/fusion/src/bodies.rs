@@ -16,6 +16,16 @@ pub struct Bodies {
 }
 
 impl Bodies {
+    /// The rig's bodies with its `[fusion] body_hold_ms` (fusion and the replay alike).
+    pub fn of_rig(file: &stereoscope_rig::RigFile) -> Self {
+        let hold_ms = file
+            .fusion
+            .as_ref()
+            .and_then(|f| f.body_hold_ms)
+            .unwrap_or(stereoscope_bodies::tracker::DEFAULT_HOLD_NS as f64 * 1e-6);
+        Bodies::new(stereoscope_rig::body_defs(file), (hold_ms * 1e6) as u64)
+    }
+
     pub fn new(defs: Vec<stereoscope_bodies::BodyDef>, hold_ns: u64) -> Self {
         Bodies {
             tracker: BodyTracker::new(defs, hold_ns),

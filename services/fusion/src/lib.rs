@@ -183,17 +183,7 @@ impl FusionService {
         let poses = node.outlet(&iox_names::poses(&rig), &[], &keys::poses(&rig))?;
         let per_object = KeyedPublisher::new(&node.session);
         let per_body = KeyedPublisher::new(&node.session);
-        let hold_ms = ctx
-            .rig
-            .spec
-            .fusion
-            .as_ref()
-            .and_then(|f| f.body_hold_ms)
-            .unwrap_or(stereoscope_bodies::tracker::DEFAULT_HOLD_NS as f64 * 1e-6);
-        let bodies = bodies::Bodies::new(
-            stereoscope_rig::body_defs(&ctx.rig.spec),
-            (hold_ms * 1e6) as u64,
-        );
+        let bodies = bodies::Bodies::of_rig(&ctx.rig.spec);
         tracing::info!(
             local = local.len(),
             remote = remote_subs.len(),

@@ -47,7 +47,7 @@ pub enum ReplayError {
 pub struct Refused {
     pub frames: usize,
     /// Pose frames whose every pose came out identical (positions, velocities, headings,
-    /// methods, cameras, residuals), objects paired by position and their ids by one
+    /// methods, cameras, residuals, body labels) and every rigid body too, objects paired by position and their ids by one
     /// consistent renumbering.
     pub identical: usize,
     /// The last re-fused frames that are all identical: where a replay of a recording that
@@ -148,6 +148,7 @@ pub fn refuse(
     let rig = Rig::from_recording(&session.info.rig_file)?;
     let (_, fuser_cfg, _) = stereoscope_fusion::settings(&rig.spec);
     let mut fuser = Fuser::new(&rig, fuser_cfg);
+    let mut bodies = stereoscope_fusion::bodies::Bodies::of_rig(&rig.spec);
     let mut by_key: HashMap<(String, u64), &Observation> = HashMap::new();
     for o in &session.observations {
         by_key.insert((o.camera.clone(), o.timestamp_ns), o);
@@ -191,9 +192,25 @@ pub fn refuse(
             continue;
         }
         set.sort_by_key(|(c, _)| *c);
-        let poses = fuser.fuse(&set, pf.timestamp_ns);
+        let mut poses = fuser.fuse(&set, pf.timestamp_ns);
+        let found = bodies.update(&mut poses, pf.timestamp_ns);
         out.frames += 1;
-        match differs(pf, &poses, &mut ids) {
+        let body_difference = (found != pf.bodies).then(|| {
+            format!(
+                "pose frame {} (t = {} ns): bodies {:?} recorded, {:?} re-fused",
+                pf.sequence,
+                pf.timestamp_ns,
+                pf.bodies
+                    .iter()
+                    .map(|b| (&b.name, b.position_m))
+                    .collect::<Vec<_>>(),
+                found
+                    .iter()
+                    .map(|b| (&b.name, b.position_m))
+                    .collect::<Vec<_>>()
+            )
+        });
+        match differs(pf, &poses, &mut ids).or(body_difference) {
             None => {
                 out.identical += 1;
                 out.identical_last_frames += 1;

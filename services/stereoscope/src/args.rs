@@ -155,6 +155,31 @@ pub struct StatusArgs {
     pub tls: stereoscope_rig::context::TlsArgs,
 }
 
+/// `stereoscope body define`: its options.
+#[derive(clap::Args, Debug)]
+pub struct BodyDefineArgs {
+    /// The new body's name.
+    pub name: String,
+    /// The rig file (its first host's router is asked unless --connect).
+    #[arg(long)]
+    pub rig: PathBuf,
+    /// A Zenoh router endpoint to ask instead.
+    #[arg(long)]
+    pub connect: Option<String>,
+    /// How long to average, seconds.
+    #[arg(long, default_value_t = 1.0)]
+    pub seconds: f64,
+    /// Tolerance of a measured inter-marker distance, rig file unit (default 3 mm).
+    #[arg(long)]
+    pub tolerance: Option<f64>,
+    /// Append the table to the rig file (after checking the whole file loads).
+    #[arg(long)]
+    pub write: bool,
+    /// Certificates for a tls/ router (from another PC).
+    #[command(flatten)]
+    pub tls: stereoscope_rig::context::TlsArgs,
+}
+
 /// `stereoscope replay`: its options.
 #[derive(clap::Args, Debug)]
 pub struct ReplayArgs {

@@ -2,6 +2,7 @@
 //! `main.rs` only parses arguments and calls these.
 
 pub mod blobs;
+pub mod body;
 pub mod calibrate;
 
 pub mod example;

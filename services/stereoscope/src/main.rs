@@ -52,6 +52,17 @@ enum Command {
     Service(ServiceCommand),
     /// Triangulate points seen by a rig's cameras (CSV point,camera,u,v).
     Triangulate(args::TriangulateArgs),
+    /// Rigid bodies: define one from the markers the running rig sees now.
+    #[command(subcommand)]
+    Body(BodyCommand),
+}
+
+#[derive(Subcommand, Debug)]
+enum BodyCommand {
+    /// Take the loose markers tracked now (3–8, held still), average them over --seconds and
+    /// print the [[body]] table (origin at their centroid, the world's axes); --write appends
+    /// it to the rig file.
+    Define(args::BodyDefineArgs),
 }
 
 #[derive(Subcommand, Debug)]
@@ -189,6 +200,24 @@ fn main() -> ExitCode {
                 r => stereoscope_rig::exit::exit_code(r.map(|_| ())),
             }
         }
+        Command::Body(BodyCommand::Define(a)) => match stereoscope::body::define_live(
+            &a.name,
+            &a.rig,
+            a.connect,
+            a.seconds,
+            a.tolerance,
+            a.write,
+            a.tls,
+        ) {
+            Ok(text) => {
+                print!("{text}");
+                ExitCode::SUCCESS
+            }
+            Err(e) => {
+                eprintln!("error: {e:#}");
+                ExitCode::from(1)
+            }
+        },
         Command::Status(args::StatusArgs {
             rig,
             connect,

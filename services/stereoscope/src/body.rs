@@ -1,0 +1,344 @@
+//! `stereoscope body define NAME --rig RIG`: a rigid body from what the cameras see now
+//! (`docs/bodies.md`, "Defining a body"). Listens to the running rig's pose frames for a
+//! while, takes the loose markers tracked through nearly all of it, averages each, and writes
+//! the `[[body]]` table: origin at the markers' centroid, axes the world's at that moment,
+//! positions in the rig file's unit. The new body is checked with the rig's bodies (count,
+//! collinear, symmetric, confusable) before anything is written.
+
+use nalgebra::{Point3, Vector3};
+use std::collections::BTreeMap;
+use stereoscope_bodies::{BodyDef, MAX_MARKERS, check_bodies};
+use stereoscope_proto::messages::{PoseFrame, PoseMethod};
+use stereoscope_rig::schema::{BodySpec, Units};
+
+/// Share of the frames a marker must be in to be taken.
+pub const MIN_SHARE: f64 = 0.9;
+
+/// Why no body could be defined.
+#[derive(Debug, thiserror::Error)]
+pub enum DefineError {
+    #[error("no pose frames arrived in {seconds} s: is the rig running (stereoscope run)?")]
+    NoFrames { seconds: f64 },
+    #[error(
+        "{found} loose markers were tracked through {share:.0} % of the {frames} frames ({ids:?}); a body needs 3 to {MAX_MARKERS}: show its markers to the cameras and hide others"
+    )]
+    Count {
+        found: usize,
+        frames: usize,
+        share: f64,
+        ids: Vec<u32>,
+    },
+    #[error(
+        "marker {marker} (object {object}) moved {spread_mm:.1} mm while it was averaged: hold the body still"
+    )]
+    Moved {
+        marker: usize,
+        object: u32,
+        spread_mm: f64,
+    },
+    #[error("{0}")]
+    Body(#[from] stereoscope_bodies::BodyError),
+}
+
+/// The body the frames show: `name`, markers (file unit) about their centroid, the given
+/// tolerance (file unit; default 3 mm), checked against `existing`. Also returns each marker's
+/// RMS wobble about its mean, metres (the triangulation noise).
+pub fn define(
+    name: &str,
+    frames: &[PoseFrame],
+    units: Units,
+    tolerance: Option<f64>,
+    existing: &[BodyDef],
+) -> Result<(BodySpec, f64), DefineError> {
+    if frames.is_empty() {
+        return Err(DefineError::NoFrames { seconds: 0.0 });
+    }
+    let mut seen: BTreeMap<u32, Vec<Point3<f64>>> = BTreeMap::new();
+    for f in frames {
+        for p in &f.poses {
+            if p.body.is_none() && p.method == PoseMethod::Triangulated {
+                seen.entry(p.object_id)
+                    .or_default()
+                    .push(Point3::from(p.position_m));
+            }
+        }
+    }
+    let need = (frames.len() as f64 * MIN_SHARE).ceil() as usize;
+    let kept: Vec<(u32, Vec<Point3<f64>>)> =
+        seen.into_iter().filter(|(_, v)| v.len() >= need).collect();
+    if !(3..=MAX_MARKERS).contains(&kept.len()) {
+        return Err(DefineError::Count {
+            found: kept.len(),
+            frames: frames.len(),
+            share: MIN_SHARE * 100.0,
+            ids: kept.iter().map(|(id, _)| *id).collect(),
+        });
+    }
+    let means: Vec<Point3<f64>> = kept
+        .iter()
+        .map(|(_, v)| {
+            Point3::from(v.iter().map(|p| p.coords).sum::<Vector3<f64>>() / v.len() as f64)
+        })
+        .collect();
+    let mut wobble_sq = 0.0;
+    let mut n = 0usize;
+    for (k, ((id, v), m)) in kept.iter().zip(&means).enumerate() {
+        let rms = (v.iter().map(|p| (p - m).norm_squared()).sum::<f64>() / v.len() as f64).sqrt();
+        if rms > 0.005 {
+            return Err(DefineError::Moved {
+                marker: k,
+                object: *id,
+                spread_mm: rms * 1e3,
+            });
+        }
+        wobble_sq += rms * rms * v.len() as f64;
+        n += v.len();
+    }
+    let centroid =
+        Point3::from(means.iter().map(|p| p.coords).sum::<Vector3<f64>>() / means.len() as f64);
+    let scale = units.metres();
+    let tolerance_m = tolerance.map_or(0.003, |t| t * scale);
+    let def = BodyDef {
+        name: name.to_string(),
+        markers_m: means.iter().map(|p| Point3::from(p - centroid)).collect(),
+        tolerance_m,
+    };
+    let mut all = existing.to_vec();
+    all.push(def.clone());
+    check_bodies(&all)?;
+    // Rounded to a micrometre in the file's unit: the file stays readable.
+    let decimals = match units {
+        Units::Metres => 6,
+        Units::Centimetres => 4,
+        Units::Millimetres => 3,
+    };
+    let round = |v: f64| {
+        format!("{:.*}", decimals, v / scale)
+            .parse::<f64>()
+            .unwrap_or(v / scale)
+    };
+    let spec = BodySpec {
+        name: name.to_string(),
+        markers: def
+            .markers_m
+            .iter()
+            .map(|p| [round(p.x), round(p.y), round(p.z)])
+            .collect(),
+        tolerance: tolerance.or(Some(round(0.003))),
+        smoothing: None,
+        predict_ms: None,
+    };
+    Ok((spec, (wobble_sq / n.max(1) as f64).sqrt()))
+}
+
+/// The `[[body]]` table as TOML.
+pub fn to_toml(b: &BodySpec) -> String {
+    let markers: Vec<String> = b
+        .markers
+        .iter()
+        .map(|m| format!("[{}, {}, {}]", m[0], m[1], m[2]))
+        .collect();
+    let mut t = format!(
+        "[[body]]\nname = {:?}\nmarkers = [{}]\n",
+        b.name,
+        markers.join(", ")
+    );
+    if let Some(tol) = b.tolerance {
+        t.push_str(&format!("tolerance = {tol}\n"));
+    }
+    t
+}
+
+/// `stereoscope body define`: listens `seconds` to the rig's pose frames through its first
+/// host's router (or `connect`), defines the body and prints its table, or appends it to the
+/// rig file with `write` (read back and checked as a whole before it is kept).
+pub fn define_live(
+    name: &str,
+    rig_path: &std::path::Path,
+    connect: Option<String>,
+    seconds: f64,
+    tolerance: Option<f64>,
+    write: bool,
+    tls: stereoscope_rig::context::TlsArgs,
+) -> anyhow::Result<String> {
+    use anyhow::Context as _;
+    use stereoscope_proto::messages::Message;
+    use stereoscope_transport::net::{self, ZenohSpec};
+    let rig = stereoscope_rig::Rig::load(rig_path)?;
+    if !stereoscope_proto::names::valid_segment(name) {
+        anyhow::bail!(
+            "body name {name:?}: 1–32 letters, digits, '_' or '-' (it is part of network keys)"
+        );
+    }
+    let endpoint = connect
+        .or_else(|| {
+            rig.spec
+                .hosts
+                .first()
+                .and_then(stereoscope_rig::security::service_endpoint)
+        })
+        .unwrap_or_else(|| "tcp/127.0.0.1:7447".to_string());
+    let mut zenoh = ZenohSpec::client_of(&endpoint);
+    zenoh.tls = tls.files();
+    let session = net::open(&zenoh).with_context(|| format!("asking the router at {endpoint}"))?;
+    let (tx, rx) = std::sync::mpsc::sync_channel::<PoseFrame>(100_000);
+    let rig_name = rig.name.clone();
+    let _sub = net::subscribe(
+        &session,
+        &stereoscope_proto::names::zenoh::poses(&rig.name),
+        move |_, b| {
+            if let Ok(f) = PoseFrame::from_json(b)
+                && f.rig == rig_name
+            {
+                let _ = tx.try_send(f);
+            }
+        },
+    )?;
+    eprintln!("hold the body still: listening {seconds} s to {endpoint} …");
+    std::thread::sleep(std::time::Duration::from_secs_f64(seconds.clamp(0.1, 60.0)));
+    let frames: Vec<PoseFrame> = rx.try_iter().collect();
+    if frames.is_empty() {
+        return Err(DefineError::NoFrames { seconds }.into());
+    }
+    let existing: Vec<BodyDef> = stereoscope_rig::body_defs(&rig.spec)
+        .into_iter()
+        .filter(|b| b.name != name)
+        .collect();
+    if rig.spec.bodies.iter().any(|b| b.name == name) {
+        anyhow::bail!(
+            "{}: a body named {name:?} is defined already",
+            rig_path.display()
+        );
+    }
+    let (spec, wobble) = define(name, &frames, rig.spec.units, tolerance, &existing)?;
+    eprintln!(
+        "{} markers from {} frames; each wobbled {:.2} mm RMS about its mean",
+        spec.markers.len(),
+        frames.len(),
+        wobble * 1e3
+    );
+    let text = to_toml(&spec);
+    if write {
+        let old = std::fs::read_to_string(rig_path)
+            .with_context(|| format!("reading {}", rig_path.display()))?;
+        let new = format!("{}\n{text}", old.trim_end());
+        // The whole file with the body must load before it replaces the old one.
+        stereoscope_rig::Rig::from_toml(&new)
+            .with_context(|| format!("{} with the new body", rig_path.display()))?;
+        let tmp = rig_path.with_extension("toml.new");
+        std::fs::write(&tmp, &new).with_context(|| format!("writing {}", tmp.display()))?;
+        std::fs::rename(&tmp, rig_path)
+            .with_context(|| format!("replacing {}", rig_path.display()))?;
+        eprintln!("added to {}", rig_path.display());
+    }
+    Ok(text)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use stereoscope_proto::messages::{Pose, SCHEMA_VERSION};
+
+    fn frame(points: &[(u32, [f64; 3])]) -> PoseFrame {
+        PoseFrame {
+            schema: SCHEMA_VERSION,
+            rig: "r".into(),
+            sequence: 0,
+            timestamp_ns: 0,
+            frame_published_ns: 0,
+            published_ns: 0,
+            cameras: vec![],
+            poses: points
+                .iter()
+                .map(|(id, p)| Pose {
+                    object_id: *id,
+                    position_m: *p,
+                    velocity_m_per_s: [0.0; 3],
+                    heading_deg: None,
+                    heading_directed: false,
+                    method: PoseMethod::Triangulated,
+                    cameras: vec![],
+                    residual_px: 0.0,
+                    out_of_range: false,
+                    body: None,
+                })
+                .collect(),
+            bodies: vec![],
+        }
+    }
+
+    #[test]
+    fn a_still_body_is_averaged_about_its_centroid_and_checked() {
+        let layout = [
+            [0.0, 0.0, 0.0],
+            [0.18, 0.0, 0.0],
+            [0.0, 0.11, 0.0],
+            [0.06, 0.06, 0.08],
+        ];
+        let at = [0.5, -0.2, 1.0];
+        let mut frames = Vec::new();
+        for k in 0..40 {
+            let wobble = if k % 2 == 0 { 0.0004 } else { -0.0004 };
+            let mut pts: Vec<(u32, [f64; 3])> = layout
+                .iter()
+                .enumerate()
+                .map(|(i, m)| {
+                    (
+                        i as u32 + 1,
+                        [at[0] + m[0] + wobble, at[1] + m[1], at[2] + m[2]],
+                    )
+                })
+                .collect();
+            // A stray seen once in a while is not a marker of the body.
+            if k % 5 == 0 {
+                pts.push((9, [2.0, 2.0, 2.0]));
+            }
+            frames.push(frame(&pts));
+        }
+        let (spec, wobble) = define("tool", &frames, Units::Millimetres, None, &[]).unwrap();
+        assert_eq!(spec.markers.len(), 4);
+        assert!((wobble - 0.0004).abs() < 1e-9, "{wobble}");
+        // Centroid (0.06, 0.0425, 0.02) m: marker 0 at (−60, −42.5, −20) mm.
+        let m0 = spec.markers[0];
+        assert!(
+            (m0[0] + 60.0).abs() < 1e-6 && (m0[1] + 42.5).abs() < 1e-6,
+            "{m0:?}"
+        );
+        assert_eq!(spec.tolerance, Some(3.0));
+        let text = to_toml(&spec);
+        assert!(
+            text.starts_with("[[body]]\nname = \"tool\"\nmarkers = [[-60, -42.5, -20]"),
+            "{text}"
+        );
+        // The same layout again is confusable with the first.
+        let first = stereoscope_bodies::BodyDef {
+            name: "first".into(),
+            markers_m: layout
+                .iter()
+                .map(|m| Point3::new(m[0], m[1], m[2]))
+                .collect(),
+            tolerance_m: 0.003,
+        };
+        let e = define("tool", &frames, Units::Millimetres, None, &[first]).unwrap_err();
+        assert!(e.to_string().contains("matches body"), "{e}");
+        // Two markers only, or a marker that moves.
+        let two: Vec<PoseFrame> = (0..10).map(|_| frame(&[(1, at), (2, [0.0; 3])])).collect();
+        assert!(matches!(
+            define("x", &two, Units::Metres, None, &[]),
+            Err(DefineError::Count { found: 2, .. })
+        ));
+        let moving: Vec<PoseFrame> = (0..10)
+            .map(|k| {
+                frame(&[
+                    (1, [0.01 * k as f64, 0.0, 0.0]),
+                    (2, [0.3, 0.0, 0.0]),
+                    (3, [0.0, 0.2, 0.0]),
+                ])
+            })
+            .collect();
+        assert!(matches!(
+            define("x", &moving, Units::Metres, None, &[]),
+            Err(DefineError::Moved { object: 1, .. })
+        ));
+    }
+}
