@@ -1,5 +1,6 @@
-//! The VR feed (`docs/vr.md`): one process that reads the pose stream (Zenoh
-//! `stereoscope/<rig>/poses`) and sends each rigid body to what the rig's `[vr]` section names:
+//! The VR feed (`docs/vr.md`): one process that reads the pose stream — from shared memory
+//! (iceoryx2, woken by fusion's notification) when fusion runs on its PC, else from Zenoh
+//! `stereoscope/<rig>/poses` — and sends each rigid body to what the rig's `[vr]` section names:
 //! a VRPN tracker server ([`vrpn`]), VirtualMotionTracker and VMC over OSC, and opentrack's UDP
 //! packet ([`feeds`]), each in its consumer's frame (axes, origin, unit). A body's pose is
 //! smoothed (One Euro) and predicted ahead when its `[[body]]` asks for it
@@ -70,6 +71,20 @@ enum Input {
     Bad(&'static str, String),
 }
 
+/// Where pose frames come from.
+enum PoseInput {
+    /// Fusion on this PC: its iceoryx2 outlet, and the event it notifies after each frame.
+    Local {
+        sub: stereoscope_transport::iox::MessageSubscriber,
+        waker: stereoscope_transport::iox::Waker,
+    },
+    /// Fusion elsewhere: a Zenoh subscription feeding a channel.
+    Remote {
+        rx: mpsc::Receiver<Input>,
+        _sub: net::NetSubscriber,
+    },
+}
+
 /// Latencies kept for the percentiles.
 const LATENCY_WINDOW: usize = 4096;
 /// The time `vrpn_Tracker Velocity`'s rotation is given over, seconds.
@@ -85,8 +100,7 @@ pub struct VrFeedService {
     node: ServiceNode,
     settings: VrSettings,
     names: Vec<String>,
-    rx: mpsc::Receiver<Input>,
-    _poses: net::NetSubscriber,
+    input: PoseInput,
     overflow: Arc<AtomicU64>,
     vrpn: Option<vrpn::Server>,
     next_bind: std::time::Instant,
@@ -133,20 +147,29 @@ impl VrFeedService {
             exclusive: stereoscope_transport::Exclusive::Host,
             ..ctx.node_spec("vrfeed")
         })?;
-        let (tx, rx) = mpsc::sync_channel::<Input>(64);
         let overflow = Arc::new(AtomicU64::new(0));
         let rig = ctx.rig.name.clone();
-        let lost = overflow.clone();
-        let poses = net::subscribe(&node.session, &keys::poses(&rig), move |k, b| {
-            let input = match PoseFrame::from_json(b) {
-                Ok(f) if f.rig == rig => Input::Frame(Box::new(f)),
-                Ok(f) => Input::Bad("foreign", format!("{k}: pose frame of rig {:?}", f.rig)),
-                Err(e) => Input::Bad(e.reason(), format!("{k}: {e}")),
-            };
-            if tx.try_send(input).is_err() {
-                lost.fetch_add(1, Ordering::Relaxed);
+        let input = if ctx.fusion_here() {
+            let name = stereoscope_proto::names::iox::poses(&rig);
+            PoseInput::Local {
+                sub: stereoscope_transport::iox::MessageSubscriber::new(&node.iox, &name)?,
+                waker: stereoscope_transport::iox::Waker::new(&node.iox, &name)?,
             }
-        })?;
+        } else {
+            let (tx, rx) = mpsc::sync_channel::<Input>(64);
+            let lost = overflow.clone();
+            let sub = net::subscribe(&node.session, &keys::poses(&rig), move |k, b| {
+                let input = match PoseFrame::from_json(b) {
+                    Ok(f) if f.rig == rig => Input::Frame(Box::new(f)),
+                    Ok(f) => Input::Bad("foreign", format!("{k}: pose frame of rig {:?}", f.rig)),
+                    Err(e) => Input::Bad(e.reason(), format!("{k}: {e}")),
+                };
+                if tx.try_send(input).is_err() {
+                    lost.fetch_add(1, Ordering::Relaxed);
+                }
+            })?;
+            PoseInput::Remote { rx, _sub: sub }
+        };
         match (&vrpn, settings.vrpn) {
             (Some(s), _) => {
                 if let Ok(a) = s.local_addr() {
@@ -177,8 +200,7 @@ impl VrFeedService {
             node,
             settings,
             names,
-            rx,
-            _poses: poses,
+            input,
             overflow,
             vrpn,
             next_bind: std::time::Instant::now(),
@@ -366,12 +388,38 @@ impl Service for VrFeedService {
         }
         self.bind_vrpn();
         // Wake for a frame, or every 5 ms to serve VRPN clients.
-        let first = self.rx.recv_timeout(Duration::from_millis(5));
+        let wait = Duration::from_millis(5);
+        let mut inputs: Vec<Input> = Vec::new();
+        match &self.input {
+            PoseInput::Local { sub, waker } => {
+                waker.wait(wait);
+                let rig = &self.cfg.ctx.rig.name;
+                loop {
+                    match sub.try_next::<PoseFrame>() {
+                        Ok(Some(Ok(f))) if &f.rig == rig => inputs.push(Input::Frame(Box::new(f))),
+                        Ok(Some(Ok(f))) => inputs.push(Input::Bad(
+                            "foreign",
+                            format!("{}: pose frame of rig {:?}", sub.name(), f.rig),
+                        )),
+                        Ok(Some(Err(e))) => {
+                            inputs.push(Input::Bad(e.reason(), format!("{}: {e}", sub.name())))
+                        }
+                        Ok(None) => break,
+                        Err(e) => {
+                            self.node.counters.note::<(), _>(Err(e));
+                            break;
+                        }
+                    }
+                }
+            }
+            PoseInput::Remote { rx, .. } => {
+                inputs.extend(rx.recv_timeout(wait));
+                inputs.extend(rx.try_iter());
+            }
+        }
         if let Some(s) = self.vrpn.as_mut() {
             s.poll();
         }
-        let mut inputs: Vec<Input> = first.into_iter().collect();
-        inputs.extend(self.rx.try_iter());
         for input in inputs {
             match input {
                 Input::Frame(f) => self.handle(&f),

@@ -1,0 +1,118 @@
+#!/usr/bin/env bash
+# The VR feed's latency benchmark (docs/performance.md, "VR feed"): two synthetic 640 × 480
+# cameras at 240 fps (480 frames rendered once and played back and forth), three rigid bodies
+# and four loose markers, the whole chain as processes (`stereoscope demo --rig`), a VRPN
+# client the project did not write (libmotioncapture) connected throughout. Prints the demo's
+# JSON summary per run: vr_latency_p50_us / vr_latency_p99_us are the VR feed's own figures,
+# newest frame published into shared memory → VRPN, VMT and opentrack bytes handed to the
+# sockets, over its last 4096 frames.
+#
+#   services/vrfeed/benches/vr-latency.sh [RUNS] [SECONDS] [BINARY]
+set -euo pipefail
+here=$(cd "$(dirname "$0")" && pwd)
+root=$(cd "$here/../../.." && pwd)
+runs=${1:-3}
+seconds=${2:-20}
+bin=${3:-$root/target/release/stereoscope}
+out="$root/target/bench-vr"
+mkdir -p "$out"
+port=$(python3 -c 'import socket; s=socket.socket(); s.bind(("127.0.0.1",0)); print(s.getsockname()[1])')
+cat > "$out/rig.toml" <<RIG
+name = "vrbench"
+units = "cm"
+
+[[camera]]
+id = "cam0"
+image_size = [640, 480]
+focal_length_mm = 12.5
+pixel_pitch_um = [10.75, 12.5]
+pose = { position = [-10.0, 0.0, 280.0], look_at = [-10.0, 0.0, 0.0], up = [0.0, 1.0, 0.0] }
+source = { kind = "synthetic", fps = 240.0, loop_frames = 480 }
+moments = { threshold = "auto", max_objects = 24 }
+
+[[camera]]
+id = "cam1"
+image_size = [640, 480]
+focal_length_mm = 12.5
+pixel_pitch_um = [10.75, 12.5]
+pose = { position = [10.0, 0.0, 277.5], look_at = [10.0, 0.0, 0.0], up = [0.0, 1.0, 0.0] }
+source = { kind = "synthetic", fps = 240.0, loop_frames = 480 }
+moments = { threshold = "auto", max_objects = 24 }
+
+[fusion]
+max_skew_ms = 2.0
+max_wait_ms = 5.0
+
+[[body]]
+name = "head"
+markers = [[0.0, 0.0, 0.0], [18.0, 0.0, 0.0], [0.0, 11.0, 0.0], [6.0, 6.0, 8.0]]
+tolerance = 1.0
+
+[[body]]
+name = "tool"
+markers = [[0.0, 0.0, 0.0], [13.0, 0.0, 0.0], [3.0, 8.0, 0.0], [7.0, -5.0, 6.0]]
+tolerance = 0.5
+
+[[body]]
+name = "bat"
+markers = [[0.0, 0.0, 0.0], [26.0, 0.0, 0.0], [9.0, 5.0, 0.0], [4.0, -4.0, 5.0]]
+tolerance = 0.5
+
+[vr]
+vrpn = { listen = "127.0.0.1:$port" }
+
+[synthetic]
+seed = 3
+
+[[synthetic.target]]
+shape = "body"
+body = "head"
+radius = 1.0
+motion = { kind = "head", centre = [-25.0, 25.0, 60.0], radius = 5.0, period_s = 12.0, turn_period_s = 9.0, nod_deg = 20.0 }
+
+[[synthetic.target]]
+shape = "body"
+body = "tool"
+radius = 1.0
+motion = { kind = "circle", centre = [22.0, 22.0, 50.0], radius = 4.0, period_s = 7.0 }
+
+[[synthetic.target]]
+shape = "body"
+body = "bat"
+radius = 1.0
+motion = { kind = "wander", centre = [0.0, -28.0, 60.0], extent = [6.0, 3.0, 10.0], seed = 5 }
+
+[[synthetic.target]]
+shape = "sphere"
+radius = 1.0
+motion = { kind = "static", position = [-40.0, -5.0, 40.0] }
+
+[[synthetic.target]]
+shape = "sphere"
+radius = 1.0
+motion = { kind = "static", position = [40.0, -5.0, 40.0] }
+
+[[synthetic.target]]
+shape = "sphere"
+radius = 1.0
+motion = { kind = "circle", centre = [0.0, 5.0, 30.0], radius = 8.0, period_s = 6.0 }
+
+[[synthetic.target]]
+shape = "sphere"
+radius = 1.0
+motion = { kind = "line", from = [-30.0, -45.0, 30.0], to = [30.0, -45.0, 30.0], period_s = 8.0 }
+RIG
+for r in $(seq "$runs"); do
+  # The client connects once the feed listens, and stays until the run ends.
+  ( sleep 4; timeout $((seconds + 10)) python3 "$root/tests/clients/vrpn_client.py" "127.0.0.1:$port" "$((seconds - 2))" > "$out/vrpn-$r.jsonl" 2>/dev/null || true ) &
+  "$bin" demo --rig "$out/rig.toml" --seconds "$seconds" --json 2> "$out/demo-$r.log" | tail -1 > "$out/summary-$r.json"
+  wait
+  python3 - "$out/summary-$r.json" "$out/vrpn-$r.jsonl" <<'PY'
+import json, sys
+s = json.load(open(sys.argv[1]))
+n = sum(1 for _ in open(sys.argv[2]))
+bodies = ", ".join(f"{b['name']} {b['matched']}/{b['matched'] + b['missed']} {b['position_rms_m'] * 1e3:.2f} mm {b['rotation_rms_deg']:.2f}°" for b in s["bodies"])
+print(f"pose frames/s {s['poses_per_s']:.1f}; poses p50 {s['latency_p50_ms']:.3f} ms p99 {s['latency_p99_ms']:.3f} ms; "
+      f"VR feed p50 {s['vr_latency_p50_us']} µs p99 {s['vr_latency_p99_us']} µs; VRPN poses received {n}; bodies: {bodies}")
+PY
+done
