@@ -75,8 +75,8 @@ enum Input {
 enum PoseInput {
     /// Fusion on this PC: its iceoryx2 outlet, and the event it notifies after each frame.
     Local {
-        sub: stereoscope_transport::iox::MessageSubscriber,
-        waker: stereoscope_transport::iox::Waker,
+        sub: Box<stereoscope_transport::iox::MessageSubscriber>,
+        waker: Box<stereoscope_transport::iox::Waker>,
     },
     /// Fusion elsewhere: a Zenoh subscription feeding a channel.
     Remote {
@@ -152,8 +152,10 @@ impl VrFeedService {
         let input = if ctx.fusion_here() {
             let name = stereoscope_proto::names::iox::poses(&rig);
             PoseInput::Local {
-                sub: stereoscope_transport::iox::MessageSubscriber::new(&node.iox, &name)?,
-                waker: stereoscope_transport::iox::Waker::new(&node.iox, &name)?,
+                sub: Box::new(stereoscope_transport::iox::MessageSubscriber::new(
+                    &node.iox, &name,
+                )?),
+                waker: Box::new(stereoscope_transport::iox::Waker::new(&node.iox, &name)?),
             }
         } else {
             let (tx, rx) = mpsc::sync_channel::<Input>(64);
