@@ -6,7 +6,7 @@
 //! it can publish the recorded observations back on Zenoh, at recorded speed or as fast as
 //! possible, for a running fusion and any other subscriber.
 
-use crate::session::{POSES_CSV_HEADER, Session, csv_rows};
+use crate::session::{BODIES_CSV_HEADER, POSES_CSV_HEADER, Session, body_csv_rows, csv_rows};
 use std::collections::HashMap;
 use stereoscope_fusion::fuser::Fuser;
 use stereoscope_proto::messages::{Observation, PoseFrame};
@@ -227,6 +227,15 @@ pub fn refuse(
     Ok(out)
 }
 
+/// The session's rigid bodies as CSV, one row per body per pose frame.
+pub fn export_bodies_csv(session: &Session) -> String {
+    let mut s = String::from(BODIES_CSV_HEADER);
+    for f in &session.poses {
+        s.push_str(&body_csv_rows(f));
+    }
+    s
+}
+
 /// The session's poses as CSV (what `poses.csv` holds, rebuilt from `poses.jsonl`).
 pub fn export_csv(session: &Session) -> String {
     let mut s = String::from(POSES_CSV_HEADER);
@@ -303,11 +312,23 @@ pub fn export_c3d(session: &Session) -> Result<C3dExport, ReplayError> {
     let slot = |t: u64| {
         (((t.saturating_sub(t0)) as f64 / period_ns as f64).round() as usize).min(n_frames - 1)
     };
-    // Markers: every object in the session, in id order.
+    // Markers: every loose object in the session, in id order; then every rigid body's
+    // origin and markers, labelled `<body>:origin`, `<body>:m<index>`.
     let mut objects: BTreeMap<u32, bool> = BTreeMap::new();
+    let mut bodies: BTreeMap<String, u32> = BTreeMap::new();
     for pf in &session.poses {
         for p in &pf.poses {
-            *objects.entry(p.object_id).or_default() |= p.heading_deg.is_some();
+            match &p.body {
+                None => *objects.entry(p.object_id).or_default() |= p.heading_deg.is_some(),
+                Some(b) => {
+                    let n = bodies.entry(b.name.clone()).or_default();
+                    *n = (*n).max(b.marker + 1);
+                }
+            }
+        }
+        for b in &pf.bodies {
+            let n = bodies.entry(b.name.clone()).or_default();
+            *n = (*n).max(b.markers);
         }
     }
     let mut labels = Vec::new();
@@ -326,6 +347,18 @@ pub fn export_c3d(session: &Session) -> Result<C3dExport, ReplayError> {
         });
         column.insert(id, (pos, head));
     }
+    // Per body: its origin's column, then its markers' (C3D labels hold at most 32 characters,
+    // body names at most 32: the label is cut, the description keeps the whole name).
+    let mut body_column: BTreeMap<String, usize> = BTreeMap::new();
+    for (name, &n) in &bodies {
+        body_column.insert(name.clone(), labels.len());
+        labels.push(format!("{name}:origin").chars().take(32).collect());
+        descriptions.push(format!("rigid body {name}, origin"));
+        for k in 0..n.min(stereoscope_proto::messages::MAX_BODY_MARKERS) {
+            labels.push(format!("{name}:m{k}").chars().take(32).collect());
+            descriptions.push(format!("rigid body {name}, marker {k}"));
+        }
+    }
     // Checked before the table is allocated: frames × points cells.
     if n_frames.saturating_mul(labels.len().max(1)) > MAX_C3D_CELLS {
         return Err(ReplayError::TooLarge {
@@ -337,9 +370,28 @@ pub fn export_c3d(session: &Session) -> Result<C3dExport, ReplayError> {
     let mut merged = 0;
     for pf in &session.poses {
         let row = &mut frames[slot(pf.timestamp_ns)];
+        for b in pf.bodies.iter().filter(|b| !b.held) {
+            if let Some(&c) = body_column.get(&b.name)
+                && row[c].is_none()
+            {
+                row[c] = Some(C3dPoint {
+                    xyz_mm: b.position_m.map(|v| (v * 1000.0) as f32),
+                    cameras: 0,
+                });
+            }
+        }
         for p in &pf.poses {
-            let Some(&(pos, head)) = column.get(&p.object_id) else {
-                continue;
+            let (pos, head) = match &p.body {
+                Some(b) => match body_column.get(&b.name) {
+                    Some(&c) if b.marker < stereoscope_proto::messages::MAX_BODY_MARKERS => {
+                        (c + 1 + b.marker as usize, None)
+                    }
+                    _ => continue,
+                },
+                None => match column.get(&p.object_id) {
+                    Some(&ph) => ph,
+                    None => continue,
+                },
             };
             if row[pos].is_some() {
                 merged += 1;
@@ -683,5 +735,66 @@ mod tests {
         let poses: Vec<PoseFrame> = (0..5).map(|i| frame(i * 33 * ms, &[0.1, 0.2])).collect();
         let e = export_c3d(&session_of(poses)).unwrap();
         assert_eq!(e.trial.frames.len(), 5);
+    }
+
+    /// A body's markers are labelled by body and index in C3D and CSV, its origin too; loose
+    /// markers keep their object ids; a held body adds no point.
+    #[test]
+    fn bodies_are_labelled_in_c3d_and_csv() {
+        use stereoscope_proto::messages::{BodyLabel, BodyPose};
+        let ms = 1_000_000;
+        let poses: Vec<PoseFrame> = (0..4u64)
+            .map(|i| {
+                let mut f = frame(i * 33 * ms, &[0.1, 0.2, 0.3]);
+                f.poses[1].body = Some(BodyLabel {
+                    name: "head".into(),
+                    marker: 2,
+                });
+                f.bodies = vec![BodyPose {
+                    name: "head".into(),
+                    position_m: [0.5, 0.5, 1.0],
+                    orientation_xyzw: [0.0, 0.0, 0.0, 1.0],
+                    velocity_m_per_s: [0.0; 3],
+                    angular_velocity_rad_per_s: [0.0; 3],
+                    residual_mm: 0.5,
+                    markers_seen: 3,
+                    markers: 4,
+                    held: i == 3,
+                    roll_unobservable: false,
+                }];
+                f
+            })
+            .collect();
+        let session = session_of(poses);
+        let e = export_c3d(&session).unwrap();
+        assert_eq!(
+            e.trial.labels,
+            [
+                "obj1",
+                "obj3",
+                "head:origin",
+                "head:m0",
+                "head:m1",
+                "head:m2",
+                "head:m3"
+            ]
+        );
+        let head_m2 = e.trial.frames[0][5].unwrap();
+        assert_eq!(head_m2.xyz_mm, [200.0, 500.0, 1000.0]);
+        assert_eq!(e.trial.frames[0][2].unwrap().xyz_mm, [500.0, 500.0, 1000.0]);
+        assert!(
+            e.trial.frames[3][2].is_none(),
+            "a held body is not a measurement"
+        );
+        assert!(e.trial.frames[0][3].is_none());
+        let csv = export_csv(&session);
+        assert!(csv.lines().nth(2).unwrap().ends_with(",head,2"), "{csv}");
+        assert!(csv.lines().nth(1).unwrap().ends_with(",,"), "{csv}");
+        let bodies = export_bodies_csv(&session);
+        assert_eq!(bodies.lines().count(), 5);
+        assert!(
+            bodies.lines().nth(4).unwrap().ends_with(",3,4,true"),
+            "{bodies}"
+        );
     }
 }

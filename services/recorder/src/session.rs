@@ -26,14 +26,32 @@ pub struct SessionInfo {
     pub rig_file: String,
 }
 
-pub const POSES_CSV_HEADER: &str = "timestamp_ns,sequence,object_id,x_m,y_m,z_m,heading_deg,heading_directed,method,cameras,residual_px\n";
+pub const POSES_CSV_HEADER: &str = "timestamp_ns,sequence,object_id,x_m,y_m,z_m,heading_deg,heading_directed,method,cameras,residual_px,body,body_marker\n";
+
+/// Header of the rigid bodies' CSV (`stereoscope export --format bodies-csv`).
+pub const BODIES_CSV_HEADER: &str =
+    "timestamp_ns,sequence,body,x_m,y_m,z_m,qx,qy,qz,qw,residual_mm,markers_seen,markers,held\n";
+
+/// CSV rows of one pose frame's bodies.
+pub fn body_csv_rows(f: &PoseFrame) -> String {
+    let mut out = String::new();
+    for b in &f.bodies {
+        let [x, y, z] = b.position_m;
+        let [qx, qy, qz, qw] = b.orientation_xyzw;
+        out.push_str(&format!(
+            "{},{},{},{x:.6},{y:.6},{z:.6},{qx:.6},{qy:.6},{qz:.6},{qw:.6},{:.3},{},{},{}\n",
+            f.timestamp_ns, f.sequence, b.name, b.residual_mm, b.markers_seen, b.markers, b.held
+        ));
+    }
+    out
+}
 
 /// CSV rows of one pose frame.
 pub fn csv_rows(f: &PoseFrame) -> String {
     let mut out = String::new();
     for p in &f.poses {
         out.push_str(&format!(
-            "{},{},{},{:.6},{:.6},{:.6},{},{},{},{},{:.4}\n",
+            "{},{},{},{:.6},{:.6},{:.6},{},{},{},{},{:.4},{},{}\n",
             f.timestamp_ns,
             f.sequence,
             p.object_id,
@@ -47,7 +65,12 @@ pub fn csv_rows(f: &PoseFrame) -> String {
                 stereoscope_proto::messages::PoseMethod::DepthFromArea => "depth_from_area",
             },
             p.cameras.join(" "),
-            p.residual_px
+            p.residual_px,
+            p.body.as_ref().map(|b| b.name.as_str()).unwrap_or(""),
+            p.body
+                .as_ref()
+                .map(|b| b.marker.to_string())
+                .unwrap_or_default(),
         ));
     }
     out
@@ -219,7 +242,7 @@ mod tests {
         let r = csv_rows(&frame(3));
         assert_eq!(
             r,
-            "1003,3,7,0.500000,-0.250000,1.000000,,false,depth_from_area,a,0.0000\n"
+            "1003,3,7,0.500000,-0.250000,1.000000,,false,depth_from_area,a,0.0000,,\n"
         );
         assert_eq!(POSES_CSV_HEADER.split(',').count(), r.split(',').count());
     }

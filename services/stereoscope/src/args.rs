@@ -210,9 +210,10 @@ pub struct ReplayArgs {
 pub struct ExportArgs {
     /// The session folder.
     pub session: PathBuf,
-    /// csv (one row per object per pose frame) or c3d (markers per object, for
-    /// biomechanics and animation tools; docs/recording.md).
-    #[arg(long, value_parser = ["csv", "c3d"])]
+    /// csv (one row per object per pose frame), bodies-csv (one row per rigid body per pose
+    /// frame) or c3d (markers per object and per body, for biomechanics and animation tools;
+    /// docs/recording.md).
+    #[arg(long, value_parser = ["csv", "bodies-csv", "c3d"])]
     pub format: String,
     /// Output file (standard output if absent; required for c3d). Written whole or not at
     /// all.

@@ -487,10 +487,10 @@ fn losses(
     health.values().flat_map(|h| h.losses()).collect()
 }
 
-/// `stereoscope export --format csv|c3d`.
+/// `stereoscope export --format csv|bodies-csv|c3d`.
 pub fn export(session: PathBuf, format: &str, out: Option<PathBuf>) -> anyhow::Result<usize> {
-    if format != "csv" && format != "c3d" {
-        anyhow::bail!("--format {format}: csv or c3d");
+    if !["csv", "bodies-csv", "c3d"].contains(&format) {
+        anyhow::bail!("--format {format}: csv, bodies-csv or c3d");
     }
     if format == "c3d" && out.is_none() {
         anyhow::bail!("--format c3d needs --out FILE (it is binary)");
@@ -521,6 +521,11 @@ pub fn export(session: PathBuf, format: &str, out: Option<PathBuf>) -> anyhow::R
             }
         );
         (bytes, Some(summary))
+    } else if format == "bodies-csv" {
+        (
+            stereoscope_recorder::replay::export_bodies_csv(&s).into_bytes(),
+            None,
+        )
     } else {
         (
             stereoscope_recorder::replay::export_csv(&s).into_bytes(),
