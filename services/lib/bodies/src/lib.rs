@@ -394,6 +394,8 @@ struct Candidate {
     markers: Vec<Option<usize>>,
     seen: usize,
     cost: f64,
+    /// The points used, sorted, padded with `u32::MAX` (compared without allocating).
+    set: [u32; MAX_MARKERS],
 }
 
 /// Candidates kept per body for the joint choice.
@@ -441,11 +443,11 @@ pub fn identify_near(
     for (b, c) in best.2.iter().enumerate() {
         let Some(ci) = *c else { continue };
         let def = &defs[b];
-        let set = point_set(&candidates[b][ci]);
+        let set = candidates[b][ci].set;
         // Every way of giving that set of points to the body's markers.
         let ways: Vec<(Isometry3<f64>, f64, &Candidate)> = all[b]
             .iter()
-            .filter(|c| point_set(c) == set)
+            .filter(|c| c.set == set)
             .filter_map(|c| pose_of(def, c, points).map(|(p, r)| (p, r, c)))
             .collect();
         let prev = near.get(b).copied().flatten();
@@ -489,22 +491,12 @@ pub fn identify_near(
 /// beyond a head's fastest turn).
 pub const MAX_TURN_RAD: f64 = std::f64::consts::FRAC_PI_4;
 
-/// The points a candidate uses, sorted.
-fn point_set(c: &Candidate) -> Vec<usize> {
-    let mut s: Vec<usize> = c.markers.iter().flatten().copied().collect();
-    s.sort_unstable();
-    s
-}
-
 /// The best candidate of each distinct point set, best first, at most
 /// [`CANDIDATES_PER_BODY`].
 fn distinct_sets(all: &[Candidate]) -> Vec<Candidate> {
     let mut out: Vec<Candidate> = Vec::new();
-    let mut sets: Vec<Vec<usize>> = Vec::new();
     for c in all {
-        let s = point_set(c);
-        if !sets.contains(&s) {
-            sets.push(s);
+        if !out.iter().any(|o| o.set == c.set) {
             out.push(c.clone());
             if out.len() == CANDIDATES_PER_BODY {
                 break;
@@ -649,10 +641,16 @@ fn search_body(
     }
     if k == c.n {
         if seen >= c.min_seen {
+            let mut set = [u32::MAX; MAX_MARKERS];
+            for (slot, p) in set.iter_mut().zip(map.iter().flatten()) {
+                *slot = *p as u32;
+            }
+            set.sort_unstable();
             out.push(Candidate {
                 markers: map.to_vec(),
                 seen,
                 cost,
+                set,
             });
         }
         return;
