@@ -74,8 +74,12 @@ pub struct Observation {
     pub published_ns: u64,
     pub width_px: u32,
     pub height_px: u32,
-    /// Foreground threshold used for the frame (`pixel >= threshold`).
+    /// Foreground threshold used for the frame (`pixel >= threshold`; with `dark`,
+    /// `pixel <= threshold`).
     pub threshold: u32,
+    /// The worker looks for dark targets on a bright background (the rig's `polarity`).
+    #[serde(default)]
+    pub dark: bool,
     /// The whole frame was searched (no object tracked, or looking for new ones).
     pub full_frame: bool,
     /// Blobs found but not reported (over capacity).
@@ -832,6 +836,7 @@ mod tests {
             width_px: 320,
             height_px: 240,
             threshold: 98,
+            dark: false,
             full_frame: false,
             dropped_blobs: 0,
             blobs: vec![blob; 4],

@@ -48,6 +48,13 @@ pub fn actors(spec: &SyntheticSpec, bodies: &[BodySpec], scale: f64) -> Vec<(Act
                 TargetShape::DoubleSphere => (Shape::DoubleSphere { radius_m: r }, true),
                 TargetShape::Disc => (Shape::Disc { radius_m: r }, false),
                 TargetShape::Sphere => (Shape::Sphere { radius_m: r }, false),
+                TargetShape::Rectangle => (
+                    Shape::Rectangle {
+                        half_x_m: r,
+                        half_y_m: r / 2.0,
+                    },
+                    true,
+                ),
                 // The rig's check makes sure the body exists.
                 TargetShape::Body => {
                     let markers = t

@@ -433,6 +433,7 @@ mod tests {
                     width_px: 320,
                     height_px: 240,
                     threshold: 100,
+                    dark: false,
                     full_frame: false,
                     dropped_blobs: 0,
                     blobs: vec![blob],

@@ -470,6 +470,7 @@ mod tests {
             width_px: 1,
             height_px: 1,
             threshold: 1,
+            dark: false,
             full_frame: false,
             dropped_blobs: 0,
             blobs: vec![],

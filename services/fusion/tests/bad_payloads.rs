@@ -29,6 +29,7 @@ fn observation(camera: &str, pixel: (f64, f64), ts: u64) -> Observation {
         width_px: 320,
         height_px: 240,
         threshold: 100,
+        dark: false,
         full_frame: false,
         dropped_blobs: 0,
         blobs: vec![BlobObservation {

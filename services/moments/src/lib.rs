@@ -92,6 +92,9 @@ pub struct Worker {
     threshold_sequence: Option<u64>,
     rig: String,
     camera: String,
+    /// Dark polarity: the frame with its levels inverted, reused from frame to frame.
+    inverted8: Vec<u8>,
+    inverted16: Vec<u16>,
 }
 
 impl Worker {
@@ -104,6 +107,8 @@ impl Worker {
             threshold_sequence: None,
             rig: rig.into(),
             camera: camera.into(),
+            inverted8: Vec::new(),
+            inverted16: Vec::new(),
         })
     }
 
@@ -248,7 +253,13 @@ impl Worker {
             published_ns: 0,
             width_px: header.width,
             height_px: header.height,
-            threshold,
+            // A dark target's threshold in the frame's own levels (`pixel <= threshold`).
+            threshold: if self.settings.dark {
+                self.settings.max_level.saturating_sub(threshold)
+            } else {
+                threshold
+            },
+            dark: self.settings.dark,
             full_frame: step.full_frame,
             dropped_blobs: dropped as u32,
             blobs,
@@ -263,9 +274,21 @@ impl Worker {
     ) -> Result<Observation, FrameRejected> {
         let format = header.validate(payload.len())?;
         let (w, h) = (header.width, header.height);
+        let stride = header.stride_bytes as usize;
         let result = match format {
+            PixelFormat::Gray8 if self.settings.dark => {
+                // Dark targets: the frame inverted (one pass), then tracked as bright ones.
+                let mut buf = std::mem::take(&mut self.inverted8);
+                buf.clear();
+                buf.extend(payload.iter().map(|v| 255 - v));
+                let r = GrayView::new(&buf, w, h, stride)
+                    .map_err(FrameRejected::from)
+                    .and_then(|view| Ok(self.process(view, header)?));
+                self.inverted8 = buf;
+                return r;
+            }
             PixelFormat::Gray8 => {
-                let view = GrayView::new(payload, w, h, header.stride_bytes as usize)?;
+                let view = GrayView::new(payload, w, h, stride)?;
                 self.process(view, header)
             }
             PixelFormat::Gray16 => {
@@ -276,7 +299,18 @@ impl Worker {
                 if !pre.is_empty() || !header.stride_bytes.is_multiple_of(2) {
                     return Err(FrameRejected::Unaligned);
                 }
-                let view = GrayView::new(mid, w, h, header.stride_bytes as usize / 2)?;
+                if self.settings.dark {
+                    let max = self.settings.max_level.min(u16::MAX as u32) as u16;
+                    let mut buf = std::mem::take(&mut self.inverted16);
+                    buf.clear();
+                    buf.extend(mid.iter().map(|v| max.saturating_sub(*v)));
+                    let r = GrayView::new(&buf, w, h, stride / 2)
+                        .map_err(FrameRejected::from)
+                        .and_then(|view| Ok(self.process(view, header)?));
+                    self.inverted16 = buf;
+                    return r;
+                }
+                let view = GrayView::new(mid, w, h, stride / 2)?;
                 self.process(view, header)
             }
         };
@@ -516,5 +550,72 @@ mod tests {
                 stereoscope_proto::frame::FrameError::PayloadSize { .. }
             ))
         ));
+    }
+
+    /// The thesis's helmet target: a dark rectangle on a bright background. With polarity
+    /// "dark" the worker finds it, its centroid and its axis (30° here), and reports the
+    /// threshold in the frame's own levels (`pixel <= threshold`); a fixed dark level is given
+    /// as the frame's level too.
+    #[test]
+    fn dark_targets_on_a_bright_background() {
+        let (w, h) = (96usize, 64usize);
+        let (cx, cy, a) = (50.0f64, 30.0f64, 30f64.to_radians());
+        let mut img = vec![200u8; w * h];
+        for y in 0..h {
+            for x in 0..w {
+                let (dx, dy) = (x as f64 - cx, y as f64 - cy);
+                // Image y points down: 30° counter-clockwise on screen.
+                let (u, v) = (dx * a.cos() - dy * a.sin(), dx * a.sin() + dy * a.cos());
+                if u.abs() <= 16.0 && v.abs() <= 8.0 {
+                    img[y * w + x] = 20;
+                }
+            }
+        }
+        let spec = |t: &str| {
+            let text = format!("polarity = \"dark\"\nthreshold = {t}\n");
+            let m: stereoscope_rig::schema::MomentsSpec = toml::from_str(&text).unwrap();
+            stereoscope_rig::moments::worker_settings(Some(&m), 1.0, [96, 64], 255, "m").unwrap()
+        };
+        for t in ["\"auto\"", "110"] {
+            let mut worker = Worker::new(spec(t), "r", "c").unwrap();
+            let hd = FrameHeader::new("c", PixelFormat::Gray8, 96, 64).unwrap();
+            let o = worker.process_frame(&hd, &img).unwrap();
+            assert!(o.dark);
+            assert!((20..200).contains(&o.threshold), "{}", o.threshold);
+            if t == "110" {
+                assert_eq!(o.threshold, 110);
+            }
+            assert_eq!(o.blobs.len(), 1, "{o:?}");
+            let b = &o.blobs[0];
+            assert!(
+                (b.x_px - cx).abs() < 0.1 && (b.y_px - cy).abs() < 0.1,
+                "{b:?}"
+            );
+            assert!((b.orientation_deg - 30.0).abs() < 1.0, "{b:?}");
+            assert!((b.area_px - 32.0 * 16.0).abs() < 40.0, "{b:?}");
+        }
+        // The same frame looked at for bright targets: the rectangle is not one.
+        let mut bright = Worker::new(defaults(), "r", "c").unwrap();
+        let hd = FrameHeader::new("c", PixelFormat::Gray8, 96, 64).unwrap();
+        let o = bright.process_frame(&hd, &img).unwrap();
+        assert!(!o.dark);
+        assert!(
+            o.blobs
+                .iter()
+                .all(|b| (b.x_px - cx).abs() > 1.0 || (b.area_px - 512.0).abs() > 100.0),
+            "{o:?}"
+        );
+        // A dark level at the top of the range cannot be a threshold.
+        let m: stereoscope_rig::schema::MomentsSpec =
+            toml::from_str("polarity = \"dark\"\nthreshold = 255\n").unwrap();
+        let e = stereoscope_rig::moments::worker_settings(
+            Some(&m),
+            1.0,
+            [96, 64],
+            255,
+            "camera[0].moments",
+        )
+        .unwrap_err();
+        assert_eq!(e.key, "camera[0].moments.threshold");
     }
 }

@@ -13,6 +13,11 @@ pub const MAX_OBJECTS: usize = 64;
 /// The worker's settings, checked, from the camera's `moments` table.
 #[derive(Debug, Clone, PartialEq)]
 pub struct WorkerSettings {
+    /// Dark targets: the worker tracks the frame with its levels inverted (`max_level − v`), so
+    /// `threshold` (a fixed level already inverted) applies to that.
+    pub dark: bool,
+    /// The camera's largest grey level (255 or 65535).
+    pub max_level: u32,
     pub threshold: ThresholdMethod,
     pub threshold_every_frames: u32,
     pub weighting: WeightingSpec,
@@ -50,8 +55,21 @@ pub fn worker_settings(
             Ok(l)
         }
     };
+    let dark = s.polarity == Some(crate::schema::Polarity::Dark);
     let threshold = match s.threshold {
         None => ThresholdMethod::Auto,
+        // A dark target is `pixel <= l`: on the inverted frame, `max − pixel >= max − l`.
+        Some(ThresholdSpec::Level(l)) if dark => {
+            if l >= max_level {
+                return Err(err(
+                    format!("{key}.threshold"),
+                    format!(
+                        "{l}: with polarity \"dark\" a level below {max_level} (foreground is pixel <= threshold)"
+                    ),
+                ));
+            }
+            ThresholdMethod::Fixed(max_level - l)
+        }
         Some(ThresholdSpec::Level(l)) => ThresholdMethod::Fixed(level("threshold", l)?),
         Some(ThresholdSpec::Method(m)) => method(m),
     };
@@ -117,6 +135,8 @@ pub fn worker_settings(
         .validate()
         .map_err(|e| err(key.to_string(), e.to_string()))?;
     Ok(WorkerSettings {
+        dark,
+        max_level,
         threshold,
         threshold_every_frames: s.threshold_every_frames.unwrap_or(30),
         weighting: s.weighting.unwrap_or_default(),

@@ -125,6 +125,17 @@ pub enum ObservationRoute {
     Zenoh,
 }
 
+/// Which targets a moment worker looks for.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum Polarity {
+    /// Brighter than the background: foreground is `pixel >= threshold`.
+    #[default]
+    Bright,
+    /// Darker than the background: foreground is `pixel <= threshold`.
+    Dark,
+}
+
 /// A synthetic target's shape.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
@@ -136,6 +147,9 @@ pub enum TargetShape {
     Disc,
     /// A rigid body's markers (spheres of `radius` at the `[[body]]`'s marker positions).
     Body,
+    /// A flat rectangle facing up, `radius` half its length and half as wide as long (2:1; the
+    /// thesis's helmet target), its length along the heading.
+    Rectangle,
 }
 
 /// The form of a single-camera depth-from-area model (thesis Eq. 4.15–4.27).
@@ -452,6 +466,10 @@ fn yes() -> bool {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Default)]
 #[serde(deny_unknown_fields)]
 pub struct MomentsSpec {
+    /// "bright" (default: targets brighter than the background) or "dark" (dark targets on a
+    /// bright background, the thesis's black helmet rectangle).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub polarity: Option<Polarity>,
     /// "auto" (default), "otsu", "triangle", or a grey level.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub threshold: Option<ThresholdSpec>,
