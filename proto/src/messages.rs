@@ -43,6 +43,11 @@ pub struct BlobObservation {
     pub heading_ambiguous: bool,
     /// The blob touches the frame border or its window's edge (moments are of a cut shape).
     pub clipped: bool,
+    /// The blob holds another tracked object's image too (its area far above its track's
+    /// usual one, another track lost inside it): its centroid is between the two, so fusion
+    /// does not use it.
+    #[serde(default)]
+    pub merged: bool,
     /// Tracking window searched this frame, `[x0, y0, x1, y1]` inclusive.
     pub window_px: [u32; 4],
     /// Bounding box, `[x0, y0, x1, y1]` inclusive.
@@ -822,6 +827,7 @@ mod tests {
             directed: false,
             heading_ambiguous: false,
             clipped: false,
+            merged: false,
             window_px: [141, 88, 201, 148],
             bbox_px: [165, 114, 178, 122],
         };

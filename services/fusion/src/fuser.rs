@@ -120,8 +120,14 @@ fn merge_duplicates(mut points: Vec<Point>, merge_m: f64) -> Vec<Point> {
     kept
 }
 
+/// A blob fusion measures from: seen this frame, and not two objects' merged images (whose
+/// centroid lies between them: a point there would be a ghost).
 fn usable(b: &BlobObservation) -> bool {
-    b.status != TrackState::Lost && b.x_px.is_finite() && b.y_px.is_finite() && b.area_px > 0.0
+    b.status != TrackState::Lost
+        && !b.merged
+        && b.x_px.is_finite()
+        && b.y_px.is_finite()
+        && b.area_px > 0.0
 }
 
 impl Fuser {
@@ -419,6 +425,7 @@ mod tests {
                     directed: false,
                     heading_ambiguous: true,
                     clipped: false,
+                    merged: false,
                     window_px: [0, 0, 319, 239],
                     bbox_px: [0, 0, 1, 1],
                 };

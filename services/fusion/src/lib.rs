@@ -120,6 +120,8 @@ pub struct FusionService {
     fuser: Fuser,
     sequence: u64,
     ids: identity::Reservations,
+    /// Blobs left out because they held two objects' merged images.
+    merged_blobs: u64,
 }
 
 impl std::fmt::Debug for FusionService {
@@ -246,6 +248,7 @@ impl FusionService {
             fuser,
             sequence,
             ids,
+            merged_blobs: 0,
             cfg,
         })
     }
@@ -303,6 +306,10 @@ impl FusionService {
             .iter()
             .map(|(c, _)| rig.cameras[*c].id.clone())
             .collect();
+        self.merged_blobs += set
+            .iter()
+            .map(|(_, o)| o.blobs.iter().filter(|b| b.merged).count() as u64)
+            .sum::<u64>();
         let mut fused = self.fuser.fuse(set, timestamp_ns);
         let bodies = self.bodies.update(&mut fused, timestamp_ns);
         let published_ns = now_ns();
@@ -387,6 +394,9 @@ impl FusionService {
             detail.insert("short_sets".into(), self.pairer.short_sets.to_string());
         }
         detail.insert("objects".into(), self.fuser.objects().to_string());
+        if self.merged_blobs > 0 {
+            detail.insert("merged_blobs".into(), self.merged_blobs.to_string());
+        }
     }
 }
 

@@ -47,6 +47,7 @@ fn observation(camera: &str, pixel: (f64, f64), ts: u64) -> Observation {
             directed: false,
             heading_ambiguous: true,
             clipped: false,
+            merged: false,
             window_px: [0, 0, 319, 239],
             bbox_px: [0, 0, 1, 1],
         }],

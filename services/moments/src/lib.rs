@@ -233,6 +233,7 @@ impl Worker {
                 ),
                 clipped: flags.contains(BlobFlags::CLIPPED)
                     || flags.contains(BlobFlags::TOUCHES_BORDER),
+                merged: t.merged && t.blob.is_some(),
                 window_px: [w.x0, w.y0, w.x1, w.y1],
                 bbox_px: [bbox.x0, bbox.y0, bbox.x1, bbox.y1],
             });

@@ -134,6 +134,11 @@ pub struct Track {
     pub vx_px: f64,
     pub vy_px: f64,
     pub area_px: u64,
+    /// The track's usual area: a running mean of its unmerged blobs' areas, pixels.
+    pub usual_area_px: f64,
+    /// This frame's blob holds another object's image too (`MERGE_AREA_RATIO`): its centroid
+    /// is between the two and is not a measurement of either.
+    pub merged: bool,
     /// The window searched this frame.
     pub window: PixelRect,
     pub lost_frames: u32,
@@ -150,6 +155,10 @@ impl Track {
         (self.x_px + self.vx_px * k, self.y_px + self.vy_px * k)
     }
 }
+
+/// A blob this many times its track's usual area, with another track lost inside it the same
+/// frame, holds both objects' images (two markers whose images merged in this view).
+pub const MERGE_AREA_RATIO: f64 = 1.6;
 
 /// What one tracking step did.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
@@ -372,6 +381,7 @@ impl Tracker {
                     t.x_px = bx;
                     t.y_px = by;
                     t.area_px = b.area_px();
+                    t.merged = false;
                     t.lost_frames = 0;
                     t.status = TrackStatus::Tracked;
                     t.heading = heading_of(&mut t.heading_tracker, &b, par, skew);
@@ -384,6 +394,35 @@ impl Tracker {
                     t.blob = None;
                     step.lost += 1;
                 }
+            }
+        }
+        // Merged images: a blob far above its track's usual area with another track lost
+        // inside it. Such a track keeps its usual area (a merge is not growth).
+        // (Where a lost track was last seen, and where it was predicted to be.)
+        let lost: Vec<(f64, f64)> = self
+            .tracks
+            .iter()
+            .filter(|t| t.status == TrackStatus::Lost)
+            .flat_map(|t| [(t.x_px, t.y_px), t.predicted()])
+            .collect();
+        for t in &mut self.tracks {
+            let Some(b) = &t.blob else { continue };
+            let area = b.area_px() as f64;
+            let big = t.usual_area_px > 0.0 && area >= MERGE_AREA_RATIO * t.usual_area_px;
+            let r = b.bbox;
+            let holds_lost = lost.iter().any(|&(x, y)| {
+                x >= r.x0 as f64 - 2.0
+                    && x <= r.x1 as f64 + 2.0
+                    && y >= r.y0 as f64 - 2.0
+                    && y <= r.y1 as f64 + 2.0
+            });
+            t.merged = big && holds_lost;
+            if !t.merged {
+                t.usual_area_px = if t.usual_area_px > 0.0 {
+                    0.7 * t.usual_area_px + 0.3 * area
+                } else {
+                    area
+                };
             }
         }
         let before = self.tracks.len();
@@ -417,6 +456,8 @@ impl Tracker {
                     vx_px: 0.0,
                     vy_px: 0.0,
                     area_px: b.area_px(),
+                    usual_area_px: b.area_px() as f64,
+                    merged: false,
                     window: PixelRect::full(w, h),
                     lost_frames: 0,
                     blob: Some(b),
@@ -635,6 +676,8 @@ mod tests {
             vx_px: 0.0,
             vy_px: 0.0,
             area_px: 400,
+            usual_area_px: 400.0,
+            merged: false,
             window: PixelRect::full(1, 1),
             lost_frames: 0,
             blob: None,
@@ -862,5 +905,58 @@ mod tests {
         let t = tr2.tracks().iter().find(|t| Some(t.id) == left).unwrap();
         assert_eq!(t.status, TrackStatus::Tracked);
         assert!((t.x_px - 80.0).abs() < 0.3);
+    }
+
+    /// Two markers whose images merge: the blob holding both is flagged merged (its centroid
+    /// is between them), the other track is lost meanwhile; apart again, neither is flagged.
+    #[test]
+    fn merged_images_are_flagged() {
+        let (w, h) = (120u32, 60u32);
+        let frame = |xa: u32, xb: u32| {
+            let mut img = vec![0u8; (w * h) as usize];
+            for x0 in [xa, xb] {
+                for y in 25..35 {
+                    for x in x0..x0 + 10 {
+                        img[(y * w + x) as usize] = 200;
+                    }
+                }
+            }
+            img
+        };
+        let mut t = Tracker::new(
+            TrackerConfig {
+                search_every_frames: 1,
+                ..TrackerConfig::default()
+            },
+            ExtractConfig::default(),
+        )
+        .unwrap();
+        let mut flagged = Vec::new();
+        // Apart, closing in (touching at frame 6: one blob of twice the area), apart again.
+        let gaps = [40u32, 30, 20, 12, 6, 2, 0, 0, 6, 20, 30];
+        for (k, gap) in gaps.iter().enumerate() {
+            let xa = 50 - gap / 2 - 10;
+            let xb = 50 + gap - gap / 2;
+            let img = frame(xa, xb);
+            let view = crate::image::GrayView::new(&img, w, h, w as usize).unwrap();
+            t.step_frame(view, 100, k as u64).unwrap();
+            let merged: Vec<bool> = t
+                .tracks()
+                .iter()
+                .filter(|t| t.blob.is_some())
+                .map(|t| t.merged)
+                .collect();
+            flagged.push(merged.iter().any(|m| *m));
+            if *gap == 0 {
+                assert_eq!(merged.len(), 1, "frame {k}: one blob");
+            }
+        }
+        assert_eq!(
+            flagged,
+            [
+                false, false, false, false, false, false, true, true, false, false, false
+            ],
+            "frames whose blob was flagged merged"
+        );
     }
 }
