@@ -1252,17 +1252,38 @@ fn check_c3d_export(session: &std::path::Path, out: &std::path::Path) {
         .lines()
         .map(|l| PoseFrame::from_json(l.as_bytes()).unwrap())
         .collect();
+    // Loose markers as obj<id> (and obj<id>_heading), then each body's origin and markers
+    // labelled by body (docs/recording.md).
     let mut objects = std::collections::BTreeMap::<u32, bool>::new();
+    let mut bodies = std::collections::BTreeMap::<String, u32>::new();
     for f in &frames {
         for p in &f.poses {
-            *objects.entry(p.object_id).or_default() |= p.heading_deg.is_some();
+            match &p.body {
+                None => *objects.entry(p.object_id).or_default() |= p.heading_deg.is_some(),
+                Some(b) => {
+                    let n = bodies.entry(b.name.clone()).or_default();
+                    *n = (*n).max(b.marker + 1);
+                }
+            }
+        }
+        for b in &f.bodies {
+            let n = bodies.entry(b.name.clone()).or_default();
+            *n = (*n).max(b.markers);
         }
     }
+    assert!(
+        bodies.contains_key("head"),
+        "the demo's helmet was recorded"
+    );
     let labels: Vec<String> = objects
         .iter()
         .flat_map(|(id, h)| {
             std::iter::once(format!("obj{id}")).chain(h.then(|| format!("obj{id}_heading")))
         })
+        .chain(bodies.iter().flat_map(|(name, n)| {
+            std::iter::once(format!("{name}:origin"))
+                .chain((0..*n).map(move |k| format!("{name}:m{k}")))
+        }))
         .collect();
     let mut times: Vec<u64> = frames.iter().map(|f| f.timestamp_ns).collect();
     times.sort_unstable();
@@ -1303,18 +1324,34 @@ fn check_c3d_export(session: &std::path::Path, out: &std::path::Path) {
         let mut merged = 0;
         for f in &frames {
             let row = &c3d_frames[slot(f.timestamp_ns)];
+            for b in f.bodies.iter().filter(|b| !b.held) {
+                let label = format!("{}:origin", b.name);
+                if !filled.insert((slot(f.timestamp_ns), label.clone())) {
+                    continue;
+                }
+                let col = labels.iter().position(|l| *l == label).unwrap();
+                let xyz = row[col]
+                    .as_array()
+                    .unwrap_or_else(|| panic!("{reader}: {label} missing"));
+                for k in 0..3 {
+                    let mm = b.position_m[k] * 1000.0;
+                    assert!((xyz[k].as_f64().unwrap() - mm).abs() <= 1e-6 * mm.abs() + 1e-3);
+                }
+                placed += 1;
+            }
             for p in &f.poses {
-                if !filled.insert((slot(f.timestamp_ns), p.object_id)) {
+                let label = match &p.body {
+                    Some(b) => format!("{}:m{}", b.name, b.marker),
+                    None => format!("obj{}", p.object_id),
+                };
+                if !filled.insert((slot(f.timestamp_ns), label.clone())) {
                     merged += 1;
                     continue;
                 }
-                let col = labels
-                    .iter()
-                    .position(|l| *l == format!("obj{}", p.object_id))
-                    .unwrap();
+                let col = labels.iter().position(|l| *l == label).unwrap();
                 let xyz = row[col]
                     .as_array()
-                    .unwrap_or_else(|| panic!("{reader}: obj{} missing", p.object_id));
+                    .unwrap_or_else(|| panic!("{reader}: {label} missing"));
                 for k in 0..3 {
                     let mm = p.position_m[k] * 1000.0;
                     let v = xyz[k].as_f64().unwrap();
@@ -1323,7 +1360,7 @@ fn check_c3d_export(session: &std::path::Path, out: &std::path::Path) {
                         "{reader}: {v} vs {mm} mm"
                     );
                 }
-                if let Some(h) = p.heading_deg {
+                if let (Some(h), None) = (p.heading_deg, &p.body) {
                     let head = row[col + 1].as_array().unwrap();
                     let dx = head[0].as_f64().unwrap() - xyz[0].as_f64().unwrap();
                     let dy = head[1].as_f64().unwrap() - xyz[1].as_f64().unwrap();

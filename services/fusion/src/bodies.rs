@@ -2,7 +2,7 @@
 //! (`stereoscope_bodies::tracker`); the bodies found label their markers' poses (body name and
 //! marker index) and become the frame's `bodies` (`docs/bodies.md`).
 
-use nalgebra::Point3;
+use nalgebra::{Isometry3, Point3};
 use stereoscope_bodies::tracker::{BodyTracker, TrackedBody};
 use stereoscope_proto::messages::{BodyLabel, BodyPose, MAX_BODY_MARKERS, Pose, PoseMethod};
 
@@ -37,8 +37,29 @@ impl Bodies {
     }
 
     /// Finds the bodies among `poses` (only triangulated ones: depth from area is too coarse to
-    /// match distances), labels their markers, and returns the bodies' poses.
+    /// match distances), labels their markers, and returns the bodies' poses (Kabsch on the
+    /// triangulated markers).
     pub fn update(&mut self, poses: &mut [Pose], timestamp_ns: u64) -> Vec<BodyPose> {
+        self.update_with(poses, timestamp_ns, None)
+    }
+
+    /// [`Bodies::update`] with each body's pose refined on the cameras' pixels of its markers
+    /// (`fuser` knows them for the set just fused; `stereoscope_bodies::refine_reprojection`).
+    pub fn update_refined(
+        &mut self,
+        poses: &mut [Pose],
+        timestamp_ns: u64,
+        fuser: &crate::fuser::Fuser,
+    ) -> Vec<BodyPose> {
+        self.update_with(poses, timestamp_ns, Some(fuser))
+    }
+
+    fn update_with(
+        &mut self,
+        poses: &mut [Pose],
+        timestamp_ns: u64,
+        fuser: Option<&crate::fuser::Fuser>,
+    ) -> Vec<BodyPose> {
         if self.is_empty() {
             return Vec::new();
         }
@@ -49,7 +70,36 @@ impl Bodies {
             .iter()
             .map(|&i| Point3::from(poses[i].position_m))
             .collect();
-        let found = self.tracker.update(&points, timestamp_ns);
+        let defs_now: Vec<Vec<Point3<f64>>> = self
+            .tracker
+            .defs()
+            .iter()
+            .map(|d| d.markers_m.clone())
+            .collect();
+        let ids: Vec<u32> = index.iter().map(|&i| poses[i].object_id).collect();
+        let mut refine = |body: usize, markers: &[Option<usize>], pose: &Isometry3<f64>| {
+            let fuser = fuser?;
+            let cams = fuser.cameras();
+            let projections: Vec<_> = cams
+                .iter()
+                .map(|c| move |p: &Point3<f64>| c.project(p))
+                .collect();
+            let mut sightings = Vec::new();
+            for (k, p) in markers.iter().enumerate() {
+                let Some(p) = p else { continue };
+                for (cam, pixel) in fuser.pixels_of(ids[*p]) {
+                    sightings.push(stereoscope_bodies::Sighting {
+                        marker_body: defs_now[body][k],
+                        project: &projections[*cam],
+                        pixel: *pixel,
+                    });
+                }
+            }
+            stereoscope_bodies::refine_reprojection(pose, &sightings, 10).map(|(p, _)| p)
+        };
+        let found = self
+            .tracker
+            .update_refined(&points, timestamp_ns, &mut refine);
         let defs = self.tracker.defs();
         found
             .iter()

@@ -97,7 +97,12 @@ pub struct Fuser {
     assigner: Assigner,
     /// The time of the last set fused.
     last_set_ns: Option<u64>,
+    /// Per object published in the last set: what each camera saw of it.
+    pixels: Vec<(u32, Sightings)>,
 }
+
+/// What each camera saw of one object: (rig camera index, pixel as measured).
+pub type Sightings = Vec<(usize, Point2<f64>)>;
 
 /// Points closer than `merge_m` are one marker seen twice: keeps, of each such group, the point
 /// from the most cameras (then the smallest residual).
@@ -141,6 +146,7 @@ impl Fuser {
             next_id: 1,
             assigner: Assigner::default(),
             last_set_ns: None,
+            pixels: Vec::new(),
         }
     }
 
@@ -315,6 +321,7 @@ impl Fuser {
             }
         }
         let mut poses = Vec::with_capacity(points.len());
+        let mut pixels = Vec::with_capacity(points.len());
         for (pi, p) in points.iter().enumerate() {
             let oi = match owner[pi] {
                 Some(oi) => {
@@ -376,6 +383,16 @@ impl Fuser {
                 .map(|&(s, _)| self.ids[set[s].0].clone())
                 .collect();
             cams.dedup();
+            pixels.push((
+                o.id,
+                p.blobs
+                    .iter()
+                    .map(|&(si, bi)| {
+                        let b = &set[si].1.blobs[bi];
+                        (set[si].0, Point2::new(b.x_px, b.y_px))
+                    })
+                    .collect(),
+            ));
             poses.push(Pose {
                 object_id: o.id,
                 position_m: [o.position_m.x, o.position_m.y, o.position_m.z],
@@ -394,7 +411,22 @@ impl Fuser {
             });
         }
         poses.sort_by_key(|p| p.object_id);
+        self.pixels = pixels;
         poses
+    }
+
+    /// The pixels (rig camera index, distorted pixel as measured) each camera saw of object
+    /// `id` in the last set fused.
+    pub fn pixels_of(&self, id: u32) -> &[(usize, Point2<f64>)] {
+        self.pixels
+            .iter()
+            .find(|(i, _)| *i == id)
+            .map_or(&[], |(_, v)| v.as_slice())
+    }
+
+    /// The rig's cameras, by rig camera index.
+    pub fn cameras(&self) -> &[Camera] {
+        &self.cameras
     }
 }
 

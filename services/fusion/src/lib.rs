@@ -311,7 +311,9 @@ impl FusionService {
             .map(|(_, o)| o.blobs.iter().filter(|b| b.merged).count() as u64)
             .sum::<u64>();
         let mut fused = self.fuser.fuse(set, timestamp_ns);
-        let bodies = self.bodies.update(&mut fused, timestamp_ns);
+        let bodies = self
+            .bodies
+            .update_refined(&mut fused, timestamp_ns, &self.fuser);
         let published_ns = now_ns();
         let frame = PoseFrame {
             schema: SCHEMA_VERSION,

@@ -54,7 +54,7 @@ fn errors(rig_text: &str, frames: u64) -> Errors {
             set.push((c, workers[c].process_frame(&hd, &buf).unwrap()));
         }
         let mut poses = fuser.fuse(&set, ts);
-        let found = bodies.update(&mut poses, ts);
+        let found = bodies.update_refined(&mut poses, ts, &fuser);
         if k < 5 {
             continue;
         }
@@ -111,7 +111,16 @@ fn demo_scene_positions_within_millimetres() {
     let worst_turn = body.iter().map(|b| b.1).fold(0.0, f64::max);
     assert!(worst_turn < 15.0, "helmet rotation off by {worst_turn:.1}°");
     let brms = (body.iter().map(|b| b.0 * b.0).sum::<f64>() / body.len() as f64).sqrt();
-    assert!(brms < 0.008, "helmet position RMS {:.2} mm", brms * 1000.0);
+    let rrms = (body.iter().map(|b| b.1 * b.1).sum::<f64>() / body.len() as f64).sqrt();
+    assert!(rrms < 1.2, "helmet rotation RMS {rrms:.2}°");
+    eprintln!(
+        "helmet: {} frames, position RMS {:.2} mm, rotation RMS {rrms:.2}°",
+        body.len(),
+        brms * 1e3
+    );
+    // Refined on the pixels: 2.9 mm and 0.75° (Kabsch on the triangulated markers alone gave
+    // 4.0 mm and 2.8° on these frames).
+    assert!(brms < 0.004, "helmet position RMS {:.2} mm", brms * 1000.0);
     assert_eq!(e.len(), 145 * 3, "every target gets a pose in every frame");
     let rms = (e.iter().map(|x| x.0 * x.0).sum::<f64>() / e.len() as f64).sqrt();
     let worst = e.iter().map(|x| x.0).fold(0.0, f64::max);

@@ -692,3 +692,95 @@ pub mod tracker;
 
 #[cfg(test)]
 mod tests;
+
+/// One camera's sighting of one marker, for [`refine_reprojection`]: the marker in the body's
+/// frame, the camera's projection of a world point to pixels, and the pixel measured.
+pub struct Sighting<'a> {
+    pub marker_body: Point3<f64>,
+    pub project: &'a dyn Fn(&Point3<f64>) -> Option<nalgebra::Point2<f64>>,
+    pub pixel: nalgebra::Point2<f64>,
+}
+
+impl std::fmt::Debug for Sighting<'_> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "Sighting({} at {})", self.marker_body, self.pixel)
+    }
+}
+
+/// `world_from_body` refined so that the markers it places project onto the pixels the
+/// cameras measured (Levenberg–Marquardt on the 6 pose parameters, numerical Jacobian): the
+/// cameras' own errors — small across the image, large along a ray in depth — weigh each
+/// direction as they should, where Kabsch on triangulated points weighs every direction alike.
+/// Returns the pose and the RMS reprojection error in pixels; `None` with fewer than 8
+/// residuals (4 sightings) or when a marker falls behind a camera.
+pub fn refine_reprojection(
+    pose: &Isometry3<f64>,
+    sightings: &[Sighting<'_>],
+    iterations: usize,
+) -> Option<(Isometry3<f64>, f64)> {
+    let n = 2 * sightings.len();
+    if n < 8 {
+        return None;
+    }
+    let residuals = |p: &Isometry3<f64>| -> Option<nalgebra::DVector<f64>> {
+        let mut r = nalgebra::DVector::zeros(n);
+        for (i, s) in sightings.iter().enumerate() {
+            let q = (s.project)(&(p * s.marker_body))?;
+            r[2 * i] = q.x - s.pixel.x;
+            r[2 * i + 1] = q.y - s.pixel.y;
+        }
+        Some(r)
+    };
+    let step = |p: &Isometry3<f64>, d: &nalgebra::Vector6<f64>| {
+        let w = Vector3::new(d[0], d[1], d[2]);
+        let t = Vector3::new(d[3], d[4], d[5]);
+        Isometry3::from_parts(
+            Translation3::from(p.translation.vector + t),
+            UnitQuaternion::from_scaled_axis(w) * p.rotation,
+        )
+    };
+    let mut pose = *pose;
+    let mut r = residuals(&pose)?;
+    let mut cost = r.norm_squared();
+    let mut lambda = 1e-3;
+    for _ in 0..iterations {
+        let mut j = nalgebra::DMatrix::zeros(n, 6);
+        for k in 0..6 {
+            let mut d = nalgebra::Vector6::zeros();
+            d[k] = 1e-6;
+            let rk = residuals(&step(&pose, &d))?;
+            j.set_column(k, &((rk - &r) / 1e-6));
+        }
+        let jt = j.transpose();
+        let g = &jt * &r;
+        let h = &jt * &j;
+        let mut improved = false;
+        for _ in 0..8 {
+            let mut a = h.clone();
+            for k in 0..6 {
+                a[(k, k)] += lambda * (1.0 + h[(k, k)]);
+            }
+            let Some(d) = a.lu().solve(&(-&g)) else {
+                lambda *= 10.0;
+                continue;
+            };
+            let d = nalgebra::Vector6::from_iterator(d.iter().copied());
+            let candidate = step(&pose, &d);
+            if let Some(rc) = residuals(&candidate)
+                && rc.norm_squared() < cost
+            {
+                pose = candidate;
+                cost = rc.norm_squared();
+                r = rc;
+                lambda = (lambda * 0.3).max(1e-9);
+                improved = true;
+                break;
+            }
+            lambda *= 10.0;
+        }
+        if !improved {
+            break;
+        }
+    }
+    Some((pose, (cost / sightings.len() as f64).sqrt()))
+}

@@ -227,3 +227,72 @@ fn bad_definitions_are_named() {
     // A pointer of two markers is accepted.
     check_bodies(&[body("pointer", &[[0.0, 0.0, 0.0], [0.1, 0.0, 0.0]])]).unwrap();
 }
+
+/// Two pinhole cameras 0.3 m apart look at a body 1.5 m away; from a pose 5 mm and 2° off,
+/// refining on exact pixels recovers the pose, and on pixels with 0.1 px noise it lands far
+/// nearer than Kabsch on points triangulated from the same noisy pixels would need.
+#[test]
+fn refining_on_pixels_recovers_the_pose() {
+    use nalgebra::{Point2, Translation3, UnitQuaternion};
+    let def = body(
+        "head",
+        &[
+            [0.0, 0.0, 0.0],
+            [0.18, 0.0, 0.0],
+            [0.0, 0.11, 0.0],
+            [0.06, 0.06, 0.08],
+        ],
+    );
+    let truth = Isometry3::from_parts(
+        Translation3::new(0.05, -0.02, 1.5),
+        UnitQuaternion::from_euler_angles(0.3, -0.2, 1.0),
+    );
+    let cam = |x: f64| {
+        move |p: &Point3<f64>| {
+            let q = p - Vector3::new(x, 0.0, 0.0);
+            (q.z > 0.0).then(|| Point2::new(800.0 * q.x / q.z + 320.0, 800.0 * q.y / q.z + 240.0))
+        }
+    };
+    let cams = [cam(-0.15), cam(0.15)];
+    let start = Isometry3::from_parts(
+        Translation3::new(0.055, -0.02, 1.504),
+        UnitQuaternion::from_euler_angles(0.33, -0.2, 1.01),
+    );
+    let mut rng = Rng::new(5);
+    for noise in [0.0, 0.1] {
+        let sightings: Vec<Sighting<'_>> = def
+            .markers_m
+            .iter()
+            .flat_map(|m| cams.iter().map(move |c| (m, c)))
+            .map(|(m, c)| {
+                let px = c(&(truth * m)).unwrap();
+                Sighting {
+                    marker_body: *m,
+                    project: c,
+                    pixel: Point2::new(px.x + noise * rng.normal(), px.y + noise * rng.normal()),
+                }
+            })
+            .collect();
+        let (got, rms) = refine_reprojection(&start, &sightings, 20).unwrap();
+        let dt = (got.translation.vector - truth.translation.vector).norm();
+        let da = got.rotation.angle_to(&truth.rotation).to_degrees();
+        if noise == 0.0 {
+            assert!(
+                dt < 1e-6 && da < 1e-4 && rms < 1e-6,
+                "{dt} m, {da}°, {rms} px"
+            );
+        } else {
+            assert!(
+                dt < 0.002 && da < 0.3 && rms < 0.2,
+                "{dt} m, {da}°, {rms} px"
+            );
+        }
+    }
+    // Too few sightings to pose: none.
+    let one = [Sighting {
+        marker_body: def.markers_m[0],
+        project: &cams[0],
+        pixel: Point2::new(320.0, 240.0),
+    }];
+    assert!(refine_reprojection(&start, &one, 5).is_none());
+}

@@ -19,6 +19,11 @@ use nalgebra::{Isometry3, Point3, Vector3};
 /// How long a body not seen keeps its identity and last pose, by default.
 pub const DEFAULT_HOLD_NS: u64 = 250_000_000;
 
+/// A pose refiner: `(body, each marker's point index, Kabsch pose)` → a better pose, or `None`
+/// to keep it.
+pub type Refine<'a> =
+    dyn FnMut(usize, &[Option<usize>], &Isometry3<f64>) -> Option<Isometry3<f64>> + 'a;
+
 /// One body as reported for a frame.
 #[derive(Debug, Clone, PartialEq)]
 pub struct TrackedBody {
@@ -69,6 +74,18 @@ impl BodyTracker {
     /// The bodies of one frame at `t_ns` among `points` (world, metres): those found, then
     /// those held.
     pub fn update(&mut self, points: &[Point3<f64>], t_ns: u64) -> Vec<TrackedBody> {
+        self.update_refined(points, t_ns, &mut |_, _, _| None)
+    }
+
+    /// [`BodyTracker::update`] with each body's pose refined by `refine(body, markers, pose)`
+    /// (`markers`: the point index of each marker; `None` keeps the Kabsch pose), before it
+    /// is followed: fusion refines on the cameras' pixels ([`crate::refine_reprojection`]).
+    pub fn update_refined(
+        &mut self,
+        points: &[Point3<f64>],
+        t_ns: u64,
+        refine: &mut Refine<'_>,
+    ) -> Vec<TrackedBody> {
         let mut out = Vec::new();
         let mut found = vec![false; self.defs.len()];
         // Each body's last pose, while it is held: it settles how a body seen in part fits.
@@ -81,7 +98,20 @@ impl BodyTracker {
                     .map(|t| t.pose)
             })
             .collect();
-        for m in identify_near(&self.defs, points, &near) {
+        for mut m in identify_near(&self.defs, points, &near) {
+            if let Some(better) = refine(m.body, &m.markers, &m.world_from_body) {
+                let def = &self.defs[m.body];
+                let (sq, n) = m
+                    .markers
+                    .iter()
+                    .enumerate()
+                    .filter_map(|(k, p)| {
+                        p.map(|p| (better * def.markers_m[k] - points[p]).norm_squared())
+                    })
+                    .fold((0.0, 0usize), |(s, n), d| (s + d, n + 1));
+                m.world_from_body = better;
+                m.residual_m = (sq / n.max(1) as f64).sqrt();
+            }
             let prev = self.tracks[m.body]
                 .as_ref()
                 .filter(|t| t_ns > t.seen_ns && t_ns - t.seen_ns <= self.hold_ns);
