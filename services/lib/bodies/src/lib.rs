@@ -711,69 +711,75 @@ impl std::fmt::Debug for Sighting<'_> {
 /// cameras measured (Levenberg–Marquardt on the 6 pose parameters, numerical Jacobian): the
 /// cameras' own errors — small across the image, large along a ray in depth — weigh each
 /// direction as they should, where Kabsch on triangulated points weighs every direction alike.
-/// Returns the pose and the RMS reprojection error in pixels; `None` with fewer than 8
-/// residuals (4 sightings) or when a marker falls behind a camera.
+/// Returns the pose and the RMS reprojection error in pixels; `None` with fewer than 4
+/// sightings (8 residuals for 6 unknowns) or when a marker falls behind a camera. Stops when a
+/// step no longer lowers the squared error by more than 1e-12 of it.
 pub fn refine_reprojection(
     pose: &Isometry3<f64>,
     sightings: &[Sighting<'_>],
     iterations: usize,
 ) -> Option<(Isometry3<f64>, f64)> {
-    let n = 2 * sightings.len();
-    if n < 8 {
+    use nalgebra::{Matrix6, Vector2, Vector6};
+    if sightings.len() < 4 {
         return None;
     }
-    let residuals = |p: &Isometry3<f64>| -> Option<nalgebra::DVector<f64>> {
-        let mut r = nalgebra::DVector::zeros(n);
-        for (i, s) in sightings.iter().enumerate() {
-            let q = (s.project)(&(p * s.marker_body))?;
-            r[2 * i] = q.x - s.pixel.x;
-            r[2 * i + 1] = q.y - s.pixel.y;
-        }
-        Some(r)
-    };
-    let step = |p: &Isometry3<f64>, d: &nalgebra::Vector6<f64>| {
-        let w = Vector3::new(d[0], d[1], d[2]);
-        let t = Vector3::new(d[3], d[4], d[5]);
+    let step = |p: &Isometry3<f64>, d: &Vector6<f64>| {
         Isometry3::from_parts(
-            Translation3::from(p.translation.vector + t),
-            UnitQuaternion::from_scaled_axis(w) * p.rotation,
+            Translation3::from(p.translation.vector + Vector3::new(d[3], d[4], d[5])),
+            UnitQuaternion::from_scaled_axis(Vector3::new(d[0], d[1], d[2])) * p.rotation,
         )
     };
+    let residual = |p: &Isometry3<f64>, s: &Sighting<'_>| -> Option<Vector2<f64>> {
+        let q = (s.project)(&(p * s.marker_body))?;
+        Some(Vector2::new(q.x - s.pixel.x, q.y - s.pixel.y))
+    };
+    let cost_of = |p: &Isometry3<f64>| -> Option<f64> {
+        sightings
+            .iter()
+            .map(|s| residual(p, s).map(|r| r.norm_squared()))
+            .sum()
+    };
+    // The six nudged poses of the numerical Jacobian.
+    const H: f64 = 1e-6;
     let mut pose = *pose;
-    let mut r = residuals(&pose)?;
-    let mut cost = r.norm_squared();
+    let mut cost = cost_of(&pose)?;
     let mut lambda = 1e-3;
     for _ in 0..iterations {
-        let mut j = nalgebra::DMatrix::zeros(n, 6);
-        for k in 0..6 {
-            let mut d = nalgebra::Vector6::zeros();
-            d[k] = 1e-6;
-            let rk = residuals(&step(&pose, &d))?;
-            j.set_column(k, &((rk - &r) / 1e-6));
+        let nudged: [Isometry3<f64>; 6] = std::array::from_fn(|k| {
+            let mut d = Vector6::zeros();
+            d[k] = H;
+            step(&pose, &d)
+        });
+        // Normal equations, accumulated sighting by sighting (no matrix of all residuals).
+        let (mut h, mut g) = (Matrix6::zeros(), Vector6::zeros());
+        for s in sightings {
+            let r = residual(&pose, s)?;
+            let mut j = nalgebra::Matrix2x6::zeros();
+            for (k, n) in nudged.iter().enumerate() {
+                j.set_column(k, &((residual(n, s)? - r) / H));
+            }
+            h += j.transpose() * j;
+            g += j.transpose() * r;
         }
-        let jt = j.transpose();
-        let g = &jt * &r;
-        let h = &jt * &j;
         let mut improved = false;
         for _ in 0..8 {
-            let mut a = h.clone();
+            let mut a = h;
             for k in 0..6 {
                 a[(k, k)] += lambda * (1.0 + h[(k, k)]);
             }
-            let Some(d) = a.lu().solve(&(-&g)) else {
+            let Some(d) = a.lu().solve(&(-g)) else {
                 lambda *= 10.0;
                 continue;
             };
-            let d = nalgebra::Vector6::from_iterator(d.iter().copied());
             let candidate = step(&pose, &d);
-            if let Some(rc) = residuals(&candidate)
-                && rc.norm_squared() < cost
+            if let Some(c) = cost_of(&candidate)
+                && c < cost
             {
+                let gain = cost - c;
                 pose = candidate;
-                cost = rc.norm_squared();
-                r = rc;
+                cost = c;
                 lambda = (lambda * 0.3).max(1e-9);
-                improved = true;
+                improved = gain > 1e-12 * (1.0 + cost);
                 break;
             }
             lambda *= 10.0;
