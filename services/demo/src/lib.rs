@@ -108,6 +108,9 @@ pub struct DemoSummary {
     pub heading_rms_deg: Option<f64>,
     /// Pose frames with every visible target matched within 5 cm.
     pub complete_frames: u64,
+    /// Poses that were no target (more than 5 cm from every loose target, or from their
+    /// body's extent): ghosts that reached the outputs.
+    pub ghost_poses: u64,
     pub targets: Vec<TargetStats>,
     pub bodies: Vec<BodyStats>,
     /// The VR feed's frame published → sent to its clients, from its last health report,
@@ -153,7 +156,7 @@ impl DemoSummary {
             .collect();
         let opt = |v: Option<f64>| v.map_or("null".to_string(), |v| json_number(v, 1));
         format!(
-            "{{\"seconds\":{:.3},\"pose_frames\":{},\"poses_per_s\":{:.2},\"latency_p50_ms\":{},\"latency_p99_ms\":{},\"exposure_latency_p50_ms\":{},\"position_rms_m\":{},\"heading_rms_deg\":{},\"complete_frames\":{},\"restarts\":{},\"targets\":[{}],\"bodies\":[{}],\"vr_latency_p50_us\":{},\"vr_latency_p99_us\":{},\"losses\":{}}}",
+            "{{\"seconds\":{:.3},\"pose_frames\":{},\"poses_per_s\":{:.2},\"latency_p50_ms\":{},\"latency_p99_ms\":{},\"exposure_latency_p50_ms\":{},\"position_rms_m\":{},\"heading_rms_deg\":{},\"complete_frames\":{},\"ghost_poses\":{},\"restarts\":{},\"targets\":[{}],\"bodies\":[{}],\"vr_latency_p50_us\":{},\"vr_latency_p99_us\":{},\"losses\":{}}}",
             self.seconds,
             self.pose_frames,
             self.poses_per_s,
@@ -165,6 +168,7 @@ impl DemoSummary {
                 .map(|h| format!("{h:.4}"))
                 .unwrap_or("null".into()),
             self.complete_frames,
+            self.ghost_poses,
             self.restarts,
             targets.join(","),
             bodies.join(","),
@@ -398,7 +402,8 @@ fn watch(
     let mut acc: BTreeMap<u32, Acc> = BTreeMap::new();
     let mut body_acc: BTreeMap<String, BodyAcc> = BTreeMap::new();
     let mut last_print = Instant::now();
-    let mut latest: Option<(PoseFrame, Vec<Scored>)> = None;
+    let mut latest: Option<(PoseFrame, Vec<Scored>, Vec<BodyError>)> = None;
+    let mut ghosts = 0u64;
     let out = std::io::stdout();
     loop {
         if shutdown.requested() {
@@ -443,11 +448,13 @@ fn watch(
             match t {
                 Some(t) => {
                     let scored = score(p, t, &mut acc);
-                    score_bodies(p, t, &mut body_acc);
+                    let body_errors = score_bodies(p, t, &mut body_acc);
+                    let g = ghost_poses(p, t);
+                    ghosts += g as u64;
                     if scored.iter().all(|(_, id, e)| id.is_some() && *e < 0.05) {
                         complete += 1;
                     }
-                    latest = Some((p.clone(), scored));
+                    latest = Some((p.clone(), scored, body_errors));
                     pending.pop_front();
                 }
                 None if pending.len() > 100
@@ -462,7 +469,7 @@ fn watch(
         }
         if cfg.live && last_print.elapsed() > Duration::from_millis(500) {
             last_print = Instant::now();
-            if let Some((p, scored)) = &latest {
+            if let Some((p, scored, body_errors)) = &latest {
                 let mut o = out.lock();
                 let _ = writeln!(
                     o,
@@ -476,9 +483,14 @@ fn watch(
                     "  obj        x m      y m      z m   heading  method         err mm"
                 );
                 for b in &p.bodies {
+                    let err = body_errors
+                        .iter()
+                        .find(|e| e.0 == b.name)
+                        .map(|e| format!(", error {:.1} mm {:.2}°", e.1 * 1e3, e.2))
+                        .unwrap_or_default();
                     let _ = writeln!(
                         o,
-                        "  body {:<8} {:>8.4} {:>8.4} {:>8.4}  {}/{} markers, residual {:.2} mm{}",
+                        "  body {:<8} {:>8.4} {:>8.4} {:>8.4}  {}/{} markers, residual {:.2} mm{}{err}",
                         b.name,
                         b.position_m[0],
                         b.position_m[1],
@@ -554,6 +566,7 @@ fn watch(
         },
         heading_rms_deg: (hn > 0).then(|| (hsq / hn as f64).sqrt()),
         complete_frames: complete,
+        ghost_poses: ghosts,
         targets,
         bodies: body_acc
             .into_iter()
@@ -591,7 +604,8 @@ fn vr_detail(health: &Mutex<BTreeMap<String, Health>>, key: &str) -> Option<f64>
 
 /// Scores each body target of the truth against the frame's body of that name: position of
 /// its origin, angle between the rotations.
-fn score_bodies(p: &PoseFrame, t: &Truth, acc: &mut BTreeMap<String, BodyAcc>) {
+fn score_bodies(p: &PoseFrame, t: &Truth, acc: &mut BTreeMap<String, BodyAcc>) -> Vec<BodyError> {
+    let mut out = Vec::new();
     for tt in t.targets.iter().filter(|x| x.visible) {
         let (Some(name), Some(q)) = (&tt.body, tt.orientation_xyzw) else {
             continue;
@@ -607,10 +621,39 @@ fn score_bodies(p: &PoseFrame, t: &Truth, acc: &mut BTreeMap<String, BodyAcc>) {
                 a.sq += d2;
                 a.rsq += angle.to_degrees().powi(2);
                 a.n += 1;
+                out.push((name.clone(), d2.sqrt(), angle.to_degrees()));
             }
             None => a.missed += 1,
         }
     }
+    out
+}
+
+/// A body's error in one frame: name, position error (m), rotation error (degrees).
+type BodyError = (String, f64, f64);
+
+/// Poses of a frame that are no target: a loose pose more than 5 cm from every target (a ghost
+/// of a wrong correspondence), or a body's marker more than 5 cm from where its body's truth
+/// puts the body's extent (a marker labelled into a body it is not part of).
+fn ghost_poses(p: &PoseFrame, t: &Truth) -> usize {
+    let near = |a: &[f64; 3], b: &[f64; 3], r: f64| {
+        (0..3).map(|i| (a[i] - b[i]).powi(2)).sum::<f64>().sqrt() < r
+    };
+    p.poses
+        .iter()
+        .filter(|pose| {
+            !t.targets.iter().any(|tt| match (&pose.body, &tt.body) {
+                (None, None) => near(&pose.position_m, &tt.position_m, 0.05),
+                // A body's markers lie within its extent (0.5 m covers any demo body).
+                (Some(b), Some(name)) => {
+                    b.name == *name && near(&pose.position_m, &tt.position_m, 0.5)
+                }
+                // A loose pose may be a body's marker not identified this frame.
+                (None, Some(_)) => near(&pose.position_m, &tt.position_m, 0.5),
+                (Some(_), None) => false,
+            })
+        })
+        .count()
 }
 
 /// Matches one pose frame to its truth; returns `(target, object id, error m)` per visible

@@ -41,6 +41,10 @@ pub struct FuserConfig {
     /// groups of cameras the correspondence paired separately): the one from more cameras (then
     /// the smaller residual) is kept. Markers cannot be closer than their diameter.
     pub merge_m: f64,
+    /// The capture volume, world metres (min and max corners): a point outside it is no
+    /// target (a wrong correspondence triangulated beyond the scene, a reflection) and is
+    /// dropped and counted before it can become an object. `None`: no bound.
+    pub volume_m: Option<(Point3<f64>, Point3<f64>)>,
 }
 
 /// [`FuserConfig::confirm_sets`] by default.
@@ -56,6 +60,7 @@ impl Default for FuserConfig {
             max_roundness: 0.9,
             confirm_sets: DEFAULT_CONFIRM_SETS,
             merge_m: 0.01,
+            volume_m: None,
         }
     }
 }
@@ -99,6 +104,8 @@ pub struct Fuser {
     last_set_ns: Option<u64>,
     /// Per object published in the last set: what each camera saw of it.
     pixels: Vec<(u32, Sightings)>,
+    /// Points dropped for lying outside the capture volume, since start.
+    pub outside_volume: u64,
 }
 
 /// What each camera saw of one object: (rig camera index, pixel as measured).
@@ -147,6 +154,7 @@ impl Fuser {
             assigner: Assigner::default(),
             last_set_ns: None,
             pixels: Vec::new(),
+            outside_volume: 0,
         }
     }
 
@@ -284,7 +292,12 @@ impl Fuser {
 
     /// Fuses one set taken at `timestamp_ns` into poses, updating the objects.
     pub fn fuse(&mut self, set: &[(usize, Observation)], timestamp_ns: u64) -> Vec<Pose> {
-        let points = self.points(set);
+        let mut points = self.points(set);
+        if let Some((lo, hi)) = self.cfg.volume_m {
+            let before = points.len();
+            points.retain(|p| (0..3).all(|i| p.position_m[i] >= lo[i] && p.position_m[i] <= hi[i]));
+            self.outside_volume += (before - points.len()) as u64;
+        }
         let headings: Vec<Option<(f64, bool)>> =
             points.iter().map(|p| self.heading_of(set, p)).collect();
         // Forget objects unseen for too long, and tentative ones missing from the last set.

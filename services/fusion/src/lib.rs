@@ -82,6 +82,10 @@ pub fn settings(file: &RigFile) -> (PairingConfig, FuserConfig, bool) {
         gate_m: f.association_gate.map(|g| g * scale).unwrap_or(0.1),
         drop_after_ns: (f.drop_after_s.unwrap_or(2.0) * 1e9) as u64,
         confirm_sets: f.confirm_sets.unwrap_or(DEFAULT_CONFIRM_SETS),
+        volume_m: f.volume.map(|v| {
+            let p = |a: [f64; 3]| nalgebra::Point3::new(a[0] * scale, a[1] * scale, a[2] * scale);
+            (p(v.min), p(v.max))
+        }),
         ..FuserConfig::default()
     };
     let all_zenoh = f.observations == Some(ObservationRoute::Zenoh);
@@ -396,6 +400,12 @@ impl FusionService {
             detail.insert("short_sets".into(), self.pairer.short_sets.to_string());
         }
         detail.insert("objects".into(), self.fuser.objects().to_string());
+        if self.fuser.outside_volume > 0 {
+            detail.insert(
+                "outside_volume".into(),
+                self.fuser.outside_volume.to_string(),
+            );
+        }
         if self.merged_blobs > 0 {
             detail.insert("merged_blobs".into(), self.merged_blobs.to_string());
         }

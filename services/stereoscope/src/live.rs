@@ -76,8 +76,8 @@ pub fn summary_text(s: &DemoSummary) -> String {
             .unwrap_or_else(|| "-".into())
     ));
     out.push_str(&format!(
-        "  frames with every visible target found within 5 cm: {} of {}\n",
-        s.complete_frames, s.pose_frames
+        "  frames with every visible target found within 5 cm: {} of {}; poses that were no target (ghosts): {}\n",
+        s.complete_frames, s.pose_frames, s.ghost_poses
     ));
     out.push_str("  target  matched  missed  RMS mm  heading RMS  id switches\n");
     for t in &s.targets {

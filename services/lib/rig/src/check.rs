@@ -366,6 +366,19 @@ pub(crate) fn check(file: &RigFile, base: Option<&Path>, sources: bool) -> Resul
                 positive_at_most(&format!("fusion.{k}"), v, hi, what)?;
             }
         }
+        if let Some(v) = &f.volume {
+            finite("fusion.volume.min", &v.min)?;
+            finite("fusion.volume.max", &v.max)?;
+            if (0..3).any(|i| v.min[i] >= v.max[i]) {
+                return Err(err(
+                    "fusion.volume",
+                    format!(
+                        "min {:?} must be below max {:?} on every axis",
+                        v.min, v.max
+                    ),
+                ));
+            }
+        }
         if let Some(n) = f.confirm_sets
             && !(1..=MAX_CONFIRM_SETS).contains(&n)
         {

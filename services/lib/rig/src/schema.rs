@@ -570,6 +570,10 @@ pub struct FusionSpec {
     /// consecutive sets (default 3; 1 publishes at once).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub confirm_sets: Option<u32>,
+    /// The capture volume: points triangulated outside `min`–`max` (world, file unit) are
+    /// dropped and counted (none by default).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub volume: Option<VolumeSpec>,
     /// A body not seen keeps its identity and last pose (flagged held) this long (default 250).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub body_hold_ms: Option<f64>,
@@ -585,6 +589,14 @@ pub struct FusionSpec {
     /// (`stereoscope replay --frames` sets it; relative to the rig file).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub replay_sets: Option<String>,
+}
+
+/// A box in the world, file unit.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct VolumeSpec {
+    pub min: [f64; 3],
+    pub max: [f64; 3],
 }
 
 /// The scene synthetic cameras render (lengths in the file's unit).

@@ -359,11 +359,9 @@ mod tests {
 
     #[test]
     fn a_mirrored_frame_still_gives_a_proper_rotation() {
-        let f = ConsumerFrame {
-            consumer_from_world: Matrix3::new(-1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 1.0, 0.0),
-            ..ConsumerFrame::identity()
-        };
+        let f = ConsumerFrame::unity();
         assert!(!f.is_proper());
+        assert!(ConsumerFrame::y_up().is_proper());
         let world = UnitQuaternion::from_euler_angles(0.2, -0.4, 1.1);
         let q = f.rotation(&world);
         // Conjugating by the mirror keeps a rotation matrix (det +1, orthonormal).
@@ -374,5 +372,38 @@ mod tests {
         let lhs = q * (f.consumer_from_world * v);
         let rhs = f.consumer_from_world * (world * v);
         assert!((lhs - rhs).norm() < 1e-9);
+    }
+
+    /// The demo rig's `[vr]` and `[fusion] volume` load; mistakes in them are refused at load
+    /// with the key and the value.
+    #[test]
+    fn the_vr_section_is_checked_at_load() {
+        let demo = include_str!("../../../../deploy/rigs/demo.toml");
+        let r = crate::Rig::from_toml(demo).unwrap();
+        let v = settings(&r.spec).unwrap().unwrap();
+        assert_eq!(v.vrpn.unwrap().0, loopback(VRPN_PORT));
+        assert_eq!(v.vmt.as_ref().unwrap().2, vec![0]);
+        assert_eq!(v.opentrack.unwrap().2, 0);
+        let bad = |from: &str, to: &str| {
+            assert!(demo.contains(from), "{from}");
+            crate::Rig::from_toml(&demo.replacen(from, to, 1)).unwrap_err()
+        };
+        let e = bad("vmt = {}", "vmt = { bodies = [\"hat\"] }");
+        assert_eq!(e.key, "vr.vmt.bodies[0]");
+        assert!(e.message.contains("\"hat\""), "{e}");
+        let e = bad("vrpn = {}", "vrpn = { listen = \"localhost\" }");
+        assert_eq!(e.key, "vr.vrpn.listen");
+        let e = bad(
+            "opentrack = {}",
+            "opentrack = { frame = { axes = [\"x\", \"y\", \"y\"] } }",
+        );
+        assert_eq!(e.key, "vr.opentrack.frame.axes");
+        let e = bad("tolerance = 1.0", "tolerance = 1.0\npredict_ms = 500");
+        assert_eq!(e.key, "body[0].predict_ms");
+        let e = bad("min = [-80.0, -80.0, -10.0]", "min = [-80.0, 90.0, -10.0]");
+        assert_eq!(e.key, "fusion.volume");
+        // No bodies, but a VR feed: refused.
+        let no_body = demo.replacen("[[body]]", "[[bodyx]]", 1);
+        assert!(crate::Rig::from_toml(&no_body).is_err());
     }
 }
