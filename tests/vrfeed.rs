@@ -99,6 +99,8 @@ fn every_protocol_gets_the_known_body_pose_in_its_own_frame() {
         free_port(),
     );
     let path = rig(&dir, router, vrpn, vmt, vmc, opentrack);
+    // Another program holds the VRPN port when the feed starts.
+    let squatter = std::net::TcpListener::bind(("127.0.0.1", vrpn)).unwrap();
     let mut launcher = Proc::start(&["run", &path]);
     let session = {
         let spec = ZenohSpec::client_of(&format!("tcp/127.0.0.1:{router}"));
@@ -152,6 +154,32 @@ fn every_protocol_gets_the_known_body_pose_in_its_own_frame() {
         3.0,
         "Zenoh body rotation",
     );
+
+    // The port in use was reported, not fatal; freed, the feed listens within seconds.
+    let vrpn_state = |want: &str| {
+        let end = Instant::now() + Duration::from_secs(8);
+        loop {
+            let h = health.lock().unwrap().clone();
+            if h.as_ref()
+                .and_then(|h| h.detail.get("vrpn"))
+                .is_some_and(|v| v == want)
+            {
+                return h;
+            }
+            assert!(Instant::now() < end, "vrfeed's vrpn never {want:?}: {h:?}");
+            std::thread::sleep(Duration::from_millis(100));
+        }
+    };
+    let h = vrpn_state("port in use").unwrap();
+    assert!(
+        h.last_error
+            .as_deref()
+            .unwrap_or("")
+            .contains(&format!(":{vrpn}")),
+        "{h:?}"
+    );
+    drop(squatter);
+    vrpn_state("listening");
 
     // Hostile VRPN peers first: garbage, and a message cut off mid-way.
     let mut garbage = TcpStream::connect(("127.0.0.1", vrpn)).unwrap();

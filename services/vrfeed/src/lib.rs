@@ -143,10 +143,19 @@ impl VrFeedService {
         };
         let udp = UdpSocket::bind("0.0.0.0:0").map_err(VrFeedError::Udp)?;
         udp.set_nonblocking(true).map_err(VrFeedError::Udp)?;
-        let node = ServiceNode::start(stereoscope_transport::NodeSpec {
+        let mut node = ServiceNode::start(stereoscope_transport::NodeSpec {
             exclusive: stereoscope_transport::Exclusive::Host,
             ..ctx.node_spec("vrfeed")
         })?;
+        if let Some((addr, _)) = settings.vrpn {
+            let state = if vrpn.is_some() { "listening" } else { "port in use" };
+            node.counters.detail.insert("vrpn".into(), state.into());
+            if vrpn.is_none() {
+                node.counters.set_error(&format!(
+                    "VRPN cannot listen on {addr}: the port is in use; trying again every second"
+                ));
+            }
+        }
         let overflow = Arc::new(AtomicU64::new(0));
         let rig = ctx.rig.name.clone();
         let input = if ctx.fusion_here() {
