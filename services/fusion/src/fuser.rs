@@ -74,10 +74,6 @@ pub struct Point {
     pub blobs: Vec<(usize, usize)>,
     pub residual_px: f64,
     pub out_of_range: bool,
-    /// From two cameras whose pairing had another candidate on the epipolar line: it may
-    /// continue an object, never start or confirm one (a row-ambiguity ghost never becomes
-    /// an object).
-    pub ambiguous: bool,
 }
 
 #[derive(Debug, Clone)]
@@ -222,7 +218,6 @@ impl Fuser {
                     blobs,
                     residual_px: m.point.rms_px,
                     out_of_range: false,
-                    ambiguous: m.ambiguous,
                 });
             }
         }
@@ -263,7 +258,6 @@ impl Fuser {
                     blobs: vec![(s, i)],
                     residual_px: 0.0,
                     out_of_range: !d.in_range,
-                    ambiguous: false,
                 });
             }
         }
@@ -324,14 +318,9 @@ impl Fuser {
             let predicted = o.position_m + o.velocity_m_per_s * dt;
             let gate = self.cfg.gate_m + self.cfg.gate_growth_m_per_s * dt;
             let gate2 = gate * gate;
-            let tentative = o.id == 0;
             cost.extend(points.iter().map(|p| {
                 let d2 = (p.position_m - predicted).norm_squared();
-                if d2 <= gate2 && !(tentative && p.ambiguous) {
-                    d2
-                } else {
-                    f64::INFINITY
-                }
+                if d2 <= gate2 { d2 } else { f64::INFINITY }
             }));
         }
         let assignment: Vec<Option<usize>> = self
@@ -367,8 +356,6 @@ impl Fuser {
                     }
                     oi
                 }
-                // An ambiguous pairing starts nothing.
-                None if p.ambiguous => continue,
                 None => {
                     let confirmed = self.cfg.confirm_sets <= 1;
                     self.objects.push(Object {
@@ -508,38 +495,6 @@ mod tests {
             .collect()
     }
 
-    /// Two balls on one image row of the demo's side-by-side cameras: their pairings are
-    /// ambiguous, so they never become objects (a wrong pairing would be a ghost); one of them
-    /// alone does, and once an object it goes on through ambiguous sets.
-    #[test]
-    fn ambiguous_pairings_start_no_object() {
-        let rig = Rig::from_toml(RIG).unwrap();
-        let both = |t: u64, second: bool| {
-            let mut a = set_at(&rig, Point3::new(-0.2, 0.1, 0.5), t);
-            if second {
-                let b = set_at(&rig, Point3::new(0.15, 0.1, 0.5), t);
-                for ((_, oa), (_, ob)) in a.iter_mut().zip(b) {
-                    oa.blobs.extend(ob.blobs);
-                }
-            }
-            a
-        };
-        let mut f = Fuser::new(&rig, FuserConfig::default());
-        let ms = 33_000_000u64;
-        for k in 0..6 {
-            assert!(f.fuse(&both(k * ms, true), k * ms).is_empty(), "set {k}");
-        }
-        let mut seen = 0;
-        for k in 6..12 {
-            seen = f.fuse(&both(k * ms, false), k * ms).len();
-        }
-        assert_eq!(seen, 1);
-        // The confirmed object continues while the second ball is back on its row.
-        let poses = f.fuse(&both(12 * ms, true), 12 * ms);
-        assert_eq!(poses.len(), 1, "{poses:?}");
-        assert!((Point3::from(poses[0].position_m) - Point3::new(-0.2, 0.1, 0.5)).norm() < 0.01);
-    }
-
     /// An object gone for 0.6 s (a camera restart, an occlusion) and back 0.15 m from its
     /// prediction keeps its id; one gone longer than `drop_after` gets a new one.
     #[test]
@@ -550,7 +505,6 @@ mod tests {
             blobs: (0..cams).map(|c| (c, 0)).collect(),
             residual_px,
             out_of_range: false,
-            ambiguous: false,
         };
         // 3.5 mm apart (seen in the 8-camera soak): one marker; 30 mm apart: two.
         let out = merge_duplicates(

@@ -43,10 +43,6 @@ pub struct Match {
     /// `(camera, blob index)` pairs.
     pub blobs: Vec<(usize, usize)>,
     pub point: Triangulated,
-    /// Two cameras only, and one of the pair's blobs also fit another blob of the other camera
-    /// within the epipolar tolerance (two targets on one image row of a side-by-side pair): the
-    /// pairing may be the wrong one, and the point a ghost. A third camera joining settles it.
-    pub ambiguous: bool,
 }
 
 /// The essential matrix taking camera a's normalised coordinates to epipolar lines in camera b:
@@ -127,11 +123,7 @@ fn extend(
                 && t.rms_px <= cfg.max_residual_px
             {
                 used[c][j] = true;
-                out[m] = Match {
-                    blobs,
-                    point: t,
-                    ambiguous: false,
-                };
+                out[m] = Match { blobs, point: t };
             }
         }
     }
@@ -181,23 +173,13 @@ pub fn match_blobs(
                     });
                 }
             }
-            let pairs: Vec<(usize, usize, bool)> = assigner
+            let pairs: Vec<(usize, usize)> = assigner
                 .solve(&cost, ia.len(), ib.len())
                 .iter()
                 .enumerate()
-                .filter_map(|(r, c)| {
-                    let c = (*c)?;
-                    // Another candidate in the row or in the column of this pair.
-                    let row = (0..ib.len())
-                        .filter(|&k| cost[r * ib.len() + k].is_finite())
-                        .count();
-                    let col = (0..ia.len())
-                        .filter(|&k| cost[k * ib.len() + c].is_finite())
-                        .count();
-                    Some((ia[r], ib[c], row > 1 || col > 1))
-                })
+                .filter_map(|(r, c)| c.map(|c| (ia[r], ib[c])))
                 .collect();
-            for (i, j, ambiguous) in pairs {
+            for (i, j) in pairs {
                 let obs = [
                     Observation {
                         camera: a,
@@ -219,7 +201,6 @@ pub fn match_blobs(
                 out.push(Match {
                     blobs: vec![(a, i), (b, j)],
                     point: t,
-                    ambiguous,
                 });
             }
             // Other cameras' free blobs join these points before they can pair among
@@ -365,33 +346,6 @@ mod tests {
         ];
         // 0.05 px: with a 20 cm baseline at 2.7 m, 0.2 px of disparity noise is 2 cm of depth.
         check(&cams, &points, 1, 0.05, true);
-    }
-
-    /// Two targets on one image row of the side-by-side pair: each blob fits both partners,
-    /// so both pairings are flagged ambiguous; on different rows they are not; four cameras
-    /// settle any pairing.
-    #[test]
-    fn pairings_on_one_image_row_are_flagged_ambiguous() {
-        let cams = parallel_rig();
-        let same_row = [Point3::new(-0.2, 0.1, 0.5), Point3::new(0.25, 0.1, 0.5)];
-        let (pixels, _) = scene(&cams, &same_row, 0.0, 2);
-        let matches = match_blobs(&cams, &pixels, &CorrespondConfig::default());
-        assert!(
-            !matches.is_empty() && matches.iter().all(|m| m.ambiguous),
-            "{matches:?}"
-        );
-        let apart = [Point3::new(-0.2, 0.3, 0.5), Point3::new(0.25, -0.2, 0.5)];
-        let (pixels, _) = scene(&cams, &apart, 0.0, 2);
-        let matches = match_blobs(&cams, &pixels, &CorrespondConfig::default());
-        assert_eq!(matches.len(), 2);
-        assert!(matches.iter().all(|m| !m.ambiguous), "{matches:?}");
-        let cams = general_rig();
-        let (pixels, _) = scene(&cams, &same_row, 0.0, 2);
-        let matches = match_blobs(&cams, &pixels, &CorrespondConfig::default());
-        assert!(
-            matches.iter().all(|m| !m.ambiguous && m.blobs.len() == 4),
-            "{matches:?}"
-        );
     }
 
     #[test]
