@@ -31,13 +31,27 @@ fn free_port() -> u16 {
 /// The demo rig on one PC named "pc" with its router on a free loopback port and an
 /// iceoryx2 prefix of this test's own (`tag` tells the tests apart): the file and the port.
 fn one_pc_rig(dir: &TempDir, tag: char) -> (String, u16) {
+    one_pc_rig_of(dir, tag, &demo_rig())
+}
+
+/// [`one_pc_rig`] of another rig text.
+fn one_pc_rig_of(dir: &TempDir, tag: char, base: &str) -> (String, u16) {
     let port = free_port();
     let rig = format!(
-        "{}\n[[host]]\nname = \"pc\"\nzenoh_listen = [\"tcp/127.0.0.1:{port}\"]\niceoryx2_prefix = \"stsc_t{}{tag}_\"\n",
-        demo_rig(),
+        "{base}\n[[host]]\nname = \"pc\"\nzenoh_listen = [\"tcp/127.0.0.1:{port}\"]\niceoryx2_prefix = \"stsc_t{}{tag}_\"\n",
         std::process::id()
     );
     (dir.file("rig.toml", &rig), port)
+}
+
+/// The demo rig without its helmet (its last target) and VR feed: the three targets whose
+/// paths stay apart in both views.
+fn demo_rig_without_helmet() -> String {
+    let demo = demo_rig();
+    let cut = demo.rfind("[[synthetic.target]]").unwrap();
+    let rig = demo[..cut].replace("[vr]\nvrpn = {}\nvmt = {}\nopentrack = {}\n", "");
+    assert!(!rig.contains("[vr]"), "the demo rig's [vr] section changed");
+    rig
 }
 
 fn demo_rig() -> String {
@@ -1454,7 +1468,15 @@ fn a_long_session_exports_to_c3d_with_every_frame() {
 fn recorded_frames_replay_through_the_services_to_the_same_poses() {
     let _serial = serial();
     let dir = TempDir::new("framesreplay");
-    let (_launcher, _watcher, path, _port) = running_demo(&dir, 'f');
+    // Without the helmet, whose four markers' start-up differs between the live run and a
+    // replay that starts mid-run (its markers near the threshold), so every object must be
+    // found again. Known defect: this test fails about 1 run in 8, and did so before the
+    // helmet existed (the build of 741fe83: 1 of 8) — after the threshold period a replay
+    // sometimes keeps differing from the live poses (docs/recording.md).
+    let (path, port) = one_pc_rig_of(&dir, 'f', &demo_rig_without_helmet());
+    let _launcher = Proc::start(&["run", &path]);
+    let watcher = PoseWatcher::new(&format!("tcp/127.0.0.1:{port}"), "demo");
+    watcher.until(Duration::from_secs(40), "three objects", both_cameras);
     let session = dir.0.join("session");
     let session_s = session.to_str().unwrap().to_string();
     let mut recorder = Proc::start(&[
@@ -1520,9 +1542,7 @@ fn recorded_frames_replay_through_the_services_to_the_same_poses() {
         stderr(&o)
     );
     assert!(matched >= recorded * 95 / 100, "{v}\n{}", stderr(&o));
-    // Until the replay's workers take the live threshold (the first threshold period), a
-    // helmet marker near the threshold may be found in one run and not the other.
-    assert!(v["objects_unmatched"].as_u64().unwrap() <= 8, "{v}");
+    assert_eq!(v["objects_unmatched"], 0, "{v}");
     assert!(v["position_rms_mm"].as_f64().unwrap() < 2.0, "{v}");
     assert!(v["position_max_mm"].as_f64().unwrap() < 10.0, "{v}");
     // A threshold period and a few frames for the windows to take the same blobs.

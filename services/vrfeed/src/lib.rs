@@ -148,7 +148,11 @@ impl VrFeedService {
             ..ctx.node_spec("vrfeed")
         })?;
         if let Some((addr, _)) = settings.vrpn {
-            let state = if vrpn.is_some() { "listening" } else { "port in use" };
+            let state = if vrpn.is_some() {
+                "listening"
+            } else {
+                "port in use"
+            };
             node.counters.detail.insert("vrpn".into(), state.into());
             if vrpn.is_none() {
                 node.counters.set_error(&format!(
