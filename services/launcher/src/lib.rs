@@ -718,7 +718,8 @@ mod tests {
 
     #[test]
     fn a_service_that_refuses_its_configuration_stops_the_rig_unrestarted() {
-        // Five services (capture and worker per camera, fusion); none is asked to stop.
+        // Six services (capture and worker per camera, fusion, the VR feed); none is asked to
+        // stop.
         let (result, starts) = supervise(
             "echo 'error: r.toml: camera[0].moments.max_objects: 0 is not between 1 and 64' >&2; exit 78",
             |_| false,
@@ -733,15 +734,15 @@ mod tests {
             }
             other => panic!("expected a configuration stop, got {other:?}"),
         }
-        assert!(starts <= 5, "a service was restarted: {starts} starts");
+        assert!(starts <= 6, "a service was restarted: {starts} starts");
     }
 
     #[test]
     fn a_crashing_service_is_restarted() {
-        let (result, starts) = supervise("exit 3", |n| n > 5);
+        let (result, starts) = supervise("exit 3", |n| n > 6);
         let restarts = result.unwrap();
         assert!(
-            restarts >= 1 && starts > 5,
+            restarts >= 1 && starts > 6,
             "{restarts} restarts, {starts} starts"
         );
     }
@@ -753,6 +754,7 @@ mod tests {
                 .replacen("id = \"cam0\"", "id = \"cam0\"\nhost = \"a\"", 1)
                 .replacen("id = \"cam1\"", "id = \"cam1\"\nhost = \"b\"", 1)
                 .replacen("[fusion]\n", "[fusion]\nhost = \"b\"\n", 1)
+                .replacen("[vr]\n", "[vr]\nhost = \"b\"\n", 1)
             + "\n[[host]]\nname = \"a\"\nzenoh_listen = [\"tcp/0.0.0.0:7447\"]\n[[host]]\nname = \"b\"\nzenoh_listen = [\"tcp/127.0.0.1:7448\"]\nzenoh_connect = [\"tcp/10.0.0.1:7447\"]\n[[serial]]\nhost = \"b\"\nport = \"/dev/ttyUSB0\"\nmode = \"legacy\"\nobjects = [3, 1]\n";
         let a = ctx(&text, "a");
         let (router, client) = router_specs(&a).unwrap().unwrap();
@@ -770,7 +772,13 @@ mod tests {
         let names: Vec<&str> = specs.iter().map(|s| s.name.as_str()).collect();
         assert_eq!(
             names,
-            ["capture/cam1", "moments/cam1", "serial/ttyUSB0", "fusion"]
+            [
+                "capture/cam1",
+                "moments/cam1",
+                "serial/ttyUSB0",
+                "fusion",
+                "vrfeed"
+            ]
         );
         assert!(
             specs[2].args.windows(2).any(|w| w == ["--mode", "legacy"]),
