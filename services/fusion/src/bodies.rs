@@ -13,6 +13,9 @@ const _: () = assert!(stereoscope_bodies::MAX_MARKERS as u32 == MAX_BODY_MARKERS
 #[derive(Debug, Clone)]
 pub struct Bodies {
     tracker: BodyTracker,
+    /// Each body's markers in its own frame (the refinement reads them while the tracker is
+    /// borrowed).
+    markers_m: Vec<Vec<Point3<f64>>>,
 }
 
 impl Bodies {
@@ -28,6 +31,7 @@ impl Bodies {
 
     pub fn new(defs: Vec<stereoscope_bodies::BodyDef>, hold_ns: u64) -> Self {
         Bodies {
+            markers_m: defs.iter().map(|d| d.markers_m.clone()).collect(),
             tracker: BodyTracker::new(defs, hold_ns),
         }
     }
@@ -70,12 +74,7 @@ impl Bodies {
             .iter()
             .map(|&i| Point3::from(poses[i].position_m))
             .collect();
-        let defs_now: Vec<Vec<Point3<f64>>> = self
-            .tracker
-            .defs()
-            .iter()
-            .map(|d| d.markers_m.clone())
-            .collect();
+        let defs_now = &self.markers_m;
         let ids: Vec<u32> = index.iter().map(|&i| poses[i].object_id).collect();
         let mut refine = |body: usize, markers: &[Option<usize>], pose: &Isometry3<f64>| {
             let fuser = fuser?;

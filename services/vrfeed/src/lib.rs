@@ -107,7 +107,7 @@ pub struct VrFeedService {
     udp: UdpSocket,
     filters: Vec<Option<PoseFilter>>,
     frames: u64,
-    latency_us: Vec<f64>,
+    latency_us: std::collections::VecDeque<f64>,
     send_errors: u64,
 }
 
@@ -222,7 +222,7 @@ impl VrFeedService {
             udp,
             filters,
             frames: 0,
-            latency_us: Vec::new(),
+            latency_us: std::collections::VecDeque::with_capacity(LATENCY_WINDOW),
             send_errors: 0,
         })
     }
@@ -306,6 +306,8 @@ impl VrFeedService {
                 f.reset();
             }
         }
+        // The UDP datagrams of this frame, sent once every body is encoded.
+        let mut datagrams: Vec<(Vec<u8>, SocketAddr)> = Vec::new();
         for b in &frame.bodies {
             let Some(index) = self.names.iter().position(|n| *n == b.name) else {
                 continue;
@@ -328,23 +330,25 @@ impl VrFeedService {
                     );
                 }
             }
-            if let Some((to, f, bodies)) = self.settings.vmt.clone()
+            if let Some((to, f, bodies)) = &self.settings.vmt
                 && let Some(k) = bodies.iter().position(|&x| x == index)
             {
-                let c = feeds::in_frame(&f, &position, &pose.rotation);
-                self.send_udp(&feeds::vmt_room_driver(k as i32, &c), to);
+                let c = feeds::in_frame(f, &position, &pose.rotation);
+                datagrams.push((feeds::vmt_room_driver(k as i32, &c), *to));
             }
-            if let Some((to, f)) = self.settings.vmc {
-                let c = feeds::in_frame(&f, &position, &pose.rotation);
-                let m = feeds::vmc_tracker(&b.name, &c);
-                self.send_udp(&m, to);
+            if let Some((to, f)) = &self.settings.vmc {
+                let c = feeds::in_frame(f, &position, &pose.rotation);
+                datagrams.push((feeds::vmc_tracker(&b.name, &c), *to));
             }
-            if let Some((to, f, body)) = self.settings.opentrack
-                && body == index
+            if let Some((to, f, body)) = &self.settings.opentrack
+                && *body == index
             {
-                let c = feeds::in_frame(&f, &position, &pose.rotation);
-                self.send_udp(&feeds::opentrack(&c), to);
+                let c = feeds::in_frame(f, &position, &pose.rotation);
+                datagrams.push((feeds::opentrack(&c).to_vec(), *to));
             }
+        }
+        for (bytes, to) in datagrams {
+            self.send_udp(&bytes, to);
         }
         if let Some(s) = self.vrpn.as_mut() {
             s.flush();
@@ -352,10 +356,10 @@ impl VrFeedService {
         let now = now_ns();
         if !frame.bodies.is_empty() && frame.frame_published_ns > 0 {
             if self.latency_us.len() >= LATENCY_WINDOW {
-                self.latency_us.remove(0);
+                self.latency_us.pop_front();
             }
             self.latency_us
-                .push(now.saturating_sub(frame.frame_published_ns) as f64 * 1e-3);
+                .push_back(now.saturating_sub(frame.frame_published_ns) as f64 * 1e-3);
         }
         self.frames += 1;
         self.node.counters.processed = self.frames;
@@ -376,7 +380,7 @@ impl VrFeedService {
             .detail
             .insert("send_errors".into(), self.send_errors.to_string());
         if !self.latency_us.is_empty() {
-            let mut v = self.latency_us.clone();
+            let mut v: Vec<f64> = self.latency_us.iter().copied().collect();
             v.sort_by(f64::total_cmp);
             let q = |p: f64| v[((v.len() - 1) as f64 * p).round() as usize];
             counters
@@ -450,7 +454,7 @@ impl Service for VrFeedService {
     fn summary(&self) -> VrFeedSummary {
         VrFeedSummary {
             frames: self.frames,
-            latency_us: self.latency_us.clone(),
+            latency_us: self.latency_us.iter().copied().collect(),
         }
     }
 }
