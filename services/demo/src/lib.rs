@@ -50,6 +50,7 @@ use stereoscope_proto::messages::{Health, Message, PoseFrame, Truth};
 use stereoscope_proto::names::zenoh as keys;
 use stereoscope_rig::Context;
 use stereoscope_rig::Rig;
+use stereoscope_rig::truth::Layouts;
 use stereoscope_transport::Shutdown;
 use stereoscope_transport::net::{self, ZenohSpec};
 
@@ -108,8 +109,9 @@ pub struct DemoSummary {
     pub heading_rms_deg: Option<f64>,
     /// Pose frames with every visible target matched within 5 cm.
     pub complete_frames: u64,
-    /// Poses that were no target (more than 5 cm from every loose target, or from their
-    /// body's extent): ghosts that reached the outputs.
+    /// Poses that were no target (more than 5 cm from every loose target and body marker, or
+    /// a body's marker that far from its true place: `stereoscope_rig::truth`): ghosts that
+    /// reached the outputs.
     pub ghost_poses: u64,
     pub targets: Vec<TargetStats>,
     pub bodies: Vec<BodyStats>,
@@ -286,7 +288,10 @@ pub fn run(cfg: DemoConfig, shutdown: Shutdown) -> Result<DemoSummary, DemoError
         };
         std::thread::spawn(move || stereoscope_launcher::run(lc, stop))
     };
-    let result = watch(&cfg, &shutdown, &client, &rig.name, &first_cam, &prefix);
+    let layouts = Layouts::of_rig(&rig.spec);
+    let result = watch(
+        &cfg, &shutdown, &client, &rig.name, &first_cam, &prefix, &layouts,
+    );
     launch_stop.request();
     let restarts = match launcher.join() {
         Ok(Ok(r)) => r,
@@ -351,6 +356,7 @@ fn watch(
     rig: &str,
     truth_cam: &str,
     iox_prefix: &str,
+    layouts: &Layouts,
 ) -> Result<DemoSummary, DemoError> {
     // The router starts in the launcher thread: give it a moment, then connect.
     let mut session = None;
@@ -449,7 +455,7 @@ fn watch(
                 Some(t) => {
                     let scored = score(p, t, &mut acc);
                     let body_errors = score_bodies(p, t, &mut body_acc);
-                    let g = ghost_poses(p, t);
+                    let g = layouts.ghosts(&p.poses, &t.targets).len();
                     ghosts += g as u64;
                     if scored.iter().all(|(_, id, e)| id.is_some() && *e < 0.05) {
                         complete += 1;
@@ -631,30 +637,6 @@ fn score_bodies(p: &PoseFrame, t: &Truth, acc: &mut BTreeMap<String, BodyAcc>) -
 
 /// A body's error in one frame: name, position error (m), rotation error (degrees).
 type BodyError = (String, f64, f64);
-
-/// Poses of a frame that are no target: a loose pose more than 5 cm from every target (a ghost
-/// of a wrong correspondence), or a body's marker more than 5 cm from where its body's truth
-/// puts the body's extent (a marker labelled into a body it is not part of).
-fn ghost_poses(p: &PoseFrame, t: &Truth) -> usize {
-    let near = |a: &[f64; 3], b: &[f64; 3], r: f64| {
-        (0..3).map(|i| (a[i] - b[i]).powi(2)).sum::<f64>().sqrt() < r
-    };
-    p.poses
-        .iter()
-        .filter(|pose| {
-            !t.targets.iter().any(|tt| match (&pose.body, &tt.body) {
-                (None, None) => near(&pose.position_m, &tt.position_m, 0.05),
-                // A body's markers lie within its extent (0.5 m covers any demo body).
-                (Some(b), Some(name)) => {
-                    b.name == *name && near(&pose.position_m, &tt.position_m, 0.5)
-                }
-                // A loose pose may be a body's marker not identified this frame.
-                (None, Some(_)) => near(&pose.position_m, &tt.position_m, 0.5),
-                (Some(_), None) => false,
-            })
-        })
-        .count()
-}
 
 /// Matches one pose frame to its truth; returns `(target, object id, error m)` per visible
 /// target.

@@ -6,11 +6,18 @@
 //! (§4.1.1, `stereoscope_vision::heading`), and object identities over time: a
 //! constant-velocity prediction per object and a global minimum-cost assignment of points to
 //! predictions within a gate. Ids are never reused while fusion runs.
+//!
+//! Correspondence knows the followed objects: each object seen in the last set is predicted
+//! and projected into every camera, and a blob within `claim_px` of an object's projection is
+//! claimed by it. Two blobs claimed by different objects only are never paired
+//! (`stereoscope_geometry::correspond::match_labelled`): two markers on one epipolar line
+//! (image row in the parallel rig) cannot pair crosswise into ghosts while they are followed.
 
 use nalgebra::{Point2, Point3, Vector3};
 use stereoscope_geometry::Camera;
-use stereoscope_geometry::correspond::{CorrespondConfig, match_blobs};
+use stereoscope_geometry::correspond::{Claims, CorrespondConfig, Match, match_labelled};
 use stereoscope_geometry::depth::{on_axis_area, point_from_depth};
+use stereoscope_geometry::triangulate::{Observation as View, triangulate};
 use stereoscope_geometry::world_heading::{AxisView, fuse};
 use stereoscope_numeric::angle::wrap_half_turn_deg;
 use stereoscope_numeric::assign::Assigner;
@@ -45,6 +52,15 @@ pub struct FuserConfig {
     /// target (a wrong correspondence triangulated beyond the scene, a reflection) and is
     /// dropped and counted before it can become an object. `None`: no bound.
     pub volume_m: Option<(Point3<f64>, Point3<f64>)>,
+    /// A blob within this many pixels of where a followed object's prediction projects is
+    /// claimed by that object, and is not paired with a blob only other objects claim
+    /// (0: no claims).
+    pub claim_px: f64,
+    /// A sphere's image has the same area × distance² in every camera: a blob of a match
+    /// whose area × distance² exceeds this many times that of the match's round blob (a
+    /// sphere's image, roundness ≥ 0.8) holds another marker's image too (two markers merged
+    /// in that view, whatever the 2D tracker saw) and leaves the match.
+    pub max_area_ratio: f64,
 }
 
 /// [`FuserConfig::confirm_sets`] by default.
@@ -61,6 +77,8 @@ impl Default for FuserConfig {
             confirm_sets: DEFAULT_CONFIRM_SETS,
             merge_m: 0.01,
             volume_m: None,
+            claim_px: 6.0,
+            max_area_ratio: 1.6,
         }
     }
 }
@@ -90,6 +108,17 @@ struct Object {
     heading_directed: bool,
 }
 
+impl Object {
+    /// Where it should be at `timestamp_ns`, and how far from there a point may continue it.
+    fn predict(&self, cfg: &FuserConfig, timestamp_ns: u64) -> (Point3<f64>, f64) {
+        let dt = timestamp_ns.saturating_sub(self.last_seen_ns) as f64 * 1e-9;
+        (
+            self.position_m + self.velocity_m_per_s * dt,
+            cfg.gate_m + cfg.gate_growth_m_per_s * dt,
+        )
+    }
+}
+
 /// Keeps the objects of one rig over time.
 #[derive(Debug)]
 pub struct Fuser {
@@ -106,6 +135,12 @@ pub struct Fuser {
     pixels: Vec<(u32, Sightings)>,
     /// Points dropped for lying outside the capture volume, since start.
     pub outside_volume: u64,
+    /// Depth-from-area points of a set with several cameras that continued no object, since
+    /// start (dropped: see [`Fuser::fuse`]).
+    pub single_view_unmatched: u64,
+    /// Blobs taken out of a match for an area out of line with its other views
+    /// ([`FuserConfig::max_area_ratio`]), since start.
+    pub area_mismatch: u64,
 }
 
 /// What each camera saw of one object: (rig camera index, pixel as measured).
@@ -155,6 +190,8 @@ impl Fuser {
             last_set_ns: None,
             pixels: Vec::new(),
             outside_volume: 0,
+            single_view_unmatched: 0,
+            area_mismatch: 0,
         }
     }
 
@@ -179,8 +216,102 @@ impl Fuser {
         self.next_id
     }
 
-    /// The 3D points of one set (`(rig camera index, observation)` pairs).
-    pub fn points(&self, set: &[(usize, Observation)]) -> Vec<Point> {
+    /// Per set camera and kept blob: the objects seen in the last set whose prediction at
+    /// `timestamp_ns` projects within `claim_px` of it.
+    fn claims(
+        &self,
+        set: &[(usize, Observation)],
+        pixels: &[Vec<Point2<f64>>],
+        timestamp_ns: u64,
+    ) -> Vec<Vec<Claims>> {
+        let mut out: Vec<Vec<Claims>> = pixels.iter().map(|p| vec![Vec::new(); p.len()]).collect();
+        if self.cfg.claim_px <= 0.0 {
+            return out;
+        }
+        for o in &self.objects {
+            if o.id == 0 || self.last_set_ns != Some(o.last_seen_ns) {
+                continue;
+            }
+            let (predicted, _) = o.predict(&self.cfg, timestamp_ns);
+            for (s, (c, _)) in set.iter().enumerate() {
+                let Some(q) = self.cameras[*c].project(&predicted) else {
+                    continue;
+                };
+                for (j, p) in pixels[s].iter().enumerate() {
+                    if (p - q).norm() <= self.cfg.claim_px {
+                        out[s][j].push(o.id);
+                    }
+                }
+            }
+        }
+        out
+    }
+
+    /// `m` without the blobs whose area is out of line with its round blob's
+    /// ([`FuserConfig::max_area_ratio`]), re-triangulated; `None` when fewer than two views
+    /// remain or they no longer fit.
+    fn area_consistent(
+        &self,
+        set: &[(usize, Observation)],
+        kept: &[Vec<usize>],
+        cams: &[Camera],
+        pixels: &[Vec<Point2<f64>>],
+        m: Match,
+    ) -> (Option<Match>, u64) {
+        let scaled: Vec<(f64, bool)> = m
+            .blobs
+            .iter()
+            .map(|&(c, j)| {
+                let b = &set[c].1.blobs[kept[c][j]];
+                let d = (cams[c].position_world() - m.point.point_world).norm();
+                (b.area_px * d * d, b.roundness >= 0.8)
+            })
+            .collect();
+        let Some(round) = scaled
+            .iter()
+            .filter(|(_, r)| *r)
+            .map(|(a, _)| *a)
+            .min_by(f64::total_cmp)
+        else {
+            return (Some(m), 0);
+        };
+        let bound = self.cfg.max_area_ratio * round;
+        if scaled.iter().all(|(a, _)| *a <= bound) {
+            return (Some(m), 0);
+        }
+        let keep: Vec<(usize, usize)> = m
+            .blobs
+            .iter()
+            .zip(&scaled)
+            .filter(|(_, (a, _))| *a <= bound)
+            .map(|(b, _)| *b)
+            .collect();
+        let removed = (m.blobs.len() - keep.len()) as u64;
+        if keep.len() < 2 {
+            return (None, removed);
+        }
+        let views: Vec<View> = keep
+            .iter()
+            .map(|&(c, j)| View {
+                camera: c,
+                pixel: pixels[c][j],
+            })
+            .collect();
+        let fits = triangulate(cams, &views)
+            .ok()
+            .filter(|t| t.rms_px <= self.cfg.correspond.max_residual_px);
+        (
+            fits.map(|t| Match {
+                blobs: keep,
+                point: t,
+            }),
+            removed,
+        )
+    }
+
+    /// The 3D points of one set (`(rig camera index, observation)` pairs) taken at
+    /// `timestamp_ns`.
+    pub fn points(&mut self, set: &[(usize, Observation)], timestamp_ns: u64) -> Vec<Point> {
         let cams: Vec<Camera> = set.iter().map(|(c, _)| self.cameras[*c]).collect();
         // Only blobs seen this frame; keep their indices.
         let kept: Vec<Vec<usize>> = set
@@ -203,7 +334,14 @@ impl Fuser {
         let mut points = Vec::new();
         let mut used: Vec<Vec<bool>> = kept.iter().map(|k| vec![false; k.len()]).collect();
         if set.len() >= 2 {
-            for m in match_blobs(&cams, &pixels, &self.cfg.correspond) {
+            let labels = self.claims(set, &pixels, timestamp_ns);
+            for m in match_labelled(&cams, &pixels, &labels, &self.cfg.correspond) {
+                for &(c, j) in &m.blobs {
+                    used[c][j] = true;
+                }
+                let (m, removed) = self.area_consistent(set, &kept, &cams, &pixels, m);
+                self.area_mismatch += removed;
+                let Some(m) = m else { continue };
                 let blobs: Vec<(usize, usize)> = m
                     .blobs
                     .iter()
@@ -292,14 +430,6 @@ impl Fuser {
 
     /// Fuses one set taken at `timestamp_ns` into poses, updating the objects.
     pub fn fuse(&mut self, set: &[(usize, Observation)], timestamp_ns: u64) -> Vec<Pose> {
-        let mut points = self.points(set);
-        if let Some((lo, hi)) = self.cfg.volume_m {
-            let before = points.len();
-            points.retain(|p| (0..3).all(|i| p.position_m[i] >= lo[i] && p.position_m[i] <= hi[i]));
-            self.outside_volume += (before - points.len()) as u64;
-        }
-        let headings: Vec<Option<(f64, bool)>> =
-            points.iter().map(|p| self.heading_of(set, p)).collect();
         // Forget objects unseen for too long, and tentative ones missing from the last set.
         let drop_after = self.cfg.drop_after_ns;
         let last_set = self.last_set_ns;
@@ -310,13 +440,20 @@ impl Fuser {
                 timestamp_ns.saturating_sub(o.last_seen_ns) <= drop_after
             }
         });
+        // (Before the set's time is kept: the claims are made by the objects of the last set.)
+        let mut points = self.points(set, timestamp_ns);
         self.last_set_ns = Some(timestamp_ns);
+        if let Some((lo, hi)) = self.cfg.volume_m {
+            let before = points.len();
+            points.retain(|p| (0..3).all(|i| p.position_m[i] >= lo[i] && p.position_m[i] <= hi[i]));
+            self.outside_volume += (before - points.len()) as u64;
+        }
+        let headings: Vec<Option<(f64, bool)>> =
+            points.iter().map(|p| self.heading_of(set, p)).collect();
         // Assign points to predictions.
         let mut cost = Vec::with_capacity(self.objects.len() * points.len());
         for o in &self.objects {
-            let dt = timestamp_ns.saturating_sub(o.last_seen_ns) as f64 * 1e-9;
-            let predicted = o.position_m + o.velocity_m_per_s * dt;
-            let gate = self.cfg.gate_m + self.cfg.gate_growth_m_per_s * dt;
+            let (predicted, gate) = o.predict(&self.cfg, timestamp_ns);
             let gate2 = gate * gate;
             cost.extend(points.iter().map(|p| {
                 let d2 = (p.position_m - predicted).norm_squared();
@@ -336,6 +473,18 @@ impl Fuser {
         let mut poses = Vec::with_capacity(points.len());
         let mut pixels = Vec::with_capacity(points.len());
         for (pi, p) in points.iter().enumerate() {
+            // In a rig of several cameras, a blob only one camera sees and no followed object
+            // claims is most often a target whose image merged with another's in the other
+            // views, or a marker of another size than the area model's: its depth from area
+            // may be far off. It may continue a followed object (within its gate), never start
+            // one.
+            if owner[pi].is_none()
+                && p.method != PoseMethod::Triangulated
+                && self.cameras.len() >= 2
+            {
+                self.single_view_unmatched += 1;
+                continue;
+            }
             let oi = match owner[pi] {
                 Some(oi) => {
                     let o = &mut self.objects[oi];
@@ -571,5 +720,31 @@ mod tests {
         let t = t + 2 * s + s / 10;
         let again = id(&f.fuse(&set_at(&rig, back, t), t));
         assert!(again > first, "{again} {first}");
+    }
+
+    /// In a rig of two cameras, a blob only one camera sees never starts an object (its depth
+    /// from area would be a guess: a merged image, a marker of another size than the model's).
+    #[test]
+    fn one_view_starts_no_object_in_a_rig_of_several_cameras() {
+        let rig = Rig::from_toml(RIG).unwrap();
+        let mut f = Fuser::new(&rig, FuserConfig::default());
+        let dt = 33_333_333u64;
+        let at = Point3::new(-0.1, 0.05, 0.6);
+        for k in 1..=5 {
+            f.fuse(&set_at(&rig, at, k * dt), k * dt);
+        }
+        let id = f.next_id() - 1;
+        // A blob only camera 0 sees, far from every object, in sets of one camera: never an
+        // object, however long it stays (the demo rig has area models: depth from area would
+        // have made one).
+        let far = Point3::new(0.3, -0.3, 0.2);
+        for k in 6..=10 {
+            let mut set = set_at(&rig, far, k * dt);
+            set.truncate(1);
+            let poses = f.fuse(&set, k * dt);
+            assert!(poses.iter().all(|p| p.object_id == id), "{poses:?}");
+        }
+        assert_eq!(f.next_id(), id + 1);
+        assert!(f.single_view_unmatched >= 5);
     }
 }

@@ -406,6 +406,15 @@ impl FusionService {
                 self.fuser.outside_volume.to_string(),
             );
         }
+        if self.fuser.area_mismatch > 0 {
+            detail.insert("area_mismatch".into(), self.fuser.area_mismatch.to_string());
+        }
+        if self.fuser.single_view_unmatched > 0 {
+            detail.insert(
+                "single_view_unmatched".into(),
+                self.fuser.single_view_unmatched.to_string(),
+            );
+        }
         if self.merged_blobs > 0 {
             detail.insert("merged_blobs".into(), self.merged_blobs.to_string());
         }

@@ -5,7 +5,7 @@
 
 use stereoscope_capture::source::FrameSource;
 use stereoscope_capture::synthetic::SyntheticSource;
-use stereoscope_fusion::fuser::{Fuser, FuserConfig};
+use stereoscope_fusion::fuser::Fuser;
 use stereoscope_moments::Worker;
 use stereoscope_proto::frame::{FrameHeader, PixelFormat};
 use stereoscope_rig::Rig;
@@ -17,6 +17,13 @@ const RIG: &str = include_str!("../../../deploy/rigs/demo.toml");
 type Errors = (Vec<(f64, Option<f64>)>, Vec<(f64, f64)>);
 
 fn errors(rig_text: &str, frames: u64) -> Errors {
+    sweep(rig_text, 1000.0, frames).0
+}
+
+/// `frames` frames of the scene at 30 fps from `from_s` seconds: the errors (the first five
+/// frames, finding the targets, not scored), and the ghosts published
+/// (`stereoscope_rig::truth`), every frame counted.
+fn sweep(rig_text: &str, from_s: f64, frames: u64) -> (Errors, Vec<String>) {
     let rig = Rig::from_toml(rig_text).unwrap();
     let file = &rig.spec;
     let n = rig.cameras.len();
@@ -29,22 +36,25 @@ fn errors(rig_text: &str, frames: u64) -> Errors {
             Worker::new(s, "demo", &rig.cameras[i].id).unwrap()
         })
         .collect();
-    let mut fuser = Fuser::new(&rig, FuserConfig::default());
+    let mut fuser = Fuser::new(&rig, stereoscope_fusion::settings(file).1);
     let mut bodies = stereoscope_fusion::bodies::Bodies::new(
         stereoscope_rig::body_defs(&rig.spec),
         stereoscope_bodies::tracker::DEFAULT_HOLD_NS,
     );
+    let layouts = stereoscope_rig::truth::Layouts::of_rig(file);
+    let mut ghosts = Vec::new();
     let mut out = Vec::new();
     let mut body_out = Vec::new();
+    let first = (from_s * 30.0).round() as u64;
     for k in 0..frames {
-        let t = 1000.0 + k as f64 / 30.0;
+        let t = (first + k) as f64 / 30.0;
         let ts = (t * 1e9) as u64;
         let mut set = Vec::new();
         let mut truth = Vec::new();
         for c in 0..n {
             let (w, h) = sources[c].size();
             let mut buf = vec![0u8; (w * h) as usize];
-            sources[c].read(k, t, &mut buf).unwrap();
+            sources[c].read(first + k, t, &mut buf).unwrap();
             if c == 0 {
                 truth = sources[c].truth().unwrap();
             }
@@ -55,6 +65,12 @@ fn errors(rig_text: &str, frames: u64) -> Errors {
         }
         let mut poses = fuser.fuse(&set, ts);
         let found = bodies.update_refined(&mut poses, ts, &fuser);
+        for g in layouts.ghosts(&poses, &truth) {
+            ghosts.push(format!(
+                "{t:.2} s: object {} at {:.3?} {:?}",
+                g.object_id, g.position_m, g.body
+            ));
+        }
         if k < 5 {
             continue;
         }
@@ -94,7 +110,21 @@ fn errors(rig_text: &str, frames: u64) -> Errors {
             }
         }
     }
-    (out, body_out)
+    ((out, body_out), ghosts)
+}
+
+/// Where the demo scene's markers meet — two of the helmet's markers on one image row in both
+/// views, merged in one view or in both, a marker's image swallowed by a double ball's — no
+/// ghost is published, from the first frame on. The windows had 2, 8, 9 and 21 ghost poses before
+/// fusion knew its followed objects' blobs, compared areas across views and kept a merged
+/// blob merged (the in-process sweep over ten minutes, `examples/ghosts.rs`: 147 ghosts before,
+/// none after).
+#[test]
+fn no_ghost_where_the_demo_scene_markers_meet() {
+    for (from_s, seconds) in [(32.0, 4.0), (142.0, 4.0), (213.0, 4.0), (326.0, 5.0)] {
+        let (_, ghosts) = sweep(RIG, from_s, (seconds * 30.0) as u64);
+        assert!(ghosts.is_empty(), "from {from_s} s: {ghosts:#?}");
+    }
 }
 
 #[test]

@@ -14,6 +14,12 @@
 //!    (again a global assignment) and the points re-triangulated with all their views.
 //!
 //! Works for the parallel rig (where epipolar lines are image rows) and any general rig.
+//!
+//! [`match_labelled`] also takes, per blob, the followed objects whose predicted position
+//! projects onto it: two blobs that only other objects claim are never paired, nor joined to a
+//! point (step 4). Two markers on one epipolar line then cannot pair crosswise into a ghost
+//! while they are followed; where two objects' images meet in one view, a blob claimed by both
+//! may pair with either.
 
 use crate::camera::Camera;
 use crate::triangulate::{Observation, Triangulated, triangulate};
@@ -72,10 +78,51 @@ fn symmetric_epipolar_px(
     0.5 * (da + db)
 }
 
+/// Which followed objects a blob may be (their predictions project onto it); empty: any.
+pub type Claims = Vec<u32>;
+
+/// What pairing two blobs (or a point and a blob) adds to the cost beside their distance, in
+/// units of the largest distance allowed: 0 when both are unclaimed or they share an object;
+/// 1 when only one is claimed (a followed object's blob taken by a newcomer, allowed but
+/// last); `None` when they are claimed by different objects only.
+fn claim_penalty(a: &[u32], b: &[u32]) -> Option<f64> {
+    match (a.is_empty(), b.is_empty()) {
+        (true, true) => Some(0.0),
+        (false, false) => a.iter().any(|x| b.contains(x)).then_some(0.0),
+        _ => Some(1.0),
+    }
+}
+
+/// The claims of blob `j` of camera `c` (none when not given).
+fn claims_of(labels: &[Vec<Claims>], c: usize, j: usize) -> &[u32] {
+    labels
+        .get(c)
+        .and_then(|l| l.get(j))
+        .map_or(&[], |v| v.as_slice())
+}
+
+/// A match's claims: the objects every claimed blob of it allows (empty when none is claimed).
+fn match_claims(labels: &[Vec<Claims>], m: &Match) -> Claims {
+    let mut out: Option<Claims> = None;
+    for &(c, j) in &m.blobs {
+        let l = claims_of(labels, c, j);
+        if l.is_empty() {
+            continue;
+        }
+        out = Some(match out {
+            None => l.to_vec(),
+            Some(o) => o.into_iter().filter(|x| l.contains(x)).collect(),
+        });
+    }
+    out.unwrap_or_default()
+}
+
 /// Gives the other cameras' free blobs to the points they reproject onto (step 4).
+#[allow(clippy::too_many_arguments)]
 fn extend(
     cams: &[Camera],
     pixels: &[Vec<Point2<f64>>],
+    labels: &[Vec<Claims>],
     cfg: &CorrespondConfig,
     used: &mut [Vec<bool>],
     out: &mut [Match],
@@ -94,13 +141,20 @@ fn extend(
         cost.clear();
         for &m in &open {
             let proj = cams[c].project(&out[m].point.point_world);
+            let claims = match_claims(labels, &out[m]);
             for &j in &free {
                 let d = proj.map_or(f64::INFINITY, |p| (p - pixels[c][j]).norm());
-                cost.push(if d <= cfg.max_residual_px * 2.0 {
-                    d
-                } else {
-                    f64::INFINITY
-                });
+                let bound = cfg.max_residual_px * 2.0;
+                let penalty = claim_penalty(&claims, claims_of(labels, c, j));
+                cost.push(
+                    if let Some(k) = penalty
+                        && d <= bound
+                    {
+                        d + k * bound
+                    } else {
+                        f64::INFINITY
+                    },
+                );
             }
         }
         let pairs: Vec<(usize, usize)> = assigner
@@ -135,6 +189,17 @@ pub fn match_blobs(
     pixels: &[Vec<Point2<f64>>],
     cfg: &CorrespondConfig,
 ) -> Vec<Match> {
+    match_labelled(cams, pixels, &[], cfg)
+}
+
+/// [`match_blobs`] with each blob's claims (`labels[camera][blob]`; missing: unclaimed): a
+/// pair whose blobs are claimed by different objects only is not allowed.
+pub fn match_labelled(
+    cams: &[Camera],
+    pixels: &[Vec<Point2<f64>>],
+    labels: &[Vec<Claims>],
+    cfg: &CorrespondConfig,
+) -> Vec<Match> {
     let n = cams.len().min(pixels.len());
     let norm: Vec<Vec<Option<Vector2<f64>>>> = (0..n)
         .map(|c| pixels[c].iter().map(|p| cams[c].normalised(*p)).collect())
@@ -166,11 +231,16 @@ pub fn match_blobs(
                         continue;
                     };
                     let d = symmetric_epipolar_px(&e, xa, focal(a), xb, focal(b));
-                    cost.push(if d <= cfg.max_epipolar_px {
-                        d
-                    } else {
-                        f64::INFINITY
-                    });
+                    let penalty = claim_penalty(claims_of(labels, a, i), claims_of(labels, b, j));
+                    cost.push(
+                        if let Some(k) = penalty
+                            && d <= cfg.max_epipolar_px
+                        {
+                            d + k * cfg.max_epipolar_px
+                        } else {
+                            f64::INFINITY
+                        },
+                    );
                 }
             }
             let pairs: Vec<(usize, usize)> = assigner
@@ -208,6 +278,7 @@ pub fn match_blobs(
             extend(
                 cams,
                 pixels,
+                labels,
                 cfg,
                 &mut used,
                 &mut out,
@@ -346,6 +417,48 @@ mod tests {
         ];
         // 0.05 px: with a 20 cm baseline at 2.7 m, 0.2 px of disparity noise is 2 cm of depth.
         check(&cams, &points, 1, 0.05, true);
+    }
+
+    #[test]
+    fn claimed_blobs_pair_only_within_their_object() {
+        let cams = parallel_rig();
+        // Two markers on one image row in both views, at different depths: pairing them
+        // crosswise fits the rows as well (two ghosts).
+        let a = Point3::new(-0.05, 0.1, 0.5);
+        let b = Point3::new(0.1, 0.1 * (2.775 - 0.9) / (2.775 - 0.5), 0.9);
+        let px = |c: usize, p: &Point3<f64>| cams[c].project(p).unwrap();
+        // The crosswise pairs are made the cheaper ones: the markers' rows 0.4 px apart in
+        // camera 0, and camera 1's blobs each on the other marker's row.
+        let a0 = px(0, &a);
+        let mut b0 = px(0, &b);
+        b0.y = a0.y + 0.4;
+        let (mut a1, mut b1) = (px(1, &a), px(1, &b));
+        a1.y = b0.y;
+        b1.y = a0.y;
+        let pixels = vec![vec![a0, b0], vec![a1, b1]];
+        let cfg = CorrespondConfig::default();
+        let near = |m: &[Match], p: &Point3<f64>| {
+            m.iter()
+                .any(|m| (m.point.point_world - p).norm() < 0.01 && m.blobs.len() == 2)
+        };
+        // Unlabelled, the rows alone pair them crosswise.
+        let m = match_blobs(&cams, &pixels, &cfg);
+        assert!(m.len() == 2 && !near(&m, &a) && !near(&m, &b), "{m:?}");
+        // Claimed by the objects whose predictions project onto them: each marker's blobs
+        // pair with each other, whatever the rows say.
+        let labels = vec![vec![vec![1], vec![2]], vec![vec![1], vec![2]]];
+        let m = match_labelled(&cams, &pixels, &labels, &cfg);
+        assert_eq!(m.len(), 2);
+        assert!(near(&m, &a) && near(&m, &b), "{m:?}");
+        // A blob claimed by both (two images meeting) pairs with either; an unclaimed blob
+        // pairs with a claimed one only when nothing better is left.
+        let labels = vec![vec![vec![1, 2], vec![2]], vec![vec![1], vec![]]];
+        let m = match_labelled(&cams, &pixels, &labels, &cfg);
+        assert!(near(&m, &a) && near(&m, &b), "{m:?}");
+        // Claimed by different objects only: never paired.
+        let labels = vec![vec![vec![1]], vec![vec![2]]];
+        let m = match_labelled(&cams, &[vec![a0], vec![a1]], &labels, &cfg);
+        assert!(m.is_empty(), "{m:?}");
     }
 
     #[test]

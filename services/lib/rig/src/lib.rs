@@ -13,6 +13,7 @@ pub mod exit;
 pub mod moments;
 pub mod schema;
 pub mod security;
+pub mod truth;
 pub mod vr;
 
 use std::path::{Path, PathBuf};

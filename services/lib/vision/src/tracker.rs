@@ -160,6 +160,14 @@ impl Track {
 /// frame, holds both objects' images (two markers whose images merged in this view).
 pub const MERGE_AREA_RATIO: f64 = 1.6;
 
+/// A blob grown by this share of a lost track's usual area, with that track inside it, holds
+/// the lost track's image too.
+pub const MERGE_SHARE: f64 = 0.5;
+
+/// A merged blob stays merged while its area is at least this many times its track's usual
+/// area.
+pub const MERGE_KEEP_RATIO: f64 = 1.3;
+
 /// What one tracking step did.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub struct TrackStep {
@@ -381,7 +389,6 @@ impl Tracker {
                     t.x_px = bx;
                     t.y_px = by;
                     t.area_px = b.area_px();
-                    t.merged = false;
                     t.lost_frames = 0;
                     t.status = TrackStatus::Tracked;
                     t.heading = heading_of(&mut t.heading_tracker, &b, par, skew);
@@ -396,27 +403,37 @@ impl Tracker {
                 }
             }
         }
-        // Merged images: a blob far above its track's usual area with another track lost
-        // inside it. Such a track keeps its usual area (a merge is not growth).
-        // (Where a lost track was last seen, and where it was predicted to be.)
-        let lost: Vec<(f64, f64)> = self
+        // Merged images: a blob with another track lost inside it, grown by at least half
+        // that track's usual area (a small marker swallowed by a big blob moves its centroid
+        // as much as two alike), or far above its own usual area. A merged blob stays merged
+        // while it stays above its usual area (the lost track's last place falls behind as
+        // the pair moves on). Such a track keeps its usual area (a merge is not growth).
+        // (Where a lost track was last seen, where it was predicted to be, and its area.)
+        let lost: Vec<(f64, f64, f64)> = self
             .tracks
             .iter()
             .filter(|t| t.status == TrackStatus::Lost)
-            .flat_map(|t| [(t.x_px, t.y_px), t.predicted()])
+            .flat_map(|t| {
+                let (px, py) = t.predicted();
+                [(t.x_px, t.y_px, t.usual_area_px), (px, py, t.usual_area_px)]
+            })
             .collect();
         for t in &mut self.tracks {
             let Some(b) = &t.blob else { continue };
             let area = b.area_px() as f64;
-            let big = t.usual_area_px > 0.0 && area >= MERGE_AREA_RATIO * t.usual_area_px;
+            let usual = t.usual_area_px;
             let r = b.bbox;
-            let holds_lost = lost.iter().any(|&(x, y)| {
-                x >= r.x0 as f64 - 2.0
-                    && x <= r.x1 as f64 + 2.0
-                    && y >= r.y0 as f64 - 2.0
-                    && y <= r.y1 as f64 + 2.0
-            });
-            t.merged = big && holds_lost;
+            let still = t.merged && area >= MERGE_KEEP_RATIO * usual;
+            t.merged = usual > 0.0
+                && (still
+                    || lost.iter().any(|&(x, y, lost_area)| {
+                        x >= r.x0 as f64 - 2.0
+                            && x <= r.x1 as f64 + 2.0
+                            && y >= r.y0 as f64 - 2.0
+                            && y <= r.y1 as f64 + 2.0
+                            && (area >= MERGE_AREA_RATIO * usual
+                                || area >= usual + MERGE_SHARE * lost_area)
+                    }));
             if !t.merged {
                 t.usual_area_px = if t.usual_area_px > 0.0 {
                     0.7 * t.usual_area_px + 0.3 * area

@@ -1,0 +1,139 @@
+//! Ghost sweep: a rig's synthetic scene rendered, tracked and fused in one process, frame by
+//! frame at 30 fps, the same libraries as the services; prints every published pose that is no
+//! target (`stereoscope_rig::truth`) and a summary. Deterministic: a ghost found here is found
+//! again, and `--dump FRAME` prints that frame's blobs and poses (and the two after it).
+//!
+//!   cargo run --release -p stereoscope-fusion --example ghosts -- \
+//!       [--seconds 600] [--from 0] [--rig deploy/rigs/demo.toml] [--dump FRAME]
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+
+use stereoscope_capture::source::FrameSource;
+use stereoscope_capture::synthetic::SyntheticSource;
+use stereoscope_fusion::fuser::Fuser;
+use stereoscope_moments::Worker;
+use stereoscope_proto::frame::{FrameHeader, PixelFormat};
+use stereoscope_rig::Rig;
+use stereoscope_rig::truth::Layouts;
+
+fn arg(args: &[String], name: &str) -> Option<String> {
+    let i = args.iter().position(|a| a == name)?;
+    args.get(i + 1).cloned()
+}
+
+fn main() {
+    let args: Vec<String> = std::env::args().collect();
+    let seconds: f64 = arg(&args, "--seconds").map_or(600.0, |s| s.parse().unwrap());
+    let from: f64 = arg(&args, "--from").map_or(0.0, |s| s.parse().unwrap());
+    let dump: Option<u64> = arg(&args, "--dump").map(|s| s.parse().unwrap());
+    let text = match arg(&args, "--rig") {
+        Some(p) => std::fs::read_to_string(p).unwrap(),
+        None => include_str!("../../../deploy/rigs/demo.toml").to_string(),
+    };
+    let rig = Rig::from_toml(&text).unwrap();
+    let file = &rig.spec;
+    let n = rig.cameras.len();
+    let mut sources: Vec<SyntheticSource> = (0..n)
+        .map(|i| SyntheticSource::new(file, rig.cameras[i].camera, i, 30.0, None, None).unwrap())
+        .collect();
+    let mut workers: Vec<Worker> = (0..n)
+        .map(|i| {
+            Worker::new(
+                rig.worker_settings(i).unwrap(),
+                &rig.name,
+                &rig.cameras[i].id,
+            )
+            .unwrap()
+        })
+        .collect();
+    let (_, cfg, _) = stereoscope_fusion::settings(file);
+    let mut fuser = Fuser::new(&rig, cfg);
+    let mut bodies = stereoscope_fusion::bodies::Bodies::of_rig(file);
+    let layouts = Layouts::of_rig(file);
+    let first = (from * 30.0) as u64;
+    let frames = (seconds * 30.0) as u64;
+    let (mut ghosts, mut ghost_frames, mut body_sq, mut body_n) = (0, 0, 0.0, 0);
+    let mut bufs: Vec<Vec<u8>> = vec![Vec::new(); n];
+    for k in first..first + frames {
+        let t = k as f64 / 30.0;
+        let ts = 1_000_000_000_000 + (t * 1e9) as u64;
+        let dumped = dump.is_some_and(|d| d <= k && k < d + 3);
+        let mut set = Vec::new();
+        let mut truth = Vec::new();
+        for c in 0..n {
+            let (w, h) = sources[c].size();
+            bufs[c].resize((w * h) as usize, 0);
+            sources[c].read(k, t, &mut bufs[c]).unwrap();
+            let this_truth = sources[c].truth().unwrap();
+            let mut hd = FrameHeader::new(&rig.cameras[c].id, PixelFormat::Gray8, w, h).unwrap();
+            hd.sequence = k;
+            hd.timestamp_ns = ts;
+            let obs = workers[c].process_frame(&hd, &bufs[c]).unwrap();
+            if dumped {
+                println!("frame {k} camera {c} blobs (track, status, x, y, area, merged):");
+                for b in &obs.blobs {
+                    println!(
+                        "    {} {:?} {:.2} {:.2} {} {}",
+                        b.track_id, b.status, b.x_px, b.y_px, b.area_px, b.merged
+                    );
+                }
+                let centroids: Vec<_> = this_truth.iter().map(|t| t.centroid_px).collect();
+                println!("  truth centroids {centroids:?}");
+            }
+            if c == 0 {
+                truth = this_truth;
+            }
+            set.push((c, obs));
+        }
+        let mut poses = fuser.fuse(&set, ts);
+        let found = bodies.update_refined(&mut poses, ts, &fuser);
+        if dumped {
+            for p in &poses {
+                println!(
+                    "  pose {} {:.3?} {:?} from {:?}",
+                    p.object_id,
+                    p.position_m,
+                    p.body,
+                    fuser.pixels_of(p.object_id)
+                );
+            }
+        }
+        for tt in &truth {
+            let Some(name) = &tt.body else { continue };
+            if let Some(b) = found.iter().find(|b| &b.name == name && !b.held) {
+                body_sq += (0..3)
+                    .map(|i| (b.position_m[i] - tt.position_m[i]).powi(2))
+                    .sum::<f64>();
+                body_n += 1;
+            }
+        }
+        let bad = layouts.ghosts(&poses, &truth);
+        if !bad.is_empty() {
+            ghosts += bad.len();
+            ghost_frames += 1;
+            let markers = layouts.markers(&truth);
+            for p in &bad {
+                let at = nalgebra::Point3::from(p.position_m);
+                let nearest = truth
+                    .iter()
+                    .map(|tt| nalgebra::Point3::from(tt.position_m))
+                    .chain(markers.iter().map(|m| m.2))
+                    .map(|q| (q - at).norm())
+                    .fold(f64::INFINITY, f64::min);
+                println!(
+                    "frame {k} t {t:.2} s: object {} at {:.3?} {:?}, residual {:.2} px, nearest truth {:.0} mm",
+                    p.object_id,
+                    p.position_m,
+                    p.body,
+                    p.residual_px,
+                    nearest * 1e3
+                );
+            }
+        }
+    }
+    println!(
+        "{frames} frames from {from} s: {ghosts} ghost poses in {ghost_frames} frames; bodies' position RMS {:.2} mm over {body_n} sightings; fusion: {} blobs out of line by area, {} one-view points that continued no object",
+        (body_sq / body_n.max(1) as f64).sqrt() * 1e3,
+        fuser.area_mismatch,
+        fuser.single_view_unmatched,
+    );
+}
