@@ -326,7 +326,10 @@ pub fn kabsch(
     let v = v_t.transpose();
     let d = (v * u.transpose()).determinant().signum();
     let r = v * Matrix3::from_diagonal(&Vector3::new(1.0, 1.0, d)) * u.transpose();
-    let rotation = UnitQuaternion::from_matrix(&r);
+    // V·diag(1, 1, ±1)·Uᵀ is orthonormal by construction: converted directly (an iterative
+    // fit to the nearest rotation cost more than the rest of the pose).
+    let rotation =
+        UnitQuaternion::from_rotation_matrix(&nalgebra::Rotation3::from_matrix_unchecked(r));
     let t = cw - rotation * cb;
     let pose = Isometry3::from_parts(Translation3::from(t), rotation);
     let sq: f64 = body
@@ -431,7 +434,11 @@ pub fn identify_near(
             d[j * m + i] = v;
         }
     }
-    let all: Vec<Vec<Candidate>> = defs.iter().map(|def| body_candidates(def, &d, m)).collect();
+    let pairs = PairIndex::new(defs, &d, m);
+    let all: Vec<Vec<Candidate>> = defs
+        .iter()
+        .map(|def| body_candidates(def, &d, &pairs, m))
+        .collect();
     // The joint choice is over point sets: the best few distinct sets of each body.
     let candidates: Vec<Vec<Candidate>> = all.iter().map(|c| distinct_sets(c)).collect();
     // Joint choice: depth-first over bodies, each taking one of its candidates or none.
@@ -582,7 +589,75 @@ fn choose(
     choose(candidates, b + 1, choice, used, seen, cost, best);
 }
 
-fn body_candidates(def: &BodyDef, d: &[f64], m: usize) -> Vec<Candidate> {
+/// The frame's point pairs no farther apart than any body's longest distance (plus its
+/// tolerance), bucketed by distance (bucket width: the largest tolerance): the pairs that can
+/// be a body's first two markers are then a bucket or three, not every pair of points.
+struct PairIndex {
+    width_m: f64,
+    /// Bucket b's pairs are `pairs[start[b]..start[b + 1]]`.
+    start: Vec<usize>,
+    pairs: Vec<(u32, u32)>,
+}
+
+impl PairIndex {
+    fn new(defs: &[BodyDef], d: &[f64], m: usize) -> Self {
+        let tol = defs.iter().map(|x| x.tolerance_m).fold(0.0, f64::max);
+        let reach = defs
+            .iter()
+            .flat_map(|x| {
+                x.markers_m
+                    .iter()
+                    .flat_map(move |a| x.markers_m.iter().map(move |b| dist(a, b) + x.tolerance_m))
+            })
+            .fold(0.0, f64::max);
+        // At most 4096 buckets, however small the tolerance.
+        let width_m = tol.max(reach / 4096.0).max(1e-9);
+        let buckets = (reach / width_m) as usize + 1;
+        let bucket = |v: f64| (v / width_m) as usize;
+        let mut count = vec![0usize; buckets + 1];
+        for i in 0..m {
+            for j in i + 1..m {
+                let v = d[i * m + j];
+                if v <= reach {
+                    count[bucket(v) + 1] += 1;
+                }
+            }
+        }
+        for b in 0..buckets {
+            count[b + 1] += count[b];
+        }
+        let start = count.clone();
+        let mut pairs = vec![(0u32, 0u32); count[buckets]];
+        for i in 0..m {
+            for j in i + 1..m {
+                let v = d[i * m + j];
+                if v <= reach {
+                    let slot = &mut count[bucket(v)];
+                    pairs[*slot] = (i as u32, j as u32);
+                    *slot += 1;
+                }
+            }
+        }
+        PairIndex {
+            width_m,
+            start,
+            pairs,
+        }
+    }
+
+    /// The pairs whose distance may lie in `[lo, hi]` (a superset: check each).
+    fn within(&self, lo: f64, hi: f64) -> &[(u32, u32)] {
+        let last = self.start.len() - 2;
+        let b0 = ((lo.max(0.0) / self.width_m) as usize).min(last + 1);
+        let b1 = ((hi.max(0.0) / self.width_m) as usize).min(last);
+        if b0 > b1 {
+            return &[];
+        }
+        &self.pairs[self.start[b0]..self.start[b1 + 1]]
+    }
+}
+
+fn body_candidates(def: &BodyDef, d: &[f64], pairs: &PairIndex, m: usize) -> Vec<Candidate> {
     let n = def.markers_m.len();
     // Every marker of a pointer; three of any larger body (a pose needs three).
     let min_seen = n.min(3);
@@ -602,6 +677,7 @@ fn body_candidates(def: &BodyDef, d: &[f64], m: usize) -> Vec<Candidate> {
             n,
             m,
             d,
+            pairs,
             dd: &dd,
             tol: def.tolerance_m,
             min_seen: need,
@@ -619,6 +695,7 @@ struct Ctx<'a> {
     n: usize,
     m: usize,
     d: &'a [f64],
+    pairs: &'a PairIndex,
     dd: &'a [f64],
     tol: f64,
     min_seen: usize,
@@ -657,6 +734,28 @@ fn search_body(
     }
     // Not enough markers left to reach the minimum.
     if seen + (c.n - k) < c.min_seen {
+        return;
+    }
+    // The whole body wanted: its first two markers from the pairs at about their distance.
+    if k == 0 && c.n >= 2 && c.min_seen == c.n {
+        let want = c.dd[1];
+        for &(i, j) in c.pairs.within(want - c.tol, want + c.tol) {
+            let e = c.d[i as usize * c.m + j as usize] - want;
+            if e.abs() > c.tol {
+                continue;
+            }
+            for (p0, p1) in [(i as usize, j as usize), (j as usize, i as usize)] {
+                map[0] = Some(p0);
+                map[1] = Some(p1);
+                used[p0] = true;
+                used[p1] = true;
+                search_body(c, 2, 2, e * e, map, used, out);
+                used[p0] = false;
+                used[p1] = false;
+                map[0] = None;
+                map[1] = None;
+            }
+        }
         return;
     }
     for p in 0..c.m {
