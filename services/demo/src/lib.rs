@@ -113,6 +113,8 @@ pub struct DemoSummary {
     /// a body's marker that far from its true place: `stereoscope_rig::truth`): ghosts that
     /// reached the outputs.
     pub ghost_poses: u64,
+    /// The first ghosts (at most [`GHOST_EXAMPLES`]): where they were, how they were measured.
+    pub ghosts: Vec<GhostExample>,
     pub targets: Vec<TargetStats>,
     pub bodies: Vec<BodyStats>,
     /// The VR feed's frame published → sent to its clients, from its last health report,
@@ -158,7 +160,7 @@ impl DemoSummary {
             .collect();
         let opt = |v: Option<f64>| v.map_or("null".to_string(), |v| json_number(v, 1));
         format!(
-            "{{\"seconds\":{:.3},\"pose_frames\":{},\"poses_per_s\":{:.2},\"latency_p50_ms\":{},\"latency_p99_ms\":{},\"exposure_latency_p50_ms\":{},\"position_rms_m\":{},\"heading_rms_deg\":{},\"complete_frames\":{},\"ghost_poses\":{},\"restarts\":{},\"targets\":[{}],\"bodies\":[{}],\"vr_latency_p50_us\":{},\"vr_latency_p99_us\":{},\"losses\":{}}}",
+            "{{\"seconds\":{:.3},\"pose_frames\":{},\"poses_per_s\":{:.2},\"latency_p50_ms\":{},\"latency_p99_ms\":{},\"exposure_latency_p50_ms\":{},\"position_rms_m\":{},\"heading_rms_deg\":{},\"complete_frames\":{},\"ghost_poses\":{},\"ghosts\":{},\"restarts\":{},\"targets\":[{}],\"bodies\":[{}],\"vr_latency_p50_us\":{},\"vr_latency_p99_us\":{},\"losses\":{}}}",
             self.seconds,
             self.pose_frames,
             self.poses_per_s,
@@ -171,6 +173,7 @@ impl DemoSummary {
                 .unwrap_or("null".into()),
             self.complete_frames,
             self.ghost_poses,
+            serde_json::to_string(&self.ghosts).unwrap_or_else(|_| "[]".into()),
             self.restarts,
             targets.join(","),
             bodies.join(","),
@@ -187,6 +190,20 @@ fn percentile(sorted: &[f64], q: f64) -> f64 {
     }
     let i = ((sorted.len() - 1) as f64 * q).round() as usize;
     sorted[i.min(sorted.len() - 1)]
+}
+
+/// How many ghosts the summary describes.
+pub const GHOST_EXAMPLES: usize = 20;
+
+/// One ghost pose, for the summary.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct GhostExample {
+    pub timestamp_ns: u64,
+    pub object_id: u32,
+    pub position_m: [f64; 3],
+    pub method: stereoscope_proto::messages::PoseMethod,
+    pub cameras: Vec<String>,
+    pub body: Option<stereoscope_proto::messages::BodyLabel>,
 }
 
 /// `(target, matched object id, error m)`.
@@ -410,6 +427,7 @@ fn watch(
     let mut last_print = Instant::now();
     let mut latest: Option<(PoseFrame, Vec<Scored>, Vec<BodyError>)> = None;
     let mut ghosts = 0u64;
+    let mut ghost_examples: Vec<GhostExample> = Vec::new();
     let out = std::io::stdout();
     loop {
         if shutdown.requested() {
@@ -455,8 +473,20 @@ fn watch(
                 Some(t) => {
                     let scored = score(p, t, &mut acc);
                     let body_errors = score_bodies(p, t, &mut body_acc);
-                    let g = layouts.ghosts(&p.poses, &t.targets).len();
-                    ghosts += g as u64;
+                    let found = layouts.ghosts(&p.poses, &t.targets);
+                    ghosts += found.len() as u64;
+                    for g in found {
+                        if ghost_examples.len() < GHOST_EXAMPLES {
+                            ghost_examples.push(GhostExample {
+                                timestamp_ns: p.timestamp_ns,
+                                object_id: g.object_id,
+                                position_m: g.position_m,
+                                method: g.method,
+                                cameras: g.cameras.clone(),
+                                body: g.body.clone(),
+                            });
+                        }
+                    }
                     if scored.iter().all(|(_, id, e)| id.is_some() && *e < 0.05) {
                         complete += 1;
                     }
@@ -573,6 +603,7 @@ fn watch(
         heading_rms_deg: (hn > 0).then(|| (hsq / hn as f64).sqrt()),
         complete_frames: complete,
         ghost_poses: ghosts,
+        ghosts: ghost_examples,
         targets,
         bodies: body_acc
             .into_iter()

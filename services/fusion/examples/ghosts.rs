@@ -52,6 +52,7 @@ fn main() {
     let first = (from * 30.0) as u64;
     let frames = (seconds * 30.0) as u64;
     let (mut ghosts, mut ghost_frames, mut body_sq, mut body_n) = (0, 0, 0.0, 0);
+    let mut body_sum = [0.0f64; 3];
     let mut bufs: Vec<Vec<u8>> = vec![Vec::new(); n];
     for k in first..first + frames {
         let t = k as f64 / 30.0;
@@ -103,6 +104,9 @@ fn main() {
                 body_sq += (0..3)
                     .map(|i| (b.position_m[i] - tt.position_m[i]).powi(2))
                     .sum::<f64>();
+                for (i, sum) in body_sum.iter_mut().enumerate() {
+                    *sum += b.position_m[i] - tt.position_m[i];
+                }
                 body_n += 1;
             }
         }
@@ -131,8 +135,9 @@ fn main() {
         }
     }
     println!(
-        "{frames} frames from {from} s: {ghosts} ghost poses in {ghost_frames} frames; bodies' position RMS {:.2} mm over {body_n} sightings; fusion: {} blobs out of line by area, {} one-view points that continued no object",
+        "{frames} frames from {from} s: {ghost_frames} frames with {ghosts} ghost poses; bodies' position RMS {:.2} mm (mean error {:.2?} mm) over {body_n} sightings; fusion: {} blobs out of line by area, {} one-view blobs that continued no object",
         (body_sq / body_n.max(1) as f64).sqrt() * 1e3,
+        body_sum.map(|v| v / body_n.max(1) as f64 * 1e3),
         fuser.area_mismatch,
         fuser.single_view_unmatched,
     );

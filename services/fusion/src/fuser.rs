@@ -106,6 +106,10 @@ struct Object {
     heading: HeadingTracker,
     heading_deg: Option<f64>,
     heading_directed: bool,
+    /// Per rig camera: its blob's on-axis area × depth² when the object was triangulated (a
+    /// running mean; 0 until measured) — the object's own depth-from-area constant (thesis Eq.
+    /// 4.15: area ∝ 1/depth²), whatever its size.
+    area_scale: Vec<f64>,
 }
 
 impl Object {
@@ -135,8 +139,12 @@ pub struct Fuser {
     pixels: Vec<(u32, Sightings)>,
     /// Points dropped for lying outside the capture volume, since start.
     pub outside_volume: u64,
-    /// Depth-from-area points of a set with several cameras that continued no object, since
-    /// start (dropped: see [`Fuser::fuse`]).
+    /// How many of the rig's cameras are delivering frames (the fusion service sets it from
+    /// its pairing before each set; all of them until set): a set of one camera while another
+    /// is live is a late frame, not an outage, and gives no one-view points.
+    pub live_cameras: usize,
+    /// In a rig of several cameras, blobs one camera alone saw that continued no followed
+    /// object, since start (dropped: see [`Fuser::points`]).
     pub single_view_unmatched: u64,
     /// Blobs taken out of a match for an area out of line with its other views
     /// ([`FuserConfig::max_area_ratio`]), since start.
@@ -190,6 +198,7 @@ impl Fuser {
             last_set_ns: None,
             pixels: Vec::new(),
             outside_volume: 0,
+            live_cameras: rig.cameras.len(),
             single_view_unmatched: 0,
             area_mismatch: 0,
         }
@@ -216,35 +225,57 @@ impl Fuser {
         self.next_id
     }
 
-    /// Per set camera and kept blob: the objects seen in the last set whose prediction at
-    /// `timestamp_ns` projects within `claim_px` of it.
+    /// Per set camera and kept blob: the followed objects whose prediction at `timestamp_ns`
+    /// projects within `claim_px` of it (farther for one missing from the last set), nearest
+    /// first.
     fn claims(
         &self,
         set: &[(usize, Observation)],
         pixels: &[Vec<Point2<f64>>],
         timestamp_ns: u64,
     ) -> Vec<Vec<Claims>> {
-        let mut out: Vec<Vec<Claims>> = pixels.iter().map(|p| vec![Vec::new(); p.len()]).collect();
-        if self.cfg.claim_px <= 0.0 {
-            return out;
-        }
-        for o in &self.objects {
-            if o.id == 0 || self.last_set_ns != Some(o.last_seen_ns) {
-                continue;
-            }
-            let (predicted, _) = o.predict(&self.cfg, timestamp_ns);
-            for (s, (c, _)) in set.iter().enumerate() {
-                let Some(q) = self.cameras[*c].project(&predicted) else {
+        // (object id, pixels from its projection) per blob, nearest first.
+        let mut near: Vec<Vec<Vec<(u32, f64)>>> =
+            pixels.iter().map(|p| vec![Vec::new(); p.len()]).collect();
+        if self.cfg.claim_px > 0.0 {
+            for o in &self.objects {
+                if o.id == 0 {
                     continue;
-                };
-                for (j, p) in pixels[s].iter().enumerate() {
-                    if (p - q).norm() <= self.cfg.claim_px {
-                        out[s][j].push(o.id);
+                }
+                // An object missing from the last set claims farther: its prediction's gate
+                // grows while it goes unseen (as in the association).
+                let unseen_s = self
+                    .last_set_ns
+                    .map_or(0.0, |t| t.saturating_sub(o.last_seen_ns) as f64 * 1e-9);
+                let (predicted, _) = o.predict(&self.cfg, timestamp_ns);
+                for (s, (c, _)) in set.iter().enumerate() {
+                    let cam = &self.cameras[*c];
+                    let (Some(q), z) =
+                        (cam.project(&predicted), (cam.cam_from_world * predicted).z)
+                    else {
+                        continue;
+                    };
+                    let widen_m = self.cfg.gate_growth_m_per_s * unseen_s;
+                    let radius = self.cfg.claim_px + cam.intrinsics.fx * widen_m / z.max(1e-6);
+                    for (j, p) in pixels[s].iter().enumerate() {
+                        let d = (p - q).norm();
+                        if d <= radius {
+                            near[s][j].push((o.id, d));
+                        }
                     }
                 }
             }
         }
-        out
+        near.into_iter()
+            .map(|cam| {
+                cam.into_iter()
+                    .map(|mut v| {
+                        v.sort_by(|a, b| a.1.total_cmp(&b.1));
+                        v.into_iter().map(|(id, _)| id).collect()
+                    })
+                    .collect()
+            })
+            .collect()
     }
 
     /// `m` without the blobs whose area is out of line with its round blob's
@@ -333,8 +364,12 @@ impl Fuser {
             .collect();
         let mut points = Vec::new();
         let mut used: Vec<Vec<bool>> = kept.iter().map(|k| vec![false; k.len()]).collect();
+        let labels = if self.cameras.len() >= 2 {
+            self.claims(set, &pixels, timestamp_ns)
+        } else {
+            Vec::new()
+        };
         if set.len() >= 2 {
-            let labels = self.claims(set, &pixels, timestamp_ns);
             for m in match_labelled(&cams, &pixels, &labels, &self.cfg.correspond) {
                 for &(c, j) in &m.blobs {
                     used[c][j] = true;
@@ -361,17 +396,44 @@ impl Fuser {
         }
         // One marker triangulated twice: keep the point from more cameras.
         let mut points = merge_duplicates(points, self.cfg.merge_m);
-        // Blobs no other camera matched: depth from their area, where the camera has a model.
+        // Blobs no other camera matched: depth from their area. In a rig of one camera, from
+        // the camera's model. In a rig of several, only while one camera alone is live (the
+        // others down: in a set of several, a blob only one camera sees is most often a merged
+        // image in the others, its area no measure of its depth; a set of one camera while
+        // others are live is a late frame), and only for a blob a followed object claims, by
+        // the nearest such object's own area × depth², measured while it was triangulated: the
+        // rig's model is one target's, and a marker of another size would be placed
+        // centimetres off.
+        let several = self.cameras.len() >= 2;
         for (s, (c, o)) in set.iter().enumerate() {
-            let Some(model) = self.depth[*c] else {
+            if several && (set.len() >= 2 || self.live_cameras >= 2) {
+                self.single_view_unmatched +=
+                    (0..kept[s].len()).filter(|&j| !used[s][j]).count() as u64;
                 continue;
-            };
+            }
             for (j, &i) in kept[s].iter().enumerate() {
                 if used[s][j] {
                     continue;
                 }
                 let b = &o.blobs[i];
                 let pixel = Point2::new(b.x_px, b.y_px);
+                if let Some(p) = self.by_own_area(&labels, s, j, *c, pixel, b.area_px) {
+                    points.push(Point {
+                        position_m: p,
+                        method: PoseMethod::DepthFromArea,
+                        blobs: vec![(s, i)],
+                        residual_px: 0.0,
+                        out_of_range: false,
+                    });
+                    continue;
+                }
+                if several {
+                    self.single_view_unmatched += 1;
+                    continue;
+                }
+                let Some(model) = self.depth[*c] else {
+                    continue;
+                };
                 // The models are fitted on the axis: bring an off-axis area back first.
                 let Ok(area_px) = on_axis_area(&self.cameras[*c], pixel, b.area_px) else {
                     continue;
@@ -400,6 +462,29 @@ impl Fuser {
             }
         }
         points
+    }
+
+    /// Blob `j` of set camera `s` (rig camera `c`): the point at the depth that the nearest
+    /// object claiming it gives by its own area × depth², measured in that camera while it was
+    /// triangulated.
+    fn by_own_area(
+        &self,
+        labels: &[Vec<Claims>],
+        s: usize,
+        j: usize,
+        c: usize,
+        pixel: Point2<f64>,
+        area_px: f64,
+    ) -> Option<Point3<f64>> {
+        let id = labels.get(s)?.get(j)?.first()?;
+        let o = self.objects.iter().find(|o| o.id == *id)?;
+        let k = *o.area_scale.get(c)?;
+        let cam = self.cameras.get(c)?;
+        let a = on_axis_area(cam, pixel, area_px).ok()?;
+        if !(k > 0.0 && a > 0.0) {
+            return None;
+        }
+        point_from_depth(cam, pixel, (k / a).sqrt()).ok()
     }
 
     /// The world axis of a point from its blobs' image axes, when any camera sees one.
@@ -520,6 +605,7 @@ impl Fuser {
                         }),
                         heading_deg: None,
                         heading_directed: false,
+                        area_scale: vec![0.0; self.cameras.len()],
                     });
                     if confirmed {
                         self.next_id += 1;
@@ -527,6 +613,26 @@ impl Fuser {
                     self.objects.len() - 1
                 }
             };
+            if p.method == PoseMethod::Triangulated {
+                for &(s, i) in &p.blobs {
+                    let (c, obs) = &set[s];
+                    let (Some(b), Some(cam)) = (obs.blobs.get(i), self.cameras.get(*c)) else {
+                        continue;
+                    };
+                    let z = (cam.cam_from_world * p.position_m).z;
+                    let pixel = Point2::new(b.x_px, b.y_px);
+                    let Ok(a) = on_axis_area(cam, pixel, b.area_px) else {
+                        continue;
+                    };
+                    let k = a * z * z;
+                    if let Some(old) = self.objects[oi].area_scale.get_mut(*c)
+                        && k.is_finite()
+                        && k > 0.0
+                    {
+                        *old = if *old > 0.0 { 0.8 * *old + 0.2 * k } else { k };
+                    }
+                }
+            }
             let o = &mut self.objects[oi];
             if let Some((h, directed)) = headings[pi] {
                 // The tracker unwraps an axis in (−90, 90] into 0–360° (or takes a direction).
@@ -723,9 +829,11 @@ mod tests {
     }
 
     /// In a rig of two cameras, a blob only one camera sees never starts an object (its depth
-    /// from area would be a guess: a merged image, a marker of another size than the model's).
+    /// from area would be a guess: a merged image, a marker of another size than the model's);
+    /// in a set of that camera alone, it continues the followed object that claims it, at the
+    /// depth the object's own area gave while it was triangulated.
     #[test]
-    fn one_view_starts_no_object_in_a_rig_of_several_cameras() {
+    fn one_view_continues_by_its_own_area_and_starts_no_object() {
         let rig = Rig::from_toml(RIG).unwrap();
         let mut f = Fuser::new(&rig, FuserConfig::default());
         let dt = 33_333_333u64;
@@ -734,11 +842,31 @@ mod tests {
             f.fuse(&set_at(&rig, at, k * dt), k * dt);
         }
         let id = f.next_id() - 1;
-        // A blob only camera 0 sees, far from every object, in sets of one camera: never an
+        // A set of camera 0 alone while camera 1 is live (its frame late): nothing.
+        let t = 6 * dt;
+        let mut set = set_at(&rig, at, t);
+        set.truncate(1);
+        assert!(f.fuse(&set, t).is_empty());
+        // Camera 1 down: the object continues where it is, though its blob's area (60 px at
+        // every depth in these sets) fits no model of the rig's.
+        f.live_cameras = 1;
+        let t = 6 * dt + dt / 2;
+        let mut set = set_at(&rig, at, t);
+        set.truncate(1);
+        let poses = f.fuse(&set, t);
+        assert_eq!(poses.len(), 1, "{poses:?}");
+        assert_eq!(
+            (poses[0].object_id, poses[0].method),
+            (id, PoseMethod::DepthFromArea)
+        );
+        let err = (Point3::from(poses[0].position_m) - at).norm();
+        assert!(err < 0.001, "{:.1} mm off", err * 1e3);
+        // Seen by both again, then a blob only camera 0 sees, far from every object, in sets of one camera: never an
         // object, however long it stays (the demo rig has area models: depth from area would
         // have made one).
         let far = Point3::new(0.3, -0.3, 0.2);
-        for k in 6..=10 {
+        f.fuse(&set_at(&rig, at, 7 * dt), 7 * dt);
+        for k in 8..=12 {
             let mut set = set_at(&rig, far, k * dt);
             set.truncate(1);
             let poses = f.fuse(&set, k * dt);
