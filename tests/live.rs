@@ -208,10 +208,12 @@ fn a_killed_capture_leaves_fusion_on_one_camera_and_is_restarted() {
     let pid = pid_of(&log, "capture/cam1");
     // SAFETY: killing a process this test started (through the launcher).
     assert_eq!(unsafe { libc::kill(pid, libc::SIGKILL) }, 0);
+    // Fusion carries on with cam0's frames alone: pose frames without positions (one camera
+    // of two measures no depth: docs/services.md, fusion), never a guess.
     let one = watcher.until(Duration::from_secs(20), "cam0 alone", |p| {
-        p.cameras == ["cam0"] && !p.poses.is_empty()
+        p.cameras == ["cam0"]
     });
-    assert!(one.poses.iter().all(|x| x.cameras == ["cam0"]), "{one:?}");
+    assert!(one.poses.is_empty(), "{one:?}");
     launcher.wait_for(Duration::from_secs(20), "the restart", |o| {
         o.contains("restarted capture/cam1")
     });

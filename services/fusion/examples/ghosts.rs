@@ -135,7 +135,7 @@ fn main() {
         }
     }
     println!(
-        "{frames} frames from {from} s: {ghost_frames} frames with {ghosts} ghost poses; bodies' position RMS {:.2} mm (mean error {:.2?} mm) over {body_n} sightings; fusion: {} blobs out of line by area, {} one-view blobs that continued no object",
+        "{frames} frames from {from} s: {ghost_frames} frames with {ghosts} ghost poses; bodies' position RMS {:.2} mm (mean error {:.2?} mm) over {body_n} sightings; fusion: {} blobs out of line by area, {} blobs only one camera saw (no point)",
         (body_sq / body_n.max(1) as f64).sqrt() * 1e3,
         body_sum.map(|v| v / body_n.max(1) as f64 * 1e3),
         fuser.area_mismatch,

@@ -314,10 +314,6 @@ impl FusionService {
             .iter()
             .map(|(_, o)| o.blobs.iter().filter(|b| b.merged).count() as u64)
             .sum::<u64>();
-        let now = now_ns();
-        self.fuser.live_cameras = (0..rig.cameras.len())
-            .filter(|&c| self.pairer.live(c, now))
-            .count();
         let mut fused = self.fuser.fuse(set, timestamp_ns);
         let bodies = self
             .bodies
