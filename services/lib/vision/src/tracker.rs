@@ -976,4 +976,67 @@ mod tests {
             "frames whose blob was flagged merged"
         );
     }
+
+    /// Flags per frame (any blob merged) of a scene of squares: `(x0, y0, side)` per frame.
+    fn merged_flags(frames: &[Vec<(u32, u32, u32)>]) -> Vec<bool> {
+        let (w, h) = (160u32, 60u32);
+        let mut t = Tracker::new(
+            TrackerConfig {
+                search_every_frames: 1,
+                ..TrackerConfig::default()
+            },
+            ExtractConfig::default(),
+        )
+        .unwrap();
+        let mut flags = Vec::new();
+        for (k, squares) in frames.iter().enumerate() {
+            let mut img = vec![0u8; (w * h) as usize];
+            for &(x0, y0, side) in squares {
+                for y in y0..y0 + side {
+                    for x in x0..x0 + side {
+                        img[(y * w + x) as usize] = 200;
+                    }
+                }
+            }
+            let view = crate::image::GrayView::new(&img, w, h, w as usize).unwrap();
+            t.step_frame(view, 100, k as u64).unwrap();
+            flags.push(t.tracks().iter().any(|t| t.blob.is_some() && t.merged));
+        }
+        flags
+    }
+
+    /// Two markers merged and moving on together: the blob stays flagged after the lost
+    /// track's last place falls behind it; apart again, neither is flagged.
+    #[test]
+    fn a_merged_pair_stays_merged_as_it_moves_on() {
+        let mut frames = Vec::new();
+        for gap in [40u32, 30, 20, 12, 6, 2] {
+            frames.push(vec![(40 - gap / 2, 25, 10), (50 + gap - gap / 2, 25, 10)]);
+        }
+        // Touching, then carried 8 px a frame to the right together.
+        for k in 0..6u32 {
+            frames.push(vec![(40 + 8 * k, 25, 10), (50 + 8 * k, 25, 10)]);
+        }
+        frames.push(vec![(70, 25, 10), (110, 25, 10)]);
+        let flags = merged_flags(&frames);
+        assert!(!flags[..6].iter().any(|f| *f), "{flags:?}");
+        assert!(flags[6..12].iter().all(|f| *f), "{flags:?}");
+        assert!(!flags[12], "{flags:?}");
+    }
+
+    /// A small marker's image swallowed by a big one's: the big blob grows by less than 1.6
+    /// times but by the small one's area, with the small track lost inside: flagged.
+    #[test]
+    fn a_small_image_swallowed_by_a_big_one_is_flagged() {
+        let mut frames = Vec::new();
+        for x in [20u32, 30, 40, 48, 54] {
+            frames.push(vec![(60, 20, 16), (x, 26, 5)]);
+        }
+        // Inside the big square's edge: one blob of 256 + 20 pixels.
+        frames.push(vec![(60, 20, 16), (57, 26, 5)]);
+        frames.push(vec![(60, 20, 16), (57, 26, 5)]);
+        let flags = merged_flags(&frames);
+        assert!(!flags[..5].iter().any(|f| *f), "{flags:?}");
+        assert!(flags[5..].iter().all(|f| *f), "{flags:?}");
+    }
 }
