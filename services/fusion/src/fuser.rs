@@ -217,45 +217,34 @@ impl Fuser {
     }
 
     /// Per set camera and kept blob: the objects of the last set whose prediction at
-    /// `timestamp_ns` projects within `claim_px` of it, nearest first.
+    /// `timestamp_ns` projects within `claim_px` of it.
     fn claims(
         &self,
         set: &[(usize, Observation)],
         pixels: &[Vec<Point2<f64>>],
         timestamp_ns: u64,
     ) -> Vec<Vec<Claims>> {
-        // (object id, pixels from its projection) per blob, nearest first.
-        let mut near: Vec<Vec<Vec<(u32, f64)>>> =
-            pixels.iter().map(|p| vec![Vec::new(); p.len()]).collect();
-        if self.cfg.claim_px > 0.0 {
-            for o in &self.objects {
-                if o.id == 0 || self.last_set_ns != Some(o.last_seen_ns) {
+        let mut out: Vec<Vec<Claims>> = pixels.iter().map(|p| vec![Vec::new(); p.len()]).collect();
+        if self.cfg.claim_px <= 0.0 {
+            return out;
+        }
+        for o in &self.objects {
+            if o.id == 0 || self.last_set_ns != Some(o.last_seen_ns) {
+                continue;
+            }
+            let (predicted, _) = o.predict(&self.cfg, timestamp_ns);
+            for (s, (c, _)) in set.iter().enumerate() {
+                let Some(q) = self.cameras[*c].project(&predicted) else {
                     continue;
-                }
-                let (predicted, _) = o.predict(&self.cfg, timestamp_ns);
-                for (s, (c, _)) in set.iter().enumerate() {
-                    let Some(q) = self.cameras[*c].project(&predicted) else {
-                        continue;
-                    };
-                    for (j, p) in pixels[s].iter().enumerate() {
-                        let d = (p - q).norm();
-                        if d <= self.cfg.claim_px {
-                            near[s][j].push((o.id, d));
-                        }
+                };
+                for (j, p) in pixels[s].iter().enumerate() {
+                    if (p - q).norm() <= self.cfg.claim_px {
+                        out[s][j].push(o.id);
                     }
                 }
             }
         }
-        near.into_iter()
-            .map(|cam| {
-                cam.into_iter()
-                    .map(|mut v| {
-                        v.sort_by(|a, b| a.1.total_cmp(&b.1));
-                        v.into_iter().map(|(id, _)| id).collect()
-                    })
-                    .collect()
-            })
-            .collect()
+        out
     }
 
     /// `m` without the blobs whose area is out of line with its round blob's
