@@ -9,9 +9,11 @@ use stereoscope_geometry::Camera;
 use stereoscope_proto::frame::PixelFormat;
 use stereoscope_proto::messages::TargetTruth;
 use stereoscope_render::{
-    Actor, Background, Motion, RenderOptions, Scene, Shape, render_u8, render_u16, scene_at,
+    Actor, Background, Light, Motion, RenderOptions, Scene, Shape, render_u8, render_u16, scene_at,
 };
-use stereoscope_rig::schema::{BodySpec, MotionSpec, RigFile, SyntheticSpec, TargetShape};
+use stereoscope_rig::schema::{
+    BodySpec, MotionSpec, RigFile, SyntheticLight, SyntheticSpec, TargetShape,
+};
 
 pub struct SyntheticSource {
     camera: Camera,
@@ -151,6 +153,10 @@ impl SyntheticSource {
             background: Background {
                 level: spec.background.unwrap_or(20.0),
                 gradient_per_px: (0.0, 0.0),
+            },
+            light: match spec.light {
+                SyntheticLight::Overhead => Scene::default().light,
+                SyntheticLight::Ring => Light::Ring,
             },
             ..Scene::default()
         };

@@ -53,7 +53,10 @@ fn main() {
     let frames = (seconds * 30.0) as u64;
     let (mut ghosts, mut ghost_frames, mut body_sq, mut body_n) = (0, 0, 0.0, 0);
     let mut body_sum = [0.0f64; 3];
+    let mut rot_sq = 0.0;
+    let mut body_errs: Vec<(f64, u64)> = Vec::new();
     let mut bufs: Vec<Vec<u8>> = vec![Vec::new(); n];
+    let mut cent = vec![(0.0f64, 0.0f64, 0.0f64, 0.0f64); n];
     for k in first..first + frames {
         let t = k as f64 / 30.0;
         let ts = 1_000_000_000_000 + (t * 1e9) as u64;
@@ -80,6 +83,24 @@ fn main() {
                 let centroids: Vec<_> = this_truth.iter().map(|t| t.centroid_px).collect();
                 println!("  truth centroids {centroids:?}");
             }
+            // Each isolated body marker's image against its true centre's projection.
+            for (_, _, m) in layouts.markers(&this_truth) {
+                let cam = &rig.cameras[c].camera;
+                let Some(px) = cam.project(&m) else { continue };
+                let near: Vec<_> = obs
+                    .blobs
+                    .iter()
+                    .filter(|b| ((b.x_px - px.x).powi(2) + (b.y_px - px.y).powi(2)).sqrt() < 4.0)
+                    .collect();
+                if let [b] = near[..]
+                    && !b.merged
+                {
+                    cent[c].0 += (b.x_px - px.x).powi(2);
+                    cent[c].1 += (b.y_px - px.y).powi(2);
+                    cent[c].2 += b.y_px - px.y;
+                    cent[c].3 += 1.0;
+                }
+            }
             if c == 0 {
                 truth = this_truth;
             }
@@ -101,9 +122,15 @@ fn main() {
         for tt in &truth {
             let Some(name) = &tt.body else { continue };
             if let Some(b) = found.iter().find(|b| &b.name == name && !b.held) {
-                body_sq += (0..3)
+                let d2 = (0..3)
                     .map(|i| (b.position_m[i] - tt.position_m[i]).powi(2))
                     .sum::<f64>();
+                body_sq += d2;
+                body_errs.push((d2.sqrt() * 1e3, k));
+                if let Some(q) = tt.orientation_xyzw {
+                    let dot: f64 = (0..4).map(|i| b.orientation_xyzw[i] * q[i]).sum();
+                    rot_sq += (2.0 * dot.abs().min(1.0).acos()).to_degrees().powi(2);
+                }
                 for (i, sum) in body_sum.iter_mut().enumerate() {
                     *sum += b.position_m[i] - tt.position_m[i];
                 }
@@ -134,11 +161,35 @@ fn main() {
             }
         }
     }
+    for (c, (sx, sy, mx, k)) in cent.iter().enumerate() {
+        println!(
+            "camera {c}: isolated body markers' centroid error RMS x {:.3} y {:.3} px, mean y {:.3} px, {k} images",
+            (sx / k).sqrt(),
+            (sy / k).sqrt(),
+            mx / k
+        );
+    }
+    body_errs.sort_by(|a, b| a.0.total_cmp(&b.0));
+    let pct = |q: f64| {
+        body_errs
+            .get(((body_errs.len() as f64 - 1.0) * q) as usize)
+            .map_or(f64::NAN, |e| e.0)
+    };
     println!(
-        "{frames} frames from {from} s: {ghost_frames} frames with {ghosts} ghost poses; bodies' position RMS {:.2} mm (mean error {:.2?} mm) over {body_n} sightings; fusion: {} blobs out of line by area, {} blobs only one camera saw (no point)",
+        "bodies' position error p50 {:.2} p90 {:.2} p99 {:.2} max {:.2} mm (frame {:?})",
+        pct(0.5),
+        pct(0.9),
+        pct(0.99),
+        pct(1.0),
+        body_errs.last().map(|e| e.1)
+    );
+    println!(
+        "{frames} frames from {from} s: {ghost_frames} frames with {ghosts} ghost poses; bodies' position RMS {:.2} mm (mean error {:.2?} mm), rotation RMS {:.3}° over {body_n} sightings; fusion: {} blobs out of line by area, {} blobs only one camera saw (no point), {} cut by an edge",
         (body_sq / body_n.max(1) as f64).sqrt() * 1e3,
         body_sum.map(|v| v / body_n.max(1) as f64 * 1e3),
+        (rot_sq / body_n.max(1) as f64).sqrt(),
         fuser.area_mismatch,
         fuser.single_view_unmatched,
+        fuser.clipped,
     );
 }

@@ -141,6 +141,8 @@ pub struct Fuser {
     /// Blobs taken out of a match for an area out of line with its other views
     /// ([`FuserConfig::max_area_ratio`]), since start.
     pub area_mismatch: u64,
+    /// Blobs left out because they touch the frame's edge or their window's (cut images).
+    pub clipped: u64,
 }
 
 /// What each camera saw of one object: (rig camera index, pixel as measured).
@@ -172,6 +174,7 @@ fn merge_duplicates(mut points: Vec<Point>, merge_m: f64) -> Vec<Point> {
 fn usable(b: &BlobObservation) -> bool {
     b.status != TrackState::Lost
         && !b.merged
+        && !b.clipped
         && b.x_px.is_finite()
         && b.y_px.is_finite()
         && b.area_px > 0.0
@@ -192,6 +195,7 @@ impl Fuser {
             outside_volume: 0,
             single_view_unmatched: 0,
             area_mismatch: 0,
+            clipped: 0,
         }
     }
 
@@ -313,7 +317,14 @@ impl Fuser {
     /// `timestamp_ns`.
     pub fn points(&mut self, set: &[(usize, Observation)], timestamp_ns: u64) -> Vec<Point> {
         let cams: Vec<Camera> = set.iter().map(|(c, _)| self.cameras[*c]).collect();
-        // Only blobs seen this frame; keep their indices.
+        // Only blobs seen this frame, whole (a blob cut by the frame's edge or its window has
+        // its centroid pulled inwards, up to its radius: centimetres in depth); keep their
+        // indices.
+        self.clipped += set
+            .iter()
+            .flat_map(|(_, o)| &o.blobs)
+            .filter(|b| b.status != TrackState::Lost && b.clipped)
+            .count() as u64;
         let kept: Vec<Vec<usize>> = set
             .iter()
             .map(|(_, o)| {

@@ -406,6 +406,9 @@ impl FusionService {
                 self.fuser.outside_volume.to_string(),
             );
         }
+        if self.fuser.clipped > 0 {
+            detail.insert("clipped".into(), self.fuser.clipped.to_string());
+        }
         if self.fuser.area_mismatch > 0 {
             detail.insert("area_mismatch".into(), self.fuser.area_mismatch.to_string());
         }

@@ -149,8 +149,12 @@ impl Worker {
         let weighting = match self.settings.weighting {
             WeightingSpec::Binary => Weighting::Binary,
             WeightingSpec::Intensity => Weighting::Intensity { background },
+            // The weights start a quarter of the way from the background to the threshold:
+            // the dim pixels round a blob now count (`extract::add_edge_ring`), and a floor
+            // keeps the read noise of the background among them out of the centroid (in the
+            // demo's 10 minutes: the helmet 0.45 mm RMS with it, 0.61 mm with none).
             WeightingSpec::Coverage => Weighting::Coverage {
-                background,
+                background: background + (t - background) / 4,
                 full: self
                     .settings
                     .full_level

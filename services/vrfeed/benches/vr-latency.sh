@@ -63,6 +63,7 @@ vrpn = { listen = "127.0.0.1:$port" }
 
 [synthetic]
 seed = 3
+light = "ring"
 
 [[synthetic.target]]
 shape = "body"

@@ -16,7 +16,7 @@ pub mod scene;
 
 pub use motion::{Actor, Motion, State, scene_at};
 pub use render::{Frame, RenderOptions, TargetTruth, render_u8, render_u16};
-pub use scene::{Background, Distractor, Scene, Shape, Target};
+pub use scene::{Background, Distractor, Light, Scene, Shape, Target};
 
 #[cfg(test)]
 mod tests;

@@ -11,7 +11,7 @@
 //! Ground truth per target is taken from the same rays before blur and noise: its visible
 //! area in pixels and the centroid of its visible silhouette.
 
-use crate::scene::{Scene, Shape, Target};
+use crate::scene::{Light, Scene, Shape, Target};
 use nalgebra::{Isometry3, Matrix2, Point2, Point3, Vector2, Vector3};
 use stereoscope_geometry::Camera;
 use stereoscope_numeric::SplitMix64;
@@ -106,7 +106,7 @@ fn intersect(
     p: &Primitive,
     o: &Point3<f64>,
     d: &Vector3<f64>,
-    light: &Vector3<f64>,
+    light: &Light,
     ambient: f64,
 ) -> Option<(f64, f64)> {
     match *p {
@@ -123,15 +123,20 @@ fn intersect(
                 return None;
             }
             let n = (o + d * t - centre) / radius;
-            Some((t, ambient + (1.0 - ambient) * n.dot(light).max(0.0)))
+            let towards = light.towards(d);
+            Some((t, ambient + (1.0 - ambient) * n.dot(&towards).max(0.0)))
         }
         Primitive::Disc {
             world_from_body,
             radius,
         } => {
             let (t, q, n) = plane_hit(&world_from_body, o, d)?;
-            (q.x * q.x + q.y * q.y <= radius * radius)
-                .then(|| (t, ambient + (1.0 - ambient) * n.dot(light).abs()))
+            (q.x * q.x + q.y * q.y <= radius * radius).then(|| {
+                (
+                    t,
+                    ambient + (1.0 - ambient) * n.dot(&light.towards(d)).abs(),
+                )
+            })
         }
         Primitive::Rectangle {
             world_from_body,
@@ -139,8 +144,12 @@ fn intersect(
             half_y,
         } => {
             let (t, q, n) = plane_hit(&world_from_body, o, d)?;
-            (q.x.abs() <= half_x && q.y.abs() <= half_y)
-                .then(|| (t, ambient + (1.0 - ambient) * n.dot(light).abs()))
+            (q.x.abs() <= half_x && q.y.abs() <= half_y).then(|| {
+                (
+                    t,
+                    ambient + (1.0 - ambient) * n.dot(&light.towards(d)).abs(),
+                )
+            })
         }
     }
 }
@@ -287,7 +296,7 @@ struct Tracer<'a> {
     items: &'a [Item],
     world_from_cam: Isometry3<f64>,
     origin: Point3<f64>,
-    light: Vector3<f64>,
+    light: Light,
     ambient: f64,
 }
 
@@ -361,7 +370,7 @@ fn radiance(camera: &Camera, scene: &Scene, samples: u32) -> (Vec<f64>, Vec<Targ
         items: &items,
         world_from_cam,
         origin: world_from_cam * Point3::origin(),
-        light: scene.light_towards.into_inner(),
+        light: scene.light,
         ambient: scene.ambient,
     };
     // Truth accumulators: covered area, Σx, Σy (area-weighted).

@@ -92,14 +92,36 @@ impl Default for Background {
     }
 }
 
+/// The scene's light.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Light {
+    /// One distant lamp: the direction towards it, world frame (a room's ceiling light, the
+    /// thesis's lab). A sphere's image is brightest on its lit side, so a thresholded blob's
+    /// centroid leans that way.
+    Overhead { towards: Unit<Vector3<f64>> },
+    /// A ring light around each camera's lens (every motion-capture camera has one): each view
+    /// sees its markers lit along its own rays, symmetric about the line of sight.
+    Ring,
+}
+
+impl Light {
+    /// The unit direction towards the light from a surface hit by a ray of direction `ray`.
+    pub fn towards(&self, ray: &Vector3<f64>) -> Vector3<f64> {
+        match self {
+            Light::Overhead { towards } => towards.into_inner(),
+            Light::Ring => -ray,
+        }
+    }
+}
+
 /// Everything in view.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Scene {
     pub targets: Vec<Target>,
     pub distractors: Vec<Distractor>,
     pub background: Background,
-    /// Direction towards the light, world frame (for shading spheres).
-    pub light_towards: Unit<Vector3<f64>>,
+    /// Where the light comes from (for shading spheres and flat markers).
+    pub light: Light,
     /// Fraction of the light that reaches surfaces turned away from the light (0–1).
     pub ambient: f64,
 }
@@ -110,7 +132,9 @@ impl Default for Scene {
             targets: Vec::new(),
             distractors: Vec::new(),
             background: Background::default(),
-            light_towards: Vector3::z_axis(),
+            light: Light::Overhead {
+                towards: Vector3::z_axis(),
+            },
             ambient: 0.6,
         }
     }

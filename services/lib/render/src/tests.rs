@@ -336,3 +336,42 @@ fn motions_are_deterministic_and_in_bounds() {
     assert_eq!(scene.targets.len(), 1);
     assert_eq!(states[0], circle.at(1.0));
 }
+
+#[test]
+fn a_ring_light_shades_a_sphere_symmetrically_about_each_line_of_sight() {
+    // A ball off to the side, seen obliquely. Under the lamp above, its top is brightest and
+    // the grey-level centroid leans from the silhouette's; under a ring light at the camera
+    // the shading is symmetric about the ray and the two centroids agree.
+    let cam = down_camera(Distortion::default());
+    let grey_centroid = |scene: &Scene| {
+        let f = fine(&cam, scene);
+        let (w, img) = (f.image.width(), f.image.as_slice());
+        let (mut s, mut sx, mut sy) = (0.0, 0.0, 0.0);
+        for (i, &p) in img.iter().enumerate() {
+            let v = (p as f64 - 20.0).max(0.0);
+            s += v;
+            sx += v * (i as u32 % w) as f64;
+            sy += v * (i as u32 / w) as f64;
+        }
+        (Point2::new(sx / s, sy / s), f.truth[0].centroid_px)
+    };
+    let mut scene = one(
+        Shape::Sphere { radius_m: 0.03 },
+        Point3::new(0.5, 0.35, 0.3),
+        0.0,
+    );
+    scene.light = Light::Overhead {
+        towards: nalgebra::Unit::new_normalize(Vector3::new(-1.0, 0.0, 1.0)),
+    };
+    let (lamp, silhouette) = grey_centroid(&scene);
+    assert!(
+        (lamp - silhouette).norm() > 0.3,
+        "under the lamp {lamp} vs silhouette {silhouette}"
+    );
+    scene.light = Light::Ring;
+    let (ring, silhouette) = grey_centroid(&scene);
+    assert!(
+        (ring - silhouette).norm() < 0.05,
+        "under the ring light {ring} vs silhouette {silhouette}"
+    );
+}

@@ -508,8 +508,27 @@ pub struct SyntheticSpec {
     /// Supersampling per axis near targets (default 3).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub samples: Option<u32>,
+    /// The light: `"overhead"` (a lamp above, the default: the thesis's lab) or `"ring"` (a
+    /// ring light at each camera, as motion-capture cameras carry).
+    #[serde(default, skip_serializing_if = "is_default")]
+    pub light: SyntheticLight,
     #[serde(rename = "target", default)]
     pub targets: Vec<SyntheticTarget>,
+}
+
+/// Where a synthetic scene's light is (`[synthetic] light`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum SyntheticLight {
+    /// One lamp straight above the world's origin (towards +z).
+    #[default]
+    Overhead,
+    /// A ring light around each camera's lens: every view sees its markers lit along its rays.
+    Ring,
+}
+
+fn is_default<T: Default + PartialEq>(v: &T) -> bool {
+    *v == T::default()
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
