@@ -4,7 +4,11 @@
 //! again, and `--dump FRAME` prints that frame's blobs and poses (and the two after it).
 //!
 //!   cargo run --release -p stereoscope-fusion --example ghosts -- \
-//!       [--seconds 600] [--from 0] [--rig deploy/rigs/demo.toml] [--dump FRAME]
+//!       [--seconds 600] [--from 0] [--phase 0] [--rig deploy/rigs/demo.toml] [--dump FRAME]
+//!
+//! `--phase P` samples the scene at (k + P) / 30 s (0 ≤ P < 1): the live demo's frames fall
+//! between the sweep's, and another phase shows the configurations they meet. `--skew-ms S`
+//! renders camera c at S·c ms after the set's time, as live cameras' exposures differ.
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
 use stereoscope_capture::source::FrameSource;
@@ -49,6 +53,8 @@ fn main() {
     let mut fuser = Fuser::new(&rig, cfg);
     let mut bodies = stereoscope_fusion::bodies::Bodies::of_rig(file);
     let layouts = Layouts::of_rig(file);
+    let phase: f64 = arg(&args, "--phase").map_or(0.0, |s| s.parse().unwrap());
+    let skew: f64 = arg(&args, "--skew-ms").map_or(0.0, |s| s.parse::<f64>().unwrap() * 1e-3);
     let first = (from * 30.0) as u64;
     let frames = (seconds * 30.0) as u64;
     let (mut ghosts, mut ghost_frames, mut body_sq, mut body_n) = (0, 0, 0.0, 0);
@@ -58,7 +64,7 @@ fn main() {
     let mut bufs: Vec<Vec<u8>> = vec![Vec::new(); n];
     let mut cent = vec![(0.0f64, 0.0f64, 0.0f64, 0.0f64); n];
     for k in first..first + frames {
-        let t = k as f64 / 30.0;
+        let t = (k as f64 + phase) / 30.0;
         let ts = 1_000_000_000_000 + (t * 1e9) as u64;
         let dumped = dump.is_some_and(|d| d <= k && k < d + 3);
         let mut set = Vec::new();
@@ -66,7 +72,9 @@ fn main() {
         for c in 0..n {
             let (w, h) = sources[c].size();
             bufs[c].resize((w * h) as usize, 0);
-            sources[c].read(k, t, &mut bufs[c]).unwrap();
+            sources[c]
+                .read(k, t + c as f64 * skew, &mut bufs[c])
+                .unwrap();
             let this_truth = sources[c].truth().unwrap();
             let mut hd = FrameHeader::new(&rig.cameras[c].id, PixelFormat::Gray8, w, h).unwrap();
             hd.sequence = k;
@@ -107,7 +115,7 @@ fn main() {
             set.push((c, obs));
         }
         let mut poses = fuser.fuse(&set, ts);
-        let found = bodies.update_refined(&mut poses, ts, &fuser);
+        let found = bodies.update_refined(&mut poses, ts, &mut fuser);
         if dumped {
             for p in &poses {
                 println!(
@@ -184,12 +192,13 @@ fn main() {
         body_errs.last().map(|e| e.1)
     );
     println!(
-        "{frames} frames from {from} s: {ghost_frames} frames with {ghosts} ghost poses; bodies' position RMS {:.2} mm (mean error {:.2?} mm), rotation RMS {:.3}° over {body_n} sightings; fusion: {} blobs out of line by area, {} blobs only one camera saw (no point), {} cut by an edge",
+        "{frames} frames from {from} s: {ghost_frames} frames with {ghosts} ghost poses; bodies' position RMS {:.2} mm (mean error {:.2?} mm), rotation RMS {:.3}° over {body_n} sightings; fusion: {} blobs out of line by area, {} blobs only one camera saw (no point), {} cut by an edge, {} hiding another object",
         (body_sq / body_n.max(1) as f64).sqrt() * 1e3,
         body_sum.map(|v| v / body_n.max(1) as f64 * 1e3),
         (rot_sq / body_n.max(1) as f64).sqrt(),
         fuser.area_mismatch,
         fuser.single_view_unmatched,
         fuser.clipped,
+        fuser.hiding_blobs,
     );
 }

@@ -2,7 +2,7 @@
 //! (`stereoscope_bodies::tracker`); the bodies found label their markers' poses (body name and
 //! marker index) and become the frame's `bodies` (`docs/bodies.md`).
 
-use nalgebra::{Isometry3, Point3};
+use nalgebra::{Isometry3, Point3, Vector3};
 use stereoscope_bodies::tracker::{BodyTracker, TrackedBody};
 use stereoscope_proto::messages::{BodyLabel, BodyPose, MAX_BODY_MARKERS, Pose, PoseMethod};
 
@@ -16,6 +16,8 @@ pub struct Bodies {
     /// Each body's markers in its own frame (the refinement reads them while the tracker is
     /// borrowed).
     markers_m: Vec<Vec<Point3<f64>>>,
+    /// The last set's found bodies' unseen markers: world position and velocity.
+    unseen: Vec<(Point3<f64>, Vector3<f64>)>,
 }
 
 impl Bodies {
@@ -33,6 +35,7 @@ impl Bodies {
         Bodies {
             markers_m: defs.iter().map(|d| d.markers_m.clone()).collect(),
             tracker: BodyTracker::new(defs, hold_ns),
+            unseen: Vec::new(),
         }
     }
 
@@ -49,13 +52,19 @@ impl Bodies {
 
     /// [`Bodies::update`] with each body's pose refined on the cameras' pixels of its markers
     /// (`fuser` knows them for the set just fused; `stereoscope_bodies::refine_reprojection`).
+    ///
+    /// It also tells `fuser` where each found body's unseen markers are (their positions and
+    /// velocities from the body's pose): a blob that hides one gives no point next set
+    /// ([`crate::fuser::Fuser::hiding`]).
     pub fn update_refined(
         &mut self,
         poses: &mut [Pose],
         timestamp_ns: u64,
-        fuser: &crate::fuser::Fuser,
+        fuser: &mut crate::fuser::Fuser,
     ) -> Vec<BodyPose> {
-        self.update_with(poses, timestamp_ns, Some(fuser))
+        let found = self.update_with(poses, timestamp_ns, Some(fuser));
+        fuser.expect_unseen(timestamp_ns, std::mem::take(&mut self.unseen));
+        found
     }
 
     fn update_with(
@@ -99,6 +108,7 @@ impl Bodies {
         let found = self
             .tracker
             .update_refined(&points, timestamp_ns, &mut refine);
+        self.unseen = unseen_markers(&found, &self.markers_m);
         let defs = self.tracker.defs();
         found
             .iter()
@@ -116,6 +126,31 @@ impl Bodies {
             })
             .collect()
     }
+}
+
+/// Each found body's markers not seen this set: world position and velocity (metres, metres
+/// per second).
+fn unseen_markers(
+    found: &[TrackedBody],
+    markers_m: &[Vec<Point3<f64>>],
+) -> Vec<(Point3<f64>, Vector3<f64>)> {
+    let mut out = Vec::new();
+    for b in found.iter().filter(|b| !b.held) {
+        for (k, m) in b.markers.iter().enumerate() {
+            let Some(body_m) = markers_m.get(b.body).and_then(|d| d.get(k)) else {
+                continue;
+            };
+            if m.is_some() {
+                continue;
+            }
+            let arm = b.world_from_body.rotation * body_m.coords;
+            out.push((
+                b.world_from_body * body_m,
+                b.velocity_m_per_s + b.angular_velocity_rad_per_s.cross(&arm),
+            ));
+        }
+    }
+    out
 }
 
 fn body_pose(def: &stereoscope_bodies::BodyDef, b: &TrackedBody) -> BodyPose {

@@ -141,8 +141,15 @@ pub struct Fuser {
     /// Blobs taken out of a match for an area out of line with its other views
     /// ([`FuserConfig::max_area_ratio`]), since start.
     pub area_mismatch: u64,
-    /// Blobs left out because they touch the frame's edge or their window's (cut images).
+    /// Blobs that touch the frame's edge or their window's (cut images), since start: their
+    /// points are published, but their pixels refine no body's pose ([`Fuser::pixels_of`]).
     pub clipped: u64,
+    /// Blobs left out because another followed object's image is hidden in them
+    /// ([`Fuser::hiding`]).
+    pub hiding_blobs: u64,
+    /// Rigid bodies' markers unseen in the last set (`expect_unseen`): when, and each one's
+    /// world position and velocity.
+    unseen: (u64, Vec<(Point3<f64>, Vector3<f64>)>),
 }
 
 /// What each camera saw of one object: (rig camera index, pixel as measured).
@@ -171,10 +178,12 @@ fn merge_duplicates(mut points: Vec<Point>, merge_m: f64) -> Vec<Point> {
 
 /// A blob fusion measures from: seen this frame, and not two objects' merged images (whose
 /// centroid lies between them: a point there would be a ghost).
+/// How recently an object must have been seen for [`Fuser::hiding`] to look for its image.
+const HIDDEN_WITHIN_NS: u64 = 200_000_000;
+
 fn usable(b: &BlobObservation) -> bool {
     b.status != TrackState::Lost
         && !b.merged
-        && !b.clipped
         && b.x_px.is_finite()
         && b.y_px.is_finite()
         && b.area_px > 0.0
@@ -196,6 +205,8 @@ impl Fuser {
             single_view_unmatched: 0,
             area_mismatch: 0,
             clipped: 0,
+            hiding_blobs: 0,
+            unseen: (0, Vec::new()),
         }
     }
 
@@ -244,6 +255,71 @@ impl Fuser {
                 for (j, p) in pixels[s].iter().enumerate() {
                     if (p - q).norm() <= self.cfg.claim_px {
                         out[s][j].push(o.id);
+                    }
+                }
+            }
+        }
+        out
+    }
+
+    /// Where the markers of the bodies found in the set of `timestamp_ns` that were not seen
+    /// are (world position and velocity, from each body's pose): [`Fuser::hiding`] looks for
+    /// them in the next set's blobs.
+    pub fn expect_unseen(&mut self, timestamp_ns: u64, markers: Vec<(Point3<f64>, Vector3<f64>)>) {
+        self.unseen = (timestamp_ns, markers);
+    }
+
+    /// Per set camera and kept blob: whether it hides another object's image. A followed
+    /// object (seen within [`HIDDEN_WITHIN_NS`]), or a found body's unseen marker
+    /// ([`Fuser::expect_unseen`]), that no blob of a view claims, and whose
+    /// prediction projects inside a blob's box there, is behind or merged with that blob's
+    /// target in that view: the blob's centroid is of a shape cut or grown by the other (a
+    /// marker passing in front of a double ball moved its centroid 1.4 px, 6 cm in depth),
+    /// before its area or the worker's merge rule shows it. Its blob gives no point.
+    fn hiding(
+        &self,
+        set: &[(usize, Observation)],
+        kept: &[Vec<usize>],
+        pixels: &[Vec<Point2<f64>>],
+        timestamp_ns: u64,
+    ) -> Vec<Vec<bool>> {
+        let mut out: Vec<Vec<bool>> = pixels.iter().map(|p| vec![false; p.len()]).collect();
+        if self.cfg.claim_px <= 0.0 {
+            return out;
+        }
+        let dt_unseen = timestamp_ns.saturating_sub(self.unseen.0) as f64 * 1e-9;
+        let followed = self
+            .objects
+            .iter()
+            .filter(|o| {
+                o.id != 0 && timestamp_ns.saturating_sub(o.last_seen_ns) <= HIDDEN_WITHIN_NS
+            })
+            .map(|o| o.predict(&self.cfg, timestamp_ns).0);
+        let unseen = self
+            .unseen
+            .1
+            .iter()
+            .filter(|_| dt_unseen * 1e9 <= HIDDEN_WITHIN_NS as f64)
+            .map(|(p, v)| p + v * dt_unseen);
+        for predicted in followed.chain(unseen) {
+            for (s, (c, obs)) in set.iter().enumerate() {
+                let Some(q) = self.cameras[*c].project(&predicted) else {
+                    continue;
+                };
+                if pixels[s]
+                    .iter()
+                    .any(|p| (p - q).norm() <= self.cfg.claim_px)
+                {
+                    continue;
+                }
+                for (j, &i) in kept[s].iter().enumerate() {
+                    let [x0, y0, x1, y1] = obs.blobs[i].bbox_px;
+                    if q.x >= x0 as f64 - 1.0
+                        && q.x <= x1 as f64 + 1.0
+                        && q.y >= y0 as f64 - 1.0
+                        && q.y <= y1 as f64 + 1.0
+                    {
+                        out[s][j] = true;
                     }
                 }
             }
@@ -317,9 +393,9 @@ impl Fuser {
     /// `timestamp_ns`.
     pub fn points(&mut self, set: &[(usize, Observation)], timestamp_ns: u64) -> Vec<Point> {
         let cams: Vec<Camera> = set.iter().map(|(c, _)| self.cameras[*c]).collect();
-        // Only blobs seen this frame, whole (a blob cut by the frame's edge or its window has
-        // its centroid pulled inwards, up to its radius: centimetres in depth); keep their
-        // indices.
+        // Only blobs seen this frame; keep their indices. (A blob cut by the frame's edge or
+        // its window has its centroid pulled inwards, up to its radius: its point is
+        // published, but it does not refine a body's pose: `pixels_of`.)
         self.clipped += set
             .iter()
             .flat_map(|(_, o)| &o.blobs)
@@ -342,6 +418,29 @@ impl Fuser {
                     .collect()
             })
             .collect();
+        let (kept, pixels) = if self.cameras.len() >= 2 {
+            let hiding = self.hiding(set, &kept, &pixels, timestamp_ns);
+            let hidden = hiding.iter().flatten().filter(|&&h| h).count();
+            self.hiding_blobs += hidden as u64;
+            if hidden == 0 {
+                (kept, pixels)
+            } else {
+                let keep = |v: usize, j: usize| !hiding[v][j];
+                (
+                    kept.iter()
+                        .enumerate()
+                        .map(|(v, k)| (0..k.len()).filter(|&j| keep(v, j)).map(|j| k[j]).collect())
+                        .collect(),
+                    pixels
+                        .iter()
+                        .enumerate()
+                        .map(|(v, p)| (0..p.len()).filter(|&j| keep(v, j)).map(|j| p[j]).collect())
+                        .collect(),
+                )
+            }
+        } else {
+            (kept, pixels)
+        };
         let mut points = Vec::new();
         let mut used: Vec<Vec<bool>> = kept.iter().map(|k| vec![false; k.len()]).collect();
         let labels = if self.cameras.len() >= 2 {
@@ -563,10 +662,9 @@ impl Fuser {
                 o.id,
                 p.blobs
                     .iter()
-                    .map(|&(si, bi)| {
-                        let b = &set[si].1.blobs[bi];
-                        (set[si].0, Point2::new(b.x_px, b.y_px))
-                    })
+                    .map(|&(si, bi)| (set[si].0, &set[si].1.blobs[bi]))
+                    .filter(|(_, b)| !b.clipped)
+                    .map(|(c, b)| (c, Point2::new(b.x_px, b.y_px)))
                     .collect(),
             ));
             poses.push(Pose {
@@ -592,7 +690,8 @@ impl Fuser {
     }
 
     /// The pixels (rig camera index, distorted pixel as measured) each camera saw of object
-    /// `id` in the last set fused.
+    /// `id` in the last set fused, whole blobs only (a clipped blob's centroid is pulled
+    /// inwards).
     pub fn pixels_of(&self, id: u32) -> &[(usize, Point2<f64>)] {
         self.pixels
             .iter()
@@ -760,5 +859,88 @@ mod tests {
         assert_eq!(poses.len(), 1);
         assert_eq!(poses[0].object_id, id);
         assert_eq!(f.next_id(), id + 1);
+    }
+    /// The set of both demo cameras seeing balls at `points`, each blob's box 3 px round its
+    /// centroid.
+    fn set_of(rig: &Rig, points: &[Point3<f64>], t_ns: u64) -> Vec<(usize, Observation)> {
+        let mut set = set_at(rig, points[0], t_ns);
+        for (c, o) in &mut set {
+            let proto = o.blobs[0].clone();
+            o.blobs = points
+                .iter()
+                .enumerate()
+                .map(|(k, p)| {
+                    let px = rig.cameras[*c].camera.project(p).unwrap();
+                    let (x, y) = (px.x.round() as u32, px.y.round() as u32);
+                    BlobObservation {
+                        track_id: k as u32 + 1,
+                        x_px: px.x,
+                        y_px: px.y,
+                        bbox_px: [x - 3, y - 3, x + 3, y + 3],
+                        ..proto.clone()
+                    }
+                })
+                .collect();
+        }
+        set
+    }
+
+    /// A marker whose image one camera loses inside another's blob (merged with it, or passing
+    /// in front of it) before the blob's area shows it: that blob's centroid is shifted, and
+    /// it gives no point. The same for a found body's unseen marker, known from the body's
+    /// pose.
+    #[test]
+    fn a_blob_that_hides_a_followed_marker_gives_no_point() {
+        let rig = Rig::from_toml(RIG).unwrap();
+        let mut f = Fuser::new(
+            &rig,
+            FuserConfig {
+                confirm_sets: 1,
+                ..FuserConfig::default()
+            },
+        );
+        let dt = 33_333_333u64;
+        let (a, b) = (Point3::new(-0.1, 0.15, 0.4), Point3::new(-0.1, 0.18, 0.6));
+        for k in 1..=3 {
+            assert_eq!(f.fuse(&set_of(&rig, &[a, b], k * dt), k * dt).len(), 2);
+        }
+        // Camera 0 sees one blob where both images meet: B's image gone, A's centroid 1.5 px
+        // towards it, the box grown over B's projection.
+        let mut set = set_of(&rig, &[a, b], 4 * dt);
+        let pb = rig.cameras[0].camera.project(&b).unwrap();
+        let blob = &mut set[0].1.blobs[0];
+        blob.x_px += 1.5 * (pb.x - blob.x_px).signum();
+        for (k, v) in [pb.x, pb.y, pb.x, pb.y].into_iter().enumerate() {
+            let v = v.round() as u32;
+            blob.bbox_px[k] = if k < 2 {
+                blob.bbox_px[k].min(v)
+            } else {
+                blob.bbox_px[k].max(v)
+            };
+        }
+        set[0].1.blobs.truncate(1);
+        let poses = f.fuse(&set, 4 * dt);
+        assert!(poses.is_empty(), "{poses:?}");
+        assert_eq!(f.hiding_blobs, 1);
+        // Both seen apart again: both published.
+        assert_eq!(f.fuse(&set_of(&rig, &[a, b], 5 * dt), 5 * dt).len(), 2);
+
+        // A body's marker never followed as an object, known only from the body's pose.
+        let mut g = Fuser::new(
+            &rig,
+            FuserConfig {
+                confirm_sets: 1,
+                ..FuserConfig::default()
+            },
+        );
+        for k in 1..=3 {
+            assert_eq!(g.fuse(&set_of(&rig, &[a], k * dt), k * dt).len(), 1);
+        }
+        let mut set = set_of(&rig, &[a], 4 * dt);
+        set[0].1.blobs[0].bbox_px = [0, 0, 319, 239];
+        assert_eq!(g.fuse(&set, 4 * dt).len(), 1, "nothing expected there yet");
+        g.expect_unseen(4 * dt, vec![(b, Vector3::zeros())]);
+        assert!(g.fuse(&set, 5 * dt).is_empty());
+        assert_eq!(g.hiding_blobs, 1);
     }
 }

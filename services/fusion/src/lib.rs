@@ -317,7 +317,7 @@ impl FusionService {
         let mut fused = self.fuser.fuse(set, timestamp_ns);
         let bodies = self
             .bodies
-            .update_refined(&mut fused, timestamp_ns, &self.fuser);
+            .update_refined(&mut fused, timestamp_ns, &mut self.fuser);
         let published_ns = now_ns();
         let frame = PoseFrame {
             schema: SCHEMA_VERSION,
@@ -405,6 +405,9 @@ impl FusionService {
                 "outside_volume".into(),
                 self.fuser.outside_volume.to_string(),
             );
+        }
+        if self.fuser.hiding_blobs > 0 {
+            detail.insert("hiding".into(), self.fuser.hiding_blobs.to_string());
         }
         if self.fuser.clipped > 0 {
             detail.insert("clipped".into(), self.fuser.clipped.to_string());

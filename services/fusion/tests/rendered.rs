@@ -64,7 +64,7 @@ fn sweep(rig_text: &str, from_s: f64, frames: u64) -> (Errors, Vec<String>) {
             set.push((c, workers[c].process_frame(&hd, &buf).unwrap()));
         }
         let mut poses = fuser.fuse(&set, ts);
-        let found = bodies.update_refined(&mut poses, ts, &fuser);
+        let found = bodies.update_refined(&mut poses, ts, &mut fuser);
         for g in layouts.ghosts(&poses, &truth) {
             ghosts.push(format!(
                 "{t:.2} s: object {} at {:.3?} {:?}",

@@ -193,7 +193,7 @@ pub fn refuse(
         }
         set.sort_by_key(|(c, _)| *c);
         let mut poses = fuser.fuse(&set, pf.timestamp_ns);
-        let found = bodies.update_refined(&mut poses, pf.timestamp_ns, &fuser);
+        let found = bodies.update_refined(&mut poses, pf.timestamp_ns, &mut fuser);
         out.frames += 1;
         let body_difference = (found != pf.bodies).then(|| {
             format!(
