@@ -467,10 +467,12 @@ impl Extractor {
 /// Coverage weights of the pixels around a blob that fell below its threshold: a pixel that
 /// the target covers by less than about half is dimmer than the threshold, and leaving it out
 /// pulls the centroid towards the pixel grid (up to a tenth of a pixel on a marker of 20
-/// pixels). Every pixel of the blob's box widened by one that is below the threshold and above
-/// the background adds `pixel − background` (below the threshold, never above `full`). The
-/// pixels at or above the threshold were counted by the scan; a dim pixel between two blobs
-/// within two pixels of each other is counted in both.
+/// pixels). In the blob's box widened by one pixel, every pixel below the threshold and above
+/// the background that lies outside the blob's outline on its row — left of its first pixel at
+/// or above the threshold, right of its last — adds `pixel − background`, and so does every
+/// such pixel of the rows just above and below the box. (Only the outside is read: a big
+/// blob's inside costs nothing again. A dim hollow inside a blob's row, such as a double
+/// ball's waist, is not added; a dim pixel within two pixels of two blobs counts in both.)
 fn add_edge_ring<P: Pixel>(
     b: &mut Blob,
     img: &GrayView<'_, P>,
@@ -487,17 +489,33 @@ fn add_edge_ring<P: Pixel>(
     let (y0, y1) = (bb.y0.saturating_sub(1), (bb.y1 + 1).min(h - 1));
     let top = threshold.min(full);
     for y in y0..=y1 {
-        let row = img.row(y);
+        let row = &img.row(y)[x0 as usize..=x1 as usize];
         let (mut sw, mut swx, mut swxx) = (0u64, 0u64, 0u64);
-        for (x, p) in row[x0 as usize..=x1 as usize].iter().enumerate() {
-            let v = p.value();
-            if v > background && v < top {
-                let x = x0 as u64 + x as u64;
+        let mut add = |i: usize, v: u32| {
+            if v > background {
+                let x = x0 as u64 + i as u64;
                 let wt = (v - background) as u64;
                 sw += wt;
                 swx += wt * x;
                 swxx += wt * x * x;
             }
+        };
+        // From the left up to the first bright pixel, then from the right back to it.
+        let mut first_bright = row.len();
+        for (i, p) in row.iter().enumerate() {
+            let v = p.value();
+            if v >= top {
+                first_bright = i;
+                break;
+            }
+            add(i, v);
+        }
+        for i in (first_bright + 1..row.len()).rev() {
+            let v = row[i].value();
+            if v >= top {
+                break;
+            }
+            add(i, v);
         }
         if sw > 0 {
             wm.add_row_sums(sw, swx, swxx, y);
