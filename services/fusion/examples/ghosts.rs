@@ -11,6 +11,7 @@
 //! renders camera c at S·c ms after the set's time, as live cameras' exposures differ.
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
+use nalgebra::{Isometry3, Quaternion, Translation3, UnitQuaternion};
 use stereoscope_capture::source::FrameSource;
 use stereoscope_capture::synthetic::SyntheticSource;
 use stereoscope_fusion::fuser::Fuser;
@@ -18,6 +19,80 @@ use stereoscope_moments::Worker;
 use stereoscope_proto::frame::{FrameHeader, PixelFormat};
 use stereoscope_rig::Rig;
 use stereoscope_rig::truth::Layouts;
+
+fn iso(p: [f64; 3], q: [f64; 4]) -> Isometry3<f64> {
+    Isometry3::from_parts(
+        Translation3::new(p[0], p[1], p[2]),
+        UnitQuaternion::from_quaternion(Quaternion::new(q[3], q[0], q[1], q[2])),
+    )
+}
+
+/// The One Euro filter (defaults, then a few settings) over the helmet's measured poses:
+/// position jitter (RMS of the error's frame-to-frame change), lag (the least-squares time
+/// shift of the error along the true velocity) and RMS error against the truth, raw and
+/// filtered. Runs of consecutive frames only (a gap restarts the filter).
+fn one_euro(track: &[(u64, Isometry3<f64>, Isometry3<f64>)]) {
+    use stereoscope_bodies::filter::{OneEuroConfig, PoseFilter};
+    let settings = [
+        ("raw", None),
+        (
+            "One Euro 1 Hz, beta 0.5 (default)",
+            Some(OneEuroConfig::default()),
+        ),
+        (
+            "One Euro 1 Hz, beta 5",
+            Some(OneEuroConfig {
+                beta: 5.0,
+                ..OneEuroConfig::default()
+            }),
+        ),
+        (
+            "One Euro 0.5 Hz, beta 0.5",
+            Some(OneEuroConfig {
+                min_cutoff_hz: 0.5,
+                ..OneEuroConfig::default()
+            }),
+        ),
+    ];
+    for (name, cfg) in settings {
+        let mut f = cfg.map(PoseFilter::new);
+        let (mut jit, mut nj, mut sq, mut n) = (0.0, 0usize, 0.0, 0usize);
+        let (mut ev, mut vv, mut rot) = (0.0, 0.0, 0.0);
+        let mut last: Option<(u64, nalgebra::Vector3<f64>, nalgebra::Vector3<f64>)> = None;
+        for &(t, est, truth) in track {
+            if last.is_some_and(|l| t - l.0 > 40_000_000) {
+                if let Some(f) = f.as_mut() {
+                    f.reset();
+                }
+                last = None;
+            }
+            let out = match f.as_mut() {
+                Some(f) => f.filter(&est, t),
+                None => est,
+            };
+            let e = out.translation.vector - truth.translation.vector;
+            let p = truth.translation.vector;
+            sq += e.norm_squared();
+            rot += out.rotation.angle_to(&truth.rotation).to_degrees().powi(2);
+            n += 1;
+            if let Some((t0, e0, p0)) = last {
+                jit += (e - e0).norm_squared();
+                nj += 1;
+                let v = (p - p0) / ((t - t0) as f64 * 1e-9);
+                ev += e.dot(&v);
+                vv += v.norm_squared();
+            }
+            last = Some((t, e, p));
+        }
+        println!(
+            "{name}: position RMS {:.2} mm, rotation RMS {:.3} deg, jitter {:.3} mm a frame, lag {:.1} ms over {n} poses",
+            (sq / n.max(1) as f64).sqrt() * 1e3,
+            (rot / n.max(1) as f64).sqrt(),
+            (jit / nj.max(1) as f64).sqrt() * 1e3,
+            -ev / vv.max(1e-12) * 1e3,
+        );
+    }
+}
 
 fn arg(args: &[String], name: &str) -> Option<String> {
     let i = args.iter().position(|a| a == name)?;
@@ -61,6 +136,8 @@ fn main() {
     let mut body_sum = [0.0f64; 3];
     let mut rot_sq = 0.0;
     let mut body_errs: Vec<(f64, u64)> = Vec::new();
+    // The helmet's measured and true poses, frame by frame, for the One Euro figures.
+    let mut track: Vec<(u64, Isometry3<f64>, Isometry3<f64>)> = Vec::new();
     let mut bufs: Vec<Vec<u8>> = vec![Vec::new(); n];
     let mut cent = vec![(0.0f64, 0.0f64, 0.0f64, 0.0f64); n];
     for k in first..first + frames {
@@ -139,6 +216,13 @@ fn main() {
                     let dot: f64 = (0..4).map(|i| b.orientation_xyzw[i] * q[i]).sum();
                     rot_sq += (2.0 * dot.abs().min(1.0).acos()).to_degrees().powi(2);
                 }
+                if let Some(q) = tt.orientation_xyzw {
+                    track.push((
+                        ts,
+                        iso(b.position_m, b.orientation_xyzw),
+                        iso(tt.position_m, q),
+                    ));
+                }
                 for (i, sum) in body_sum.iter_mut().enumerate() {
                     *sum += b.position_m[i] - tt.position_m[i];
                 }
@@ -177,6 +261,7 @@ fn main() {
             mx / k
         );
     }
+    one_euro(&track);
     body_errs.sort_by(|a, b| a.0.total_cmp(&b.0));
     let pct = |q: f64| {
         body_errs
