@@ -33,26 +33,21 @@ fn iso(p: [f64; 3], q: [f64; 4]) -> Isometry3<f64> {
 /// filtered. Runs of consecutive frames only (a gap restarts the filter).
 fn one_euro(track: &[(u64, Isometry3<f64>, Isometry3<f64>)]) {
     use stereoscope_bodies::filter::{OneEuroConfig, PoseFilter};
+    let one = |min_cutoff_hz: f64, beta: f64| {
+        Some(OneEuroConfig {
+            min_cutoff_hz,
+            beta,
+            ..OneEuroConfig::default()
+        })
+    };
     let settings = [
         ("raw", None),
-        (
-            "One Euro 1 Hz, beta 0.5 (default)",
-            Some(OneEuroConfig::default()),
-        ),
-        (
-            "One Euro 1 Hz, beta 5",
-            Some(OneEuroConfig {
-                beta: 5.0,
-                ..OneEuroConfig::default()
-            }),
-        ),
-        (
-            "One Euro 0.5 Hz, beta 0.5",
-            Some(OneEuroConfig {
-                min_cutoff_hz: 0.5,
-                ..OneEuroConfig::default()
-            }),
-        ),
+        ("One Euro 1 Hz, beta 0.5 (the rig's default)", one(1.0, 0.5)),
+        ("One Euro 1 Hz, beta 5", one(1.0, 5.0)),
+        ("One Euro 1 Hz, beta 20", one(1.0, 20.0)),
+        ("One Euro 1 Hz, beta 50", one(1.0, 50.0)),
+        ("One Euro 3 Hz, beta 20", one(3.0, 20.0)),
+        ("One Euro 5 Hz, beta 50", one(5.0, 50.0)),
     ];
     for (name, cfg) in settings {
         let mut f = cfg.map(PoseFilter::new);
