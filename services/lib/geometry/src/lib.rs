@@ -13,6 +13,7 @@
 //! - [`correspond`]: which blob is which across cameras (epipolar + global assignment).
 //! - [`synthetic`]: a reference camera and calibration views with known truth.
 //! - [`world_heading`]: heading in the world from blob axes (§4.1.1, generalised).
+//! - [`wand`]: where a rig's cameras are, from a wand waved through the volume.
 //!
 //! Frames, units and conventions: `docs/geometry.md` and `docs/conventions.md`.
 
@@ -26,6 +27,7 @@ pub mod lm;
 pub mod synthetic;
 pub mod transform;
 pub mod triangulate;
+pub mod wand;
 pub mod world_heading;
 
 pub use camera::{Camera, Distortion, Intrinsics};

@@ -1,0 +1,835 @@
+//! Extrinsic calibration of a rig from a wand waved through the volume: where each camera is,
+//! from frames in which several cameras saw the wand's markers.
+//!
+//! Not a thesis equation: the thesis measured its two cameras' placement by hand (§2.3.1).
+//! The method is the one every motion-capture system uses:
+//!
+//! 1. Each camera's pixels are undistorted with its intrinsics into normalised coordinates.
+//! 2. For each pair of cameras, the essential matrix from the frames both saw (the eight-point
+//!    algorithm on the wand's centre, RANSAC on the Sampson distance), decomposed into the
+//!    pair's rotation and direction of translation (the pose in front of both cameras); the
+//!    translation's length from the wand: its two end markers triangulated in the pair's frame
+//!    are `length` apart.
+//! 3. A spanning tree over the pairs (most inlier frames first) from the reference camera
+//!    (camera 0, the world's origin until the floor is set) composes every camera's first pose.
+//! 4. Bundle adjustment (`lm`, cameras global, one wand per frame): each frame's wand is one
+//!    end marker's position and a direction, its other markers at their known distances along
+//!    it, so the wand's length sets the scale exactly; residuals are every camera's pixels of
+//!    the markers, each blob taken by the nearer projected marker. Frames whose residual is
+//!    far above the rest are dropped and the adjustment run again.
+//!
+//! Frames: `cam_from_ref` maps camera 0's frame into each camera's (x right, y down, z along
+//! the optical axis: `docs/conventions.md`). Lengths in metres, pixels as observed
+//! (distorted).
+
+use crate::camera::Camera;
+use crate::error::GeometryError;
+use crate::lm::{self, BlockProblem};
+use nalgebra::{
+    Isometry3, Matrix3, Point2, Point3, Rotation3, SMatrix, Translation3, UnitQuaternion, Vector2,
+    Vector3,
+};
+use stereoscope_numeric::SplitMix64;
+
+/// The wand: its markers' distances from one end marker, along a straight line (metres). Two
+/// markers: `[0, D]`; three collinear: `[0, D1, D2]`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Wand {
+    pub offsets_m: Vec<f64>,
+}
+
+impl Wand {
+    /// A wand of two markers `length_m` apart.
+    pub fn two(length_m: f64) -> Result<Self, GeometryError> {
+        Wand::new(vec![0.0, length_m])
+    }
+
+    /// Markers at these distances from the first (which is at 0), all different, at most 3.
+    pub fn new(offsets_m: Vec<f64>) -> Result<Self, GeometryError> {
+        if offsets_m.len() < 2 || offsets_m.len() > 3 {
+            return Err(GeometryError::Degenerate(format!(
+                "a wand has 2 or 3 markers, not {}",
+                offsets_m.len()
+            )));
+        }
+        if offsets_m.iter().any(|d| !d.is_finite() || *d < 0.0)
+            || offsets_m[0] != 0.0
+            || offsets_m.windows(2).any(|w| w[1] <= w[0])
+        {
+            return Err(GeometryError::Degenerate(format!(
+                "wand distances {offsets_m:?} must start at 0 and grow (metres)"
+            )));
+        }
+        Ok(Wand { offsets_m })
+    }
+
+    pub fn markers(&self) -> usize {
+        self.offsets_m.len()
+    }
+
+    /// The full length, first marker to last.
+    pub fn length_m(&self) -> f64 {
+        self.offsets_m[self.offsets_m.len() - 1]
+    }
+}
+
+/// One frame: each camera's blob centroids (pixels as observed), unlabelled.
+#[derive(Debug, Clone, PartialEq)]
+pub struct WandFrame {
+    pub frame: u64,
+    pub pixels: Vec<Vec<Point2<f64>>>,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct WandConfig {
+    /// RANSAC draws per camera pair.
+    pub ransac_iterations: usize,
+    /// RANSAC inlier bound on the Sampson distance, pixels.
+    pub inlier_px: f64,
+    /// After the adjustment, a frame whose RMS residual exceeds this many times the median's
+    /// (and 1 px) is an outlier: dropped, and the adjustment run again.
+    pub outlier_factor: f64,
+    pub max_iterations: usize,
+    pub seed: u64,
+}
+
+impl Default for WandConfig {
+    fn default() -> Self {
+        WandConfig {
+            ransac_iterations: 500,
+            inlier_px: 2.0,
+            outlier_factor: 5.0,
+            max_iterations: 50,
+            seed: 1,
+        }
+    }
+}
+
+/// What the calibration found.
+#[derive(Debug, Clone, PartialEq)]
+pub struct WandSolution {
+    /// Each camera's pose, camera 0's frame as the world.
+    pub cam_from_ref: Vec<Isometry3<f64>>,
+    /// Per camera: RMS reprojection error (pixels) and the markers' pixels used.
+    pub per_camera: Vec<(f64, usize)>,
+    /// Frames used, frames dropped before the adjustment (a camera pair too few, the wand
+    /// partial in every camera but one) and as outliers after it.
+    pub frames_used: usize,
+    pub frames_unusable: usize,
+    pub frames_outliers: usize,
+    /// The wand's length measured by triangulating its end markers freely from the solved
+    /// cameras: mean and standard deviation, metres.
+    pub length_mean_m: f64,
+    pub length_sd_m: f64,
+}
+
+/// Each usable frame in normalised coordinates: per camera, the wand's blobs if that camera
+/// saw exactly the wand's markers.
+struct Normalised {
+    frame: usize,
+    views: Vec<Option<Vec<Vector2<f64>>>>,
+}
+
+fn hom(v: &Vector2<f64>) -> Vector3<f64> {
+    Vector3::new(v.x, v.y, 1.0)
+}
+
+/// The eight-point essential matrix for `x2ᵀ E x1 = 0`, rank 2 with equal singular values.
+fn essential_8pt(pairs: &[(Vector2<f64>, Vector2<f64>)]) -> Option<Matrix3<f64>> {
+    let mut ata = SMatrix::<f64, 9, 9>::zeros();
+    for (a, b) in pairs {
+        let row = SMatrix::<f64, 1, 9>::from_row_slice(&[
+            b.x * a.x,
+            b.x * a.y,
+            b.x,
+            b.y * a.x,
+            b.y * a.y,
+            b.y,
+            a.x,
+            a.y,
+            1.0,
+        ]);
+        ata += row.transpose() * row;
+    }
+    let eig = ata.symmetric_eigen();
+    let k = crate::index_of_min(eig.eigenvalues.iter().copied());
+    let e = eig.eigenvectors.column(k);
+    let m = Matrix3::from_row_slice(e.as_slice());
+    let svd = m.svd(true, true);
+    let (u, vt) = (svd.u?, svd.v_t?);
+    let s = (svd.singular_values[0] + svd.singular_values[1]) / 2.0;
+    Some(u * Matrix3::from_diagonal(&Vector3::new(s, s, 0.0)) * vt)
+}
+
+/// Sampson distance of a correspondence to `E`, in normalised units.
+fn sampson(e: &Matrix3<f64>, a: &Vector2<f64>, b: &Vector2<f64>) -> f64 {
+    let (x1, x2) = (hom(a), hom(b));
+    let ex1 = e * x1;
+    let etx2 = e.transpose() * x2;
+    let num = x2.dot(&ex1);
+    let den = ex1.x * ex1.x + ex1.y * ex1.y + etx2.x * etx2.x + etx2.y * etx2.y;
+    if den <= 0.0 {
+        return f64::INFINITY;
+    }
+    (num * num / den).sqrt()
+}
+
+/// Midpoint triangulation of normalised rays from camera 1 (at the origin) and camera 2
+/// (`cam2_from_cam1`), in camera 1's frame; `None` for parallel rays.
+fn triangulate_pair(
+    cam2_from_cam1: &Isometry3<f64>,
+    a: &Vector2<f64>,
+    b: &Vector2<f64>,
+) -> Option<Point3<f64>> {
+    let c1_from_c2 = cam2_from_cam1.inverse();
+    let d1 = hom(a).normalize();
+    let o2 = c1_from_c2.translation.vector;
+    let d2 = (c1_from_c2.rotation * hom(b)).normalize();
+    // Closest points of o1 + s d1 and o2 + u d2.
+    let w = -o2;
+    let (aa, bb, cc) = (d1.dot(&d1), d1.dot(&d2), d2.dot(&d2));
+    let (dd, ee) = (d1.dot(&w), d2.dot(&w));
+    let den = aa * cc - bb * bb;
+    if den.abs() < 1e-12 {
+        return None;
+    }
+    let s = (bb * ee - cc * dd) / den;
+    let u = (aa * ee - bb * dd) / den;
+    Some(Point3::from((d1 * s + o2 + d2 * u) / 2.0))
+}
+
+/// The pose `cam2_from_cam1` (unit translation) of `E` that puts the most of `pairs` in front
+/// of both cameras.
+fn decompose(e: &Matrix3<f64>, pairs: &[(Vector2<f64>, Vector2<f64>)]) -> Option<Isometry3<f64>> {
+    let svd = e.svd(true, true);
+    let (mut u, mut vt) = (svd.u?, svd.v_t?);
+    if u.determinant() < 0.0 {
+        u = -u;
+    }
+    if vt.determinant() < 0.0 {
+        vt = -vt;
+    }
+    let w = Matrix3::new(0.0, -1.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0);
+    let t = u.column(2).into_owned();
+    let mut best: Option<(usize, Isometry3<f64>)> = None;
+    for r in [u * w * vt, u * w.transpose() * vt] {
+        let rot = UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix_unchecked(r));
+        for sign in [1.0, -1.0] {
+            let pose = Isometry3::from_parts(Translation3::from(t * sign), rot);
+            let front = pairs
+                .iter()
+                .filter_map(|(a, b)| triangulate_pair(&pose, a, b))
+                .filter(|p| p.z > 0.0 && (pose * p).z > 0.0)
+                .count();
+            if best.as_ref().is_none_or(|b| front > b.0) {
+                best = Some((front, pose));
+            }
+        }
+    }
+    best.map(|b| b.1)
+}
+
+/// A camera pair's relative pose with its inlier frame count.
+struct PairPose {
+    inliers: usize,
+    cam2_from_cam1: Isometry3<f64>,
+}
+
+/// The wand's markers' centre in one view (the mean of its blobs: the projection of the
+/// markers' centroid to first order, enough for the first estimate).
+fn centre(v: &[Vector2<f64>]) -> Vector2<f64> {
+    v.iter().sum::<Vector2<f64>>() / v.len() as f64
+}
+
+/// The end markers of a view: the two blobs farthest apart (the wand is straight, so its end
+/// markers' images are the extreme ones).
+fn ends(v: &[Vector2<f64>]) -> (Vector2<f64>, Vector2<f64>) {
+    let mut best = (0, 1, -1.0);
+    for i in 0..v.len() {
+        for j in i + 1..v.len() {
+            let d = (v[i] - v[j]).norm_squared();
+            if d > best.2 {
+                best = (i, j, d);
+            }
+        }
+    }
+    (v[best.0], v[best.1])
+}
+
+fn pair_pose(
+    frames: &[Normalised],
+    c1: usize,
+    c2: usize,
+    wand: &Wand,
+    inlier: f64,
+    cfg: &WandConfig,
+) -> Option<PairPose> {
+    let shared: Vec<(&[Vector2<f64>], &[Vector2<f64>])> = frames
+        .iter()
+        .filter_map(|f| Some((f.views[c1].as_deref()?, f.views[c2].as_deref()?)))
+        .collect();
+    if shared.len() < 8 {
+        return None;
+    }
+    let centres: Vec<(Vector2<f64>, Vector2<f64>)> =
+        shared.iter().map(|(a, b)| (centre(a), centre(b))).collect();
+    let mut rng = SplitMix64::new(cfg.seed ^ ((c1 as u64) << 32) ^ c2 as u64);
+    let mut best: Option<(usize, Matrix3<f64>)> = None;
+    let n = centres.len();
+    for _ in 0..cfg.ransac_iterations {
+        let mut sample = Vec::with_capacity(8);
+        while sample.len() < 8 {
+            let k = (rng.next_u64() % n as u64) as usize;
+            if !sample.contains(&k) {
+                sample.push(k);
+            }
+        }
+        let pts: Vec<_> = sample.iter().map(|&k| centres[k]).collect();
+        let Some(e) = essential_8pt(&pts) else {
+            continue;
+        };
+        let count = centres
+            .iter()
+            .filter(|(a, b)| sampson(&e, a, b) <= inlier)
+            .count();
+        if best.as_ref().is_none_or(|b| count > b.0) {
+            best = Some((count, e));
+        }
+    }
+    let (_, e) = best?;
+    let inliers: Vec<usize> = (0..n)
+        .filter(|&k| sampson(&e, &centres[k].0, &centres[k].1) <= inlier)
+        .collect();
+    let pts: Vec<_> = inliers.iter().map(|&k| centres[k]).collect();
+    let e = essential_8pt(&pts)?;
+    let mut pose = decompose(&e, &pts)?;
+    // Scale: the end markers triangulated (each view's pair of ends taken in the order that
+    // fits the epipolar geometry better) should be the wand's length apart.
+    let mut ratios: Vec<f64> = inliers
+        .iter()
+        .filter_map(|&k| {
+            let (a0, a1) = ends(shared[k].0);
+            let (b0, b1) = ends(shared[k].1);
+            let (b0, b1) = if sampson(&e, &a0, &b0) + sampson(&e, &a1, &b1)
+                <= sampson(&e, &a0, &b1) + sampson(&e, &a1, &b0)
+            {
+                (b0, b1)
+            } else {
+                (b1, b0)
+            };
+            let p = triangulate_pair(&pose, &a0, &b0)?;
+            let q = triangulate_pair(&pose, &a1, &b1)?;
+            let d = (p - q).norm();
+            (d > 1e-9).then(|| wand.length_m() / d)
+        })
+        .collect();
+    if ratios.is_empty() {
+        return None;
+    }
+    ratios.sort_by(f64::total_cmp);
+    let scale = ratios[ratios.len() / 2];
+    pose.translation.vector *= scale;
+    Some(PairPose {
+        inliers: inliers.len(),
+        cam2_from_cam1: pose,
+    })
+}
+
+/// The bundle adjustment: cameras 1.. as global parameters (rotation vector, translation),
+/// one wand per frame (first marker's position, direction as two angles).
+struct Adjustment<'a> {
+    cams: &'a [Camera],
+    frames: &'a [&'a WandFrame],
+    wand: &'a Wand,
+}
+
+fn pose_of(g: &[f64], cam: usize) -> Isometry3<f64> {
+    if cam == 0 {
+        return Isometry3::identity();
+    }
+    let p = &g[(cam - 1) * 6..cam * 6];
+    Isometry3::from_parts(
+        Translation3::new(p[3], p[4], p[5]),
+        UnitQuaternion::from_scaled_axis(Vector3::new(p[0], p[1], p[2])),
+    )
+}
+
+/// One camera's pixel residuals (x, y per marker) of the wand's `markers`: each marker takes
+/// the blob nearest its projection (the wand's images are apart; the order of a view's blobs
+/// says nothing). `None` when a marker is behind the camera.
+fn view_residuals(
+    cam: &Camera,
+    blobs: &[Point2<f64>],
+    markers: &[Point3<f64>],
+    out: &mut Vec<f64>,
+) -> Option<()> {
+    for m in markers {
+        let p = cam.project(m)?;
+        let b = blobs
+            .iter()
+            .min_by(|x, y| (*x - p).norm_squared().total_cmp(&(*y - p).norm_squared()))?;
+        out.push(b.x - p.x);
+        out.push(b.y - p.y);
+    }
+    Some(())
+}
+
+fn wand_markers(wand: &Wand, v: &[f64]) -> Vec<Point3<f64>> {
+    let (th, ph) = (v[3], v[4]);
+    let dir = Vector3::new(th.sin() * ph.cos(), th.sin() * ph.sin(), th.cos());
+    let a = Point3::new(v[0], v[1], v[2]);
+    wand.offsets_m.iter().map(|d| a + dir * *d).collect()
+}
+
+impl BlockProblem for Adjustment<'_> {
+    fn global_len(&self) -> usize {
+        (self.cams.len() - 1) * 6
+    }
+    fn view_count(&self) -> usize {
+        self.frames.len()
+    }
+    fn view_len(&self) -> usize {
+        5
+    }
+    fn residuals(&self, g: &[f64], view: usize, v: &[f64], out: &mut Vec<f64>) -> Option<()> {
+        let markers = wand_markers(self.wand, v);
+        for (c, blobs) in self.frames[view].pixels.iter().enumerate() {
+            if blobs.len() != markers.len() {
+                continue;
+            }
+            let cam = Camera {
+                cam_from_world: pose_of(g, c),
+                ..self.cams[c]
+            };
+            view_residuals(&cam, blobs, &markers, out)?;
+        }
+        Some(())
+    }
+    fn global_step(&self, _k: usize, _x: f64) -> f64 {
+        1e-7
+    }
+}
+
+/// Calibrates the extrinsics of `cams` (their intrinsics and distortion are used, their poses
+/// ignored) from wand frames.
+pub fn calibrate_wand(
+    cams: &[Camera],
+    frames: &[WandFrame],
+    wand: &Wand,
+    cfg: &WandConfig,
+) -> Result<WandSolution, GeometryError> {
+    let n = cams.len();
+    if n < 2 {
+        return Err(GeometryError::TooFewPoints {
+            what: "a wand calibration (cameras)".into(),
+            needed: 2,
+            got: n,
+        });
+    }
+    // Normalise; a view counts when it holds exactly the wand's markers.
+    let mut norm = Vec::new();
+    for (k, f) in frames.iter().enumerate() {
+        if f.pixels.len() != n {
+            return Err(GeometryError::Degenerate(format!(
+                "frame {} has {} cameras' blobs, the rig {n}",
+                f.frame,
+                f.pixels.len()
+            )));
+        }
+        let views: Vec<Option<Vec<Vector2<f64>>>> = f
+            .pixels
+            .iter()
+            .zip(cams)
+            .map(|(px, cam)| {
+                (px.len() == wand.markers())
+                    .then(|| {
+                        px.iter()
+                            .map(|p| cam.normalised(*p))
+                            .collect::<Option<Vec<_>>>()
+                    })
+                    .flatten()
+            })
+            .collect();
+        if views.iter().filter(|v| v.is_some()).count() >= 2 {
+            norm.push(Normalised { frame: k, views });
+        }
+    }
+    let unusable = frames.len() - norm.len();
+    // Pairs, then a spanning tree from camera 0 by inlier count.
+    let f_mean = cams
+        .iter()
+        .map(|c| (c.intrinsics.fx + c.intrinsics.fy) / 2.0)
+        .sum::<f64>()
+        / n as f64;
+    let inlier = cfg.inlier_px / f_mean;
+    let mut pairs: Vec<(usize, usize, PairPose)> = Vec::new();
+    for c1 in 0..n {
+        for c2 in c1 + 1..n {
+            if let Some(p) = pair_pose(&norm, c1, c2, wand, inlier, cfg) {
+                pairs.push((c1, c2, p));
+            }
+        }
+    }
+    let mut placed: Vec<Option<Isometry3<f64>>> = vec![None; n];
+    placed[0] = Some(Isometry3::identity());
+    loop {
+        let next = pairs
+            .iter()
+            .filter(|(a, b, _)| placed[*a].is_some() != placed[*b].is_some())
+            .max_by_key(|(_, _, p)| p.inliers);
+        let Some((a, b, p)) = next else { break };
+        if let Some(pa) = placed[*a] {
+            placed[*b] = Some(p.cam2_from_cam1 * pa);
+        } else if let Some(pb) = placed[*b] {
+            placed[*a] = Some(p.cam2_from_cam1.inverse() * pb);
+        }
+    }
+    let missing: Vec<usize> = (0..n).filter(|&c| placed[c].is_none()).collect();
+    if !missing.is_empty() {
+        return Err(GeometryError::Degenerate(format!(
+            "cameras {missing:?} share too few wand frames (8 at least) with the others to be placed"
+        )));
+    }
+    let poses: Vec<Isometry3<f64>> = placed.into_iter().flatten().collect();
+    let mut global: Vec<f64> = poses[1..]
+        .iter()
+        .flat_map(|p| {
+            let r = p.rotation.scaled_axis();
+            let t = p.translation.vector;
+            [r.x, r.y, r.z, t.x, t.y, t.z]
+        })
+        .collect();
+    // Each frame's wand from its first two views, then adjusted with the cameras.
+    let mut used: Vec<usize> = norm.iter().map(|f| f.frame).collect();
+    let mut outliers = 0usize;
+    let mut solution = None;
+    for _round in 0..3 {
+        let chosen: Vec<&WandFrame> = used.iter().map(|&k| &frames[k]).collect();
+        let cams_now: Vec<Camera> = (0..n)
+            .map(|c| Camera {
+                cam_from_world: pose_of(&global, c),
+                ..cams[c]
+            })
+            .collect();
+        let mut views: Vec<Vec<f64>> = chosen
+            .iter()
+            .map(|f| initial_wand(&cams_now, f, wand))
+            .collect::<Option<_>>()
+            .ok_or_else(|| {
+                GeometryError::Degenerate("a wand frame could not be triangulated".into())
+            })?;
+        let problem = Adjustment {
+            cams,
+            frames: &chosen,
+            wand,
+        };
+        lm::solve(&problem, &mut global, &mut views, cfg.max_iterations);
+        // Per frame RMS; drop the outliers and go again, or stop.
+        let mut buf = Vec::new();
+        let rms: Vec<f64> = views
+            .iter()
+            .enumerate()
+            .map(|(i, v)| {
+                buf.clear();
+                problem
+                    .residuals(&global, i, v, &mut buf)
+                    .map_or(f64::INFINITY, |_| {
+                        (buf.iter().map(|r| r * r).sum::<f64>() / buf.len().max(1) as f64).sqrt()
+                    })
+            })
+            .collect();
+        let mut sorted = rms.clone();
+        sorted.sort_by(f64::total_cmp);
+        let median = sorted[sorted.len() / 2];
+        let bound = (median * cfg.outlier_factor).max(1.0);
+        let keep: Vec<usize> = (0..used.len()).filter(|&i| rms[i] <= bound).collect();
+        solution = Some((chosen.len(), views));
+        if keep.len() == used.len() {
+            break;
+        }
+        outliers += used.len() - keep.len();
+        used = keep.iter().map(|&i| used[i]).collect();
+        if used.len() < 8 {
+            return Err(GeometryError::TooFewPoints {
+                what: "a wand calibration (frames left after outliers)".into(),
+                needed: 8,
+                got: used.len(),
+            });
+        }
+    }
+    let (_, views) = solution.ok_or_else(|| GeometryError::Solver("no adjustment ran".into()))?;
+    let chosen: Vec<&WandFrame> = used.iter().map(|&k| &frames[k]).collect();
+    let cam_from_ref: Vec<Isometry3<f64>> = (0..n).map(|c| pose_of(&global, c)).collect();
+    let solved: Vec<Camera> = (0..n)
+        .map(|c| Camera {
+            cam_from_world: cam_from_ref[c],
+            ..cams[c]
+        })
+        .collect();
+    // Per camera RMS.
+    let mut per_camera = vec![(0.0f64, 0usize); n];
+    let mut buf = Vec::new();
+    for (f, v) in chosen.iter().zip(&views) {
+        let markers = wand_markers(wand, v);
+        for (c, blobs) in f.pixels.iter().enumerate() {
+            buf.clear();
+            if blobs.len() == wand.markers()
+                && view_residuals(&solved[c], blobs, &markers, &mut buf).is_some()
+            {
+                per_camera[c].0 += buf.iter().map(|r| r * r).sum::<f64>();
+                per_camera[c].1 += wand.markers();
+            }
+        }
+    }
+    let per_camera: Vec<(f64, usize)> = per_camera
+        .into_iter()
+        .map(|(s, k)| ((s / (2 * k).max(1) as f64).sqrt(), k))
+        .collect();
+    // The wand's length, triangulated freely.
+    let lengths: Vec<f64> = chosen
+        .iter()
+        .zip(&views)
+        .filter_map(|(f, v)| free_length(&solved, f, wand, v))
+        .collect();
+    let mean = lengths.iter().sum::<f64>() / lengths.len().max(1) as f64;
+    let sd = (lengths.iter().map(|l| (l - mean).powi(2)).sum::<f64>()
+        / (lengths.len().max(2) - 1) as f64)
+        .sqrt();
+    Ok(WandSolution {
+        cam_from_ref,
+        per_camera,
+        frames_used: chosen.len(),
+        frames_unusable: unusable,
+        frames_outliers: outliers,
+        length_mean_m: mean,
+        length_sd_m: sd,
+    })
+}
+
+/// A frame's wand parameters from its views: the end markers triangulated from every view
+/// that saw the whole wand (each view's ends matched to the first view's by the nearer
+/// epipolar fit), then the first marker and the direction.
+fn initial_wand(cams: &[Camera], f: &WandFrame, wand: &Wand) -> Option<Vec<f64>> {
+    use crate::triangulate::{Observation, triangulate_dlt};
+    let views: Vec<(usize, (Point2<f64>, Point2<f64>))> = f
+        .pixels
+        .iter()
+        .enumerate()
+        .filter(|(_, px)| px.len() == wand.markers())
+        .map(|(c, px)| {
+            let v: Vec<Vector2<f64>> = px.iter().map(|p| p.coords).collect();
+            let (a, b) = ends(&v);
+            (c, (Point2::from(a), Point2::from(b)))
+        })
+        .collect();
+    if views.len() < 2 {
+        return None;
+    }
+    // Try both orders of each later view against the first; keep the combination whose two
+    // points fit best (views are few: at most 2^(n−1) combinations, capped at 8 cameras).
+    let mut best: Option<(f64, Point3<f64>, Point3<f64>)> = None;
+    let k = views.len() - 1;
+    for mask in 0..(1u32 << k.min(7)) {
+        let mut obs_a = Vec::new();
+        let mut obs_b = Vec::new();
+        for (i, (c, (a, b))) in views.iter().enumerate() {
+            let flip = i > 0 && mask & (1 << (i - 1)) != 0;
+            let (a, b) = if flip { (*b, *a) } else { (*a, *b) };
+            obs_a.push(Observation {
+                camera: *c,
+                pixel: a,
+            });
+            obs_b.push(Observation {
+                camera: *c,
+                pixel: b,
+            });
+        }
+        let (Ok(pa), Ok(pb)) = (triangulate_dlt(cams, &obs_a), triangulate_dlt(cams, &obs_b))
+        else {
+            continue;
+        };
+        let err: f64 = obs_a
+            .iter()
+            .map(|o| (o, pa))
+            .chain(obs_b.iter().map(|o| (o, pb)))
+            .map(|(o, p)| {
+                cams[o.camera]
+                    .project(&p)
+                    .map_or(f64::INFINITY, |q| (q - o.pixel).norm_squared())
+            })
+            .sum();
+        if best.as_ref().is_none_or(|b| err < b.0) {
+            best = Some((err, pa, pb));
+        }
+    }
+    let (_, pa, pb) = best?;
+    let d = (pb - pa).normalize();
+    Some(vec![
+        pa.x,
+        pa.y,
+        pa.z,
+        d.z.clamp(-1.0, 1.0).acos(),
+        d.y.atan2(d.x),
+    ])
+}
+
+/// The wand's end markers triangulated each on its own from the solved cameras (each blob
+/// taken by the nearer adjusted marker), and their distance.
+fn free_length(cams: &[Camera], f: &WandFrame, wand: &Wand, v: &[f64]) -> Option<f64> {
+    use crate::triangulate::{Observation, triangulate};
+    let markers = wand_markers(wand, v);
+    let ends = [markers[0], markers[markers.len() - 1]];
+    let mut pts = Vec::new();
+    for m in ends {
+        let obs: Vec<Observation> = f
+            .pixels
+            .iter()
+            .enumerate()
+            .filter(|(_, px)| px.len() == wand.markers())
+            .filter_map(|(c, px)| {
+                let q = cams[c].project(&m)?;
+                let b = px
+                    .iter()
+                    .min_by(|x, y| (*x - q).norm_squared().total_cmp(&(*y - q).norm_squared()))?;
+                Some(Observation {
+                    camera: c,
+                    pixel: *b,
+                })
+            })
+            .collect();
+        if obs.len() < 2 {
+            return None;
+        }
+        pts.push(triangulate(cams, &obs).ok()?.point_world);
+    }
+    Some((pts[1] - pts[0]).norm())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::camera::{Distortion, Intrinsics};
+    use crate::transform::look_at;
+
+    /// Four 640 × 480 cameras round a volume about 3 m away, at mixed heights, one rolled 90°.
+    fn ring() -> Vec<Camera> {
+        let intr = Intrinsics::new(600.0, 600.0, 319.5, 239.5, 640, 480).unwrap();
+        let places = [
+            (Point3::new(3.0, 0.0, 1.5), Vector3::z()),
+            (Point3::new(0.0, 3.0, 2.5), Vector3::z()),
+            (Point3::new(-3.0, 0.2, 1.0), Vector3::z()),
+            (Point3::new(0.2, -3.0, 2.0), Vector3::x()),
+        ];
+        places
+            .iter()
+            .map(|(at, up)| {
+                let world_from_cam = look_at(*at, Point3::new(0.0, 0.0, 1.0), *up).unwrap();
+                Camera::new(intr, Distortion::default(), world_from_cam.inverse()).unwrap()
+            })
+            .collect()
+    }
+
+    fn frames(cams: &[Camera], wand: &Wand, count: usize, noise_px: f64) -> Vec<WandFrame> {
+        let mut rng = SplitMix64::new(7);
+        (0..count)
+            .map(|k| {
+                let a = Point3::new(
+                    rng.range(-0.6, 0.6),
+                    rng.range(-0.6, 0.6),
+                    rng.range(0.5, 1.5),
+                );
+                let d = Vector3::new(rng.normal(), rng.normal(), rng.normal()).normalize();
+                let markers: Vec<Point3<f64>> = wand.offsets_m.iter().map(|o| a + d * *o).collect();
+                WandFrame {
+                    frame: k as u64,
+                    pixels: cams
+                        .iter()
+                        .map(|c| {
+                            let mut px: Vec<Point2<f64>> = markers
+                                .iter()
+                                .filter_map(|m| c.project(m))
+                                .filter(|p| p.x >= 0.0 && p.y >= 0.0 && p.x < 640.0 && p.y < 480.0)
+                                .map(|p| p + Vector2::new(rng.normal(), rng.normal()) * noise_px)
+                                .collect();
+                            // Blob order says nothing.
+                            if rng.uniform() < 0.5 {
+                                px.reverse();
+                            }
+                            px
+                        })
+                        .collect(),
+                }
+            })
+            .collect()
+    }
+
+    #[test]
+    fn a_ring_of_four_cameras_is_placed_by_a_two_marker_wand() {
+        let truth = ring();
+        let wand = Wand::two(0.5).unwrap();
+        let mut fs = frames(&truth, &wand, 600, 0.2);
+        // A few frames where a reflection took a marker's place in one view.
+        for f in fs.iter_mut().step_by(50) {
+            if let Some(p) = f.pixels[1].first_mut() {
+                *p += Vector2::new(40.0, -25.0);
+            }
+        }
+        let sol = calibrate_wand(&truth, &fs, &wand, &WandConfig::default()).unwrap();
+        let ref_from_world = truth[0].cam_from_world;
+        for (c, cam) in truth.iter().enumerate() {
+            let want = cam.cam_from_world * ref_from_world.inverse();
+            let got = sol.cam_from_ref[c];
+            let dpos =
+                ((got.inverse() * Point3::origin()) - (want.inverse() * Point3::origin())).norm();
+            let drot = got.rotation.angle_to(&want.rotation).to_degrees();
+            assert!(dpos < 1e-3, "camera {c}: {:.3} mm off", dpos * 1e3);
+            assert!(drot < 0.05, "camera {c}: {drot:.4}° off");
+        }
+        // Each end triangulated on its own: with 0.2 px at 3 m and f = 600 px, about 0.6 mm
+        // a point, so the length's spread is of that order; its mean is the wand's.
+        assert!((sol.length_mean_m - 0.5).abs() < 2e-4, "{sol:?}");
+        assert!(sol.length_sd_m < 1.2e-3, "{sol:?}");
+        assert!(sol.frames_outliers >= 10, "{sol:?}");
+        for (rms, k) in &sol.per_camera {
+            assert!(*rms < 0.3 && *k > 100, "{sol:?}");
+        }
+    }
+
+    /// The usual three-marker wand (250 and 500 mm from one end), with some views missing a
+    /// marker (those views are left out, the frame kept while two cameras saw it whole).
+    #[test]
+    fn a_three_marker_wand_with_partial_views() {
+        let truth = ring();
+        let wand = Wand::new(vec![0.0, 0.25, 0.5]).unwrap();
+        let mut fs = frames(&truth, &wand, 400, 0.2);
+        for f in fs.iter_mut().step_by(7) {
+            f.pixels[2].pop();
+        }
+        let sol = calibrate_wand(&truth, &fs, &wand, &WandConfig::default()).unwrap();
+        let ref_from_world = truth[0].cam_from_world;
+        for (c, cam) in truth.iter().enumerate() {
+            let want = cam.cam_from_world * ref_from_world.inverse();
+            let got = sol.cam_from_ref[c];
+            let dpos =
+                ((got.inverse() * Point3::origin()) - (want.inverse() * Point3::origin())).norm();
+            assert!(dpos < 1e-3, "camera {c}: {:.3} mm off", dpos * 1e3);
+            assert!(got.rotation.angle_to(&want.rotation).to_degrees() < 0.05);
+        }
+        assert!((sol.length_mean_m - 0.5).abs() < 2e-4, "{sol:?}");
+    }
+
+    #[test]
+    fn a_camera_that_never_saw_the_wand_is_named() {
+        let truth = ring();
+        let wand = Wand::two(0.5).unwrap();
+        let mut fs = frames(&truth, &wand, 100, 0.2);
+        for f in &mut fs {
+            f.pixels[3].clear();
+        }
+        let err = calibrate_wand(&truth, &fs, &wand, &WandConfig::default()).unwrap_err();
+        assert!(err.to_string().contains("cameras [3]"), "{err}");
+        assert!(Wand::new(vec![0.0, 0.5, 0.25]).is_err());
+        assert!(Wand::new(vec![0.5]).is_err());
+        assert!(Wand::two(f64::NAN).is_err());
+    }
+}
