@@ -6,7 +6,9 @@
 use nalgebra::{Isometry3, Point2, Point3, Vector3};
 use std::fmt::Write as _;
 use stereoscope_geometry::dotgrid::{DotGrid, render};
-use stereoscope_geometry::synthetic::{ViewSpread, calibration_views, example_camera, grid};
+use stereoscope_geometry::synthetic::{
+    ViewSpread, calibration_views, example_camera, grid, wand_frames, wand_rig_cameras,
+};
 use stereoscope_geometry::transform::look_at;
 use stereoscope_geometry::{Camera, Distortion, Intrinsics};
 use stereoscope_numeric::SplitMix64;
@@ -354,4 +356,130 @@ fn triangulate_with_the_thesis_rig() {
         e.contains("bad.toml") && e.contains("focal_length_mm: -1"),
         "{e}"
     );
+}
+
+/// A CSV frame,camera,u,v of a two-marker wand (500 mm) waved through the volume of
+/// `synthetic::wand_rig_cameras`, 0.2 px of noise.
+fn wand_csv(cams: &[Camera], frames: usize) -> String {
+    let mut csv = String::from("frame,camera,u,v\n");
+    for (f, views) in wand_frames(cams, &[0.0, 0.5], frames, 0.2, 11)
+        .iter()
+        .enumerate()
+    {
+        for (c, px) in views.iter().enumerate() {
+            for p in px {
+                writeln!(csv, "{f},cam{c},{:.4},{:.4}", p.x, p.y).unwrap();
+            }
+        }
+    }
+    csv
+}
+
+/// The rig file of `synthetic::wand_rig_cameras` without poses (millimetres).
+fn wand_rig() -> String {
+    let mut rig = String::from(
+        "# Four cameras round the volume; poses from the wand.\nname = \"wand-ring\"\nunits = \"mm\"\n",
+    );
+    for c in 0..4 {
+        write!(
+            rig,
+            "\n[[camera]]\nid = \"cam{c}\"\nimage_size = [640, 480]\nfx = 600.0\nfy = 600.0\nprincipal_point = [319.5, 239.5]\n"
+        )
+        .unwrap();
+    }
+    rig
+}
+
+#[test]
+fn calibrate_wand_places_a_ring_of_cameras_and_writes_the_rig() {
+    let dir = TempDir::new("cal-wand");
+    let truth = wand_rig_cameras();
+    let csv = dir.file("wand.csv", &wand_csv(&truth, 800));
+    let rig = dir.file("rig.toml", &wand_rig());
+    let out = dir.0.join("calibrated.toml");
+    let report = dir.0.join("report");
+    let o = run(&[
+        "calibrate",
+        "wand",
+        "--rig",
+        &rig,
+        "--observations",
+        &csv,
+        "--wand",
+        "500",
+        "--out",
+        out.to_str().unwrap(),
+        "--report",
+        report.to_str().unwrap(),
+        "--json",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let r: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(r["cameras"].as_array().unwrap().len(), 4, "{r}");
+    assert!(
+        r["wand_length_mean_error_mm"].as_f64().unwrap().abs() < 0.3,
+        "{r}"
+    );
+    assert!(report.join("wand-report.md").exists() && report.join("wand-report.json").exists());
+    // The written rig loads, keeps its comment, and puts every camera where it is, camera 0's
+    // frame being the world.
+    let text = std::fs::read_to_string(&out).unwrap();
+    assert!(
+        text.starts_with("# Four cameras round the volume"),
+        "{text}"
+    );
+    let got = Rig::load(&out).unwrap();
+    let ref_from_world = truth[0].cam_from_world;
+    for (c, cam) in truth.iter().enumerate() {
+        let want: Isometry3<f64> = cam.cam_from_world * ref_from_world.inverse();
+        let pose = got.cameras[c].camera.cam_from_world;
+        let d = (pose.inverse() * Point3::origin() - want.inverse() * Point3::origin()).norm();
+        assert!(d < 1e-3, "camera {c}: {:.3} mm off", d * 1e3);
+        let a = pose.rotation.angle_to(&want.rotation).to_degrees();
+        assert!(a < 0.05, "camera {c}: {a:.4}° off");
+    }
+}
+
+#[test]
+fn calibrate_wand_bad_input_is_named() {
+    let dir = TempDir::new("cal-wand-bad");
+    let rig = dir.file("rig.toml", &wand_rig());
+    let cases = [
+        (
+            "frame,camera,u,v\n0,cam0,10,20\n1,cam9,1,2\n",
+            "wand.csv:3: camera \"cam9\"",
+        ),
+        ("frame,camera,u,v\n0,cam0,10,NaN\n", "wand.csv:2: v \"NaN\""),
+        ("frame,cam,u,v\n", "wand.csv:1: the header"),
+        (
+            "frame,camera,u,v\n0,cam0,10,20\n",
+            "share too few wand frames",
+        ),
+    ];
+    for (text, want) in cases {
+        let csv = dir.file("wand.csv", text);
+        let o = run(&[
+            "calibrate",
+            "wand",
+            "--rig",
+            &rig,
+            "--observations",
+            &csv,
+            "--wand",
+            "500",
+        ]);
+        assert!(!o.status.success());
+        assert!(stderr(&o).contains(want), "{want}: {}", stderr(&o));
+    }
+    let o = run(&[
+        "calibrate",
+        "wand",
+        "--rig",
+        &rig,
+        "--observations",
+        "x.csv",
+        "--wand",
+        "0",
+    ]);
+    assert!(stderr(&o).contains("--wand"), "{}", stderr(&o));
 }

@@ -175,6 +175,14 @@ fn read_lines<M: Message>(path: &Path, warnings: &mut Vec<String>) -> Result<Vec
     Ok(out)
 }
 
+/// A recorder's `observations.jsonl` read back (for a calibration from a recording), with its
+/// warnings (an incomplete last line).
+pub fn read_observations(path: &Path) -> Result<(Vec<Observation>, Vec<String>), SessionError> {
+    let mut warnings = Vec::new();
+    let obs = read_lines(path, &mut warnings)?;
+    Ok((obs, warnings))
+}
+
 impl Session {
     pub fn read(dir: &Path) -> Result<Session, SessionError> {
         let info_path = dir.join("session.json");

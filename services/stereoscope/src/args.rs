@@ -36,7 +36,11 @@ pub struct BlobsArgs {
 
 /// `stereoscope calibrate`: its options.
 #[derive(clap::Args, Debug)]
+#[command(args_conflicts_with_subcommands = true)]
 pub struct CalibrateArgs {
+    /// A step of a rig's calibration instead of one camera's intrinsics.
+    #[command(subcommand)]
+    pub step: Option<CalibrateStep>,
     /// CSV with the header view,X,Y,Z,u,v: target coordinates and pixels, one row per point.
     #[arg(long, conflicts_with = "dot_grid")]
     pub points: Option<PathBuf>,
@@ -66,6 +70,61 @@ pub struct CalibrateArgs {
     /// One JSON object instead of the report (docs/protocol.md).
     #[arg(long)]
     pub json: bool,
+}
+
+/// `stereoscope calibrate STEP`.
+#[derive(clap::Subcommand, Debug)]
+pub enum CalibrateStep {
+    /// Every camera's pose from a wand waved through the volume (docs/calibration.md): the
+    /// cameras' intrinsics from the rig, the wand's blobs from a recorder's observations.jsonl
+    /// or a CSV frame,camera,u,v.
+    Wand(WandArgs),
+}
+
+/// `stereoscope calibrate wand`: its options.
+#[derive(clap::Args, Debug)]
+pub struct WandArgs {
+    /// The rig file: each camera's intrinsics and distortion (a pose is not needed).
+    #[arg(long)]
+    pub rig: PathBuf,
+    /// The wand's blobs: a recorder's observations.jsonl, or a .csv with the header
+    /// frame,camera,u,v (camera by its rig id, pixels as observed).
+    #[arg(long)]
+    pub observations: PathBuf,
+    /// The wand: D (two markers D apart) or D1,D2 (three in a line, D1 and D2 from one end).
+    #[arg(long, value_delimiter = ',', num_args = 1..=2, required = true)]
+    pub wand: Vec<f64>,
+    /// Unit of --wand: m, cm or mm.
+    #[arg(long, default_value = "mm")]
+    pub units: stereoscope_rig::Units,
+    /// Write the rig file with the cameras' poses here (the rest of the file as it was).
+    #[arg(long)]
+    pub out: Option<PathBuf>,
+    /// Write wand-report.md and wand-report.json into this folder.
+    #[arg(long)]
+    pub report: Option<PathBuf>,
+    /// Print the report as one JSON object instead of Markdown.
+    #[arg(long)]
+    pub json: bool,
+}
+
+impl WandArgs {
+    pub fn run(self) -> ExitCode {
+        let opts = stereoscope::wand::WandOptions {
+            rig: self.rig,
+            observations: self.observations,
+            wand: self.wand,
+            units: self.units,
+            out: self.out,
+            report: self.report,
+            json: self.json,
+        };
+        finish(stereoscope::wand::run(
+            &opts,
+            &mut std::io::stdout().lock(),
+            &mut std::io::stderr().lock(),
+        ))
+    }
 }
 
 /// `stereoscope fit-depth`: its options.
@@ -270,6 +329,7 @@ impl CalibrateArgs {
     /// Runs the command; the process's exit status.
     pub fn run(self) -> ExitCode {
         let CalibrateArgs {
+            step,
             points,
             image_size,
             dot_grid,
@@ -281,6 +341,9 @@ impl CalibrateArgs {
             out,
             json,
         } = self;
+        if let Some(CalibrateStep::Wand(w)) = step {
+            return w.run();
+        }
         let source = match (points, dot_grid, spacing) {
             (Some(p), None, _) if images.is_empty() => Source::Points(p),
             (Some(_), None, _) => {

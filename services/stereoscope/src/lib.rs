@@ -11,3 +11,4 @@ pub mod live;
 pub mod progress;
 
 pub mod triangulate;
+pub mod wand;

@@ -4,7 +4,7 @@
 
 use crate::camera::{Camera, Distortion, Intrinsics};
 use crate::transform::look_at;
-use nalgebra::{Isometry3, Point2, Point3, Vector3};
+use nalgebra::{Isometry3, Point2, Point3, Vector2, Vector3};
 use stereoscope_numeric::SplitMix64;
 
 /// A 640 × 480 camera with non-square pixels and real-lens distortion: fx 812, fy 798,
@@ -141,6 +141,75 @@ pub fn ring_cameras(n: usize) -> Vec<Camera> {
                 distortion,
                 cam_from_world: world_from_cam.inverse(),
             })
+        })
+        .collect()
+}
+
+/// Four 640 × 480 cameras (fx = fy = 600, no distortion) round a volume about 3 m away, at
+/// mixed heights (1–2.5 m), one rolled 90°, all aimed at (0, 0, 1): a wand calibration's
+/// test rig.
+pub fn wand_rig_cameras() -> Vec<Camera> {
+    let intrinsics = Intrinsics {
+        fx: 600.0,
+        fy: 600.0,
+        cx: 319.5,
+        cy: 239.5,
+        width: 640,
+        height: 480,
+    };
+    [
+        (Point3::new(3.0, 0.0, 1.5), Vector3::z()),
+        (Point3::new(0.0, 3.0, 2.5), Vector3::z()),
+        (Point3::new(-3.0, 0.2, 1.0), Vector3::z()),
+        (Point3::new(0.2, -3.0, 2.0), Vector3::x()),
+    ]
+    .iter()
+    .filter_map(|(at, up)| {
+        let world_from_cam = look_at(*at, Point3::new(0.0, 0.0, 1.0), *up).ok()?;
+        Some(Camera {
+            intrinsics,
+            distortion: Distortion::default(),
+            cam_from_world: world_from_cam.inverse(),
+        })
+    })
+    .collect()
+}
+
+/// `count` frames of a straight wand (markers at `offsets_m` from its first) waved through a
+/// 1.2 × 1.2 × 1 m volume centred on (0, 0, 1) in random directions: per frame, per camera, the
+/// markers' pixels inside the image with Gaussian noise of `noise_px`, in either order.
+pub fn wand_frames(
+    cams: &[Camera],
+    offsets_m: &[f64],
+    count: usize,
+    noise_px: f64,
+    seed: u64,
+) -> Vec<Vec<Vec<Point2<f64>>>> {
+    let mut rng = SplitMix64::new(seed);
+    (0..count)
+        .map(|_| {
+            let a = Point3::new(
+                rng.range(-0.6, 0.6),
+                rng.range(-0.6, 0.6),
+                rng.range(0.5, 1.5),
+            );
+            let d = Vector3::new(rng.normal(), rng.normal(), rng.normal()).normalize();
+            let markers: Vec<Point3<f64>> = offsets_m.iter().map(|o| a + d * *o).collect();
+            cams.iter()
+                .map(|c| {
+                    let (w, h) = (c.intrinsics.width as f64, c.intrinsics.height as f64);
+                    let mut px: Vec<Point2<f64>> = markers
+                        .iter()
+                        .filter_map(|m| c.project(m))
+                        .filter(|p| p.x >= -0.5 && p.y >= -0.5 && p.x < w - 0.5 && p.y < h - 0.5)
+                        .map(|p| p + Vector2::new(rng.normal(), rng.normal()) * noise_px)
+                        .collect();
+                    if rng.uniform() < 0.5 {
+                        px.reverse();
+                    }
+                    px
+                })
+                .collect()
         })
         .collect()
 }

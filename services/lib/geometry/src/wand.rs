@@ -229,6 +229,12 @@ fn decompose(e: &Matrix3<f64>, pairs: &[(Vector2<f64>, Vector2<f64>)]) -> Option
     best.map(|b| b.1)
 }
 
+/// One frame's wand images in two cameras (normalised).
+type ViewPair<'a> = (&'a [Vector2<f64>], &'a [Vector2<f64>]);
+
+/// A camera's end markers' pixels, with the camera's index.
+type Ends = (usize, (Point2<f64>, Point2<f64>));
+
 /// A camera pair's relative pose with its inlier frame count.
 struct PairPose {
     inliers: usize,
@@ -264,7 +270,7 @@ fn pair_pose(
     inlier: f64,
     cfg: &WandConfig,
 ) -> Option<PairPose> {
-    let shared: Vec<(&[Vector2<f64>], &[Vector2<f64>])> = frames
+    let shared: Vec<ViewPair> = frames
         .iter()
         .filter_map(|f| Some((f.views[c1].as_deref()?, f.views[c2].as_deref()?)))
         .collect();
@@ -611,7 +617,7 @@ pub fn calibrate_wand(
 /// epipolar fit), then the first marker and the direction.
 fn initial_wand(cams: &[Camera], f: &WandFrame, wand: &Wand) -> Option<Vec<f64>> {
     use crate::triangulate::{Observation, triangulate_dlt};
-    let views: Vec<(usize, (Point2<f64>, Point2<f64>))> = f
+    let views: Vec<Ends> = f
         .pixels
         .iter()
         .enumerate()
@@ -708,57 +714,18 @@ fn free_length(cams: &[Camera], f: &WandFrame, wand: &Wand, v: &[f64]) -> Option
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::camera::{Distortion, Intrinsics};
-    use crate::transform::look_at;
 
-    /// Four 640 × 480 cameras round a volume about 3 m away, at mixed heights, one rolled 90°.
     fn ring() -> Vec<Camera> {
-        let intr = Intrinsics::new(600.0, 600.0, 319.5, 239.5, 640, 480).unwrap();
-        let places = [
-            (Point3::new(3.0, 0.0, 1.5), Vector3::z()),
-            (Point3::new(0.0, 3.0, 2.5), Vector3::z()),
-            (Point3::new(-3.0, 0.2, 1.0), Vector3::z()),
-            (Point3::new(0.2, -3.0, 2.0), Vector3::x()),
-        ];
-        places
-            .iter()
-            .map(|(at, up)| {
-                let world_from_cam = look_at(*at, Point3::new(0.0, 0.0, 1.0), *up).unwrap();
-                Camera::new(intr, Distortion::default(), world_from_cam.inverse()).unwrap()
-            })
-            .collect()
+        crate::synthetic::wand_rig_cameras()
     }
 
     fn frames(cams: &[Camera], wand: &Wand, count: usize, noise_px: f64) -> Vec<WandFrame> {
-        let mut rng = SplitMix64::new(7);
-        (0..count)
-            .map(|k| {
-                let a = Point3::new(
-                    rng.range(-0.6, 0.6),
-                    rng.range(-0.6, 0.6),
-                    rng.range(0.5, 1.5),
-                );
-                let d = Vector3::new(rng.normal(), rng.normal(), rng.normal()).normalize();
-                let markers: Vec<Point3<f64>> = wand.offsets_m.iter().map(|o| a + d * *o).collect();
-                WandFrame {
-                    frame: k as u64,
-                    pixels: cams
-                        .iter()
-                        .map(|c| {
-                            let mut px: Vec<Point2<f64>> = markers
-                                .iter()
-                                .filter_map(|m| c.project(m))
-                                .filter(|p| p.x >= 0.0 && p.y >= 0.0 && p.x < 640.0 && p.y < 480.0)
-                                .map(|p| p + Vector2::new(rng.normal(), rng.normal()) * noise_px)
-                                .collect();
-                            // Blob order says nothing.
-                            if rng.uniform() < 0.5 {
-                                px.reverse();
-                            }
-                            px
-                        })
-                        .collect(),
-                }
+        crate::synthetic::wand_frames(cams, &wand.offsets_m, count, noise_px, 7)
+            .into_iter()
+            .enumerate()
+            .map(|(k, pixels)| WandFrame {
+                frame: k as u64,
+                pixels,
             })
             .collect()
     }

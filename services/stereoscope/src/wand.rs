@@ -1,0 +1,525 @@
+//! `stereoscope calibrate wand`: every camera's pose from a wand waved through the volume
+//! (`stereoscope_geometry::wand`), read from a recorder's `observations.jsonl` or a CSV
+//! `frame,camera,u,v` of blob centroids; prints a report card, writes it as Markdown and JSON,
+//! and writes the rig file with the poses (`docs/calibration.md`).
+
+use anyhow::{Context, anyhow, bail};
+use nalgebra::{Isometry3, Point2, Point3};
+use serde::Serialize;
+use std::collections::BTreeMap;
+use std::io::Write;
+use std::path::{Path, PathBuf};
+use stereoscope_geometry::Camera;
+use stereoscope_geometry::wand::{Wand, WandConfig, WandFrame, WandSolution, calibrate_wand};
+use stereoscope_proto::messages::{Observation, TrackState};
+use stereoscope_rig::{Rig, Units};
+
+/// More rows or frames than this in an input is refused (a day of 8 cameras at 120 fps is
+/// far below; a wand wave is minutes).
+pub const MAX_ROWS: usize = 20_000_000;
+/// A camera's view with more blobs than this in one frame is not the wand (left out).
+pub const MAX_BLOBS_PER_VIEW: usize = 16;
+/// Image coverage is counted on a grid of this many cells across and down each image.
+const COVERAGE_CELLS: (usize, usize) = (8, 6);
+/// A camera whose wand samples cover less of its image than this is warned about.
+const MIN_COVERAGE: f64 = 0.5;
+
+#[derive(Debug, Clone)]
+pub struct WandOptions {
+    pub rig: PathBuf,
+    pub observations: PathBuf,
+    /// The wand's markers' distances from its end marker, in `units`: one (two markers) or
+    /// two (three markers).
+    pub wand: Vec<f64>,
+    pub units: Units,
+    /// Write the rig with the poses here.
+    pub out: Option<PathBuf>,
+    /// Write `wand-report.md` and `wand-report.json` into this folder.
+    pub report: Option<PathBuf>,
+    pub json: bool,
+}
+
+#[derive(Debug, Clone, Serialize)]
+pub struct CameraCard {
+    pub id: String,
+    pub reprojection_rms_px: f64,
+    pub samples: usize,
+    /// Share of the image's grid cells with wand samples.
+    pub coverage: f64,
+    /// The camera's position in camera 0's frame, the rig's unit.
+    pub position: [f64; 3],
+}
+
+#[derive(Debug, Clone, Serialize)]
+pub struct WandReport {
+    pub rig: String,
+    pub units: String,
+    pub frames_read: usize,
+    pub frames_used: usize,
+    pub frames_unusable: usize,
+    pub frames_outliers: usize,
+    pub wand_length_mm: f64,
+    pub wand_length_mean_error_mm: f64,
+    pub wand_length_sd_mm: f64,
+    pub cameras: Vec<CameraCard>,
+    pub warnings: Vec<String>,
+    /// The world until `calibrate floor` sets one: camera 0's frame.
+    pub world: String,
+}
+
+/// The rig file's text with a placeholder pose for each camera that has none (the pose is what
+/// the calibration computes), and the parsed rig.
+fn rig_without_poses(path: &Path) -> anyhow::Result<(String, Rig)> {
+    let text = std::fs::read_to_string(path)
+        .with_context(|| format!("{}: cannot read", path.display()))?;
+    let mut doc: toml_edit::DocumentMut = text
+        .parse()
+        .map_err(|e| anyhow!("{}: {e}", path.display()))?;
+    if let Some(cams) = doc
+        .get_mut("camera")
+        .and_then(|c| c.as_array_of_tables_mut())
+    {
+        for (k, cam) in cams.iter_mut().enumerate() {
+            if !cam.contains_key("pose") {
+                // Apart, so the rig's checks see distinct cameras; replaced by the result.
+                let mut pose = toml_edit::InlineTable::new();
+                let mut pos = toml_edit::Array::new();
+                for v in [k as f64, 0.0, 0.0] {
+                    pos.push(v);
+                }
+                let mut look = toml_edit::Array::new();
+                for v in [k as f64, 0.0, 1.0] {
+                    look.push(v);
+                }
+                let mut up = toml_edit::Array::new();
+                for v in [0.0, -1.0, 0.0] {
+                    up.push(v);
+                }
+                pose.insert("position", pos.into());
+                pose.insert("look_at", look.into());
+                pose.insert("up", up.into());
+                cam.insert("pose", toml_edit::value(pose));
+            }
+        }
+    }
+    let rig = Rig::from_toml(&doc.to_string()).map_err(|e| anyhow!("{}: {e}", path.display()))?;
+    Ok((text, rig))
+}
+
+/// Usable blobs of an observation: seen this frame, whole, not merged.
+fn blob_pixels(o: &Observation) -> Vec<Point2<f64>> {
+    o.blobs
+        .iter()
+        .filter(|b| b.status != TrackState::Lost && !b.merged && !b.clipped)
+        .map(|b| Point2::new(b.x_px, b.y_px))
+        .collect()
+}
+
+/// Observations grouped into frames: sorted by time, each frame the earliest observation left
+/// and every other camera's first within `max_skew_ns` of it.
+fn frames_from_observations(
+    obs: &[Observation],
+    ids: &[String],
+    max_skew_ns: u64,
+) -> anyhow::Result<Vec<WandFrame>> {
+    let mut order: Vec<(u64, usize, usize)> = Vec::with_capacity(obs.len());
+    for (i, o) in obs.iter().enumerate() {
+        let Some(c) = ids.iter().position(|id| *id == o.camera) else {
+            bail!(
+                "observation {}: camera {:?} is not in the rig (its cameras: {ids:?})",
+                i + 1,
+                o.camera
+            );
+        };
+        order.push((o.timestamp_ns, c, i));
+    }
+    order.sort_unstable();
+    let mut frames = Vec::new();
+    let mut taken = vec![false; order.len()];
+    for s in 0..order.len() {
+        if taken[s] {
+            continue;
+        }
+        let t0 = order[s].0;
+        let mut pixels = vec![Vec::new(); ids.len()];
+        let mut seen = vec![false; ids.len()];
+        for k in s..order.len() {
+            let (t, c, i) = order[k];
+            if t.saturating_sub(t0) > max_skew_ns {
+                break;
+            }
+            if taken[k] || seen[c] {
+                continue;
+            }
+            taken[k] = true;
+            seen[c] = true;
+            pixels[c] = blob_pixels(&obs[i]);
+        }
+        frames.push(WandFrame {
+            frame: frames.len() as u64,
+            pixels,
+        });
+    }
+    Ok(frames)
+}
+
+/// A CSV `frame,camera,u,v` (camera by its rig id): each row one blob.
+fn frames_from_csv(path: &Path, ids: &[String]) -> anyhow::Result<Vec<WandFrame>> {
+    let text = std::fs::read_to_string(path)
+        .with_context(|| format!("{}: cannot read", path.display()))?;
+    let mut lines = text.lines().enumerate();
+    let header = lines
+        .next()
+        .map(|(_, l)| l.trim().to_ascii_lowercase())
+        .unwrap_or_default();
+    if header.replace(' ', "") != "frame,camera,u,v" {
+        bail!(
+            "{}:1: the header must be frame,camera,u,v (got {header:?})",
+            path.display()
+        );
+    }
+    let mut by_frame: BTreeMap<u64, Vec<Vec<Point2<f64>>>> = BTreeMap::new();
+    for (n, line) in lines {
+        let line = line.trim();
+        if line.is_empty() {
+            continue;
+        }
+        if n > MAX_ROWS {
+            bail!("{}: more than {MAX_ROWS} rows", path.display());
+        }
+        let at = || format!("{}:{}", path.display(), n + 1);
+        let f: Vec<&str> = line.split(',').map(str::trim).collect();
+        if f.len() != 4 {
+            bail!("{}: {} fields, expected frame,camera,u,v", at(), f.len());
+        }
+        let frame: u64 = f[0]
+            .parse()
+            .map_err(|_| anyhow!("{}: frame {:?} is not a whole number", at(), f[0]))?;
+        let Some(c) = ids.iter().position(|id| id == f[1]) else {
+            bail!(
+                "{}: camera {:?} is not in the rig (its cameras: {ids:?})",
+                at(),
+                f[1]
+            );
+        };
+        let num = |name: &str, s: &str| -> anyhow::Result<f64> {
+            match s.parse::<f64>() {
+                Ok(v) if v.is_finite() => Ok(v),
+                _ => Err(anyhow!("{}: {name} {s:?} is not a finite number", at())),
+            }
+        };
+        let (u, v) = (num("u", f[2])?, num("v", f[3])?);
+        let views = by_frame
+            .entry(frame)
+            .or_insert_with(|| vec![Vec::new(); ids.len()]);
+        if views[c].len() <= MAX_BLOBS_PER_VIEW {
+            views[c].push(Point2::new(u, v));
+        }
+    }
+    Ok(by_frame
+        .into_iter()
+        .map(|(frame, pixels)| WandFrame { frame, pixels })
+        .collect())
+}
+
+/// Share of each camera's image cells that hold a sample of the wand (frames used).
+fn coverage(cams: &[Camera], frames: &[WandFrame], wand: &Wand) -> Vec<f64> {
+    let (cx, cy) = COVERAGE_CELLS;
+    cams.iter()
+        .enumerate()
+        .map(|(c, cam)| {
+            let (w, h) = (cam.intrinsics.width as f64, cam.intrinsics.height as f64);
+            let mut cells = vec![false; cx * cy];
+            for f in frames {
+                if f.pixels[c].len() != wand.markers() {
+                    continue;
+                }
+                for p in &f.pixels[c] {
+                    let i = ((p.x / w * cx as f64).floor() as isize).clamp(0, cx as isize - 1);
+                    let j = ((p.y / h * cy as f64).floor() as isize).clamp(0, cy as isize - 1);
+                    cells[j as usize * cx + i as usize] = true;
+                }
+            }
+            cells.iter().filter(|&&b| b).count() as f64 / (cx * cy) as f64
+        })
+        .collect()
+}
+
+/// The report card of a solution.
+fn card(
+    rig: &Rig,
+    sol: &WandSolution,
+    frames: &[WandFrame],
+    wand: &Wand,
+    cams: &[Camera],
+) -> WandReport {
+    let scale = rig.spec.units.metres();
+    let cover = coverage(cams, frames, wand);
+    let mut warnings = Vec::new();
+    let cameras: Vec<CameraCard> = rig
+        .cameras
+        .iter()
+        .enumerate()
+        .map(|(c, rc)| {
+            let at = sol.cam_from_ref[c].inverse() * Point3::origin();
+            let (rms, samples) = sol.per_camera[c];
+            if cover[c] < MIN_COVERAGE {
+                warnings.push(format!(
+                    "camera {}: the wand covered {:.0} % of its image (less than {:.0} %): wave it into the corners this camera sees",
+                    rc.id,
+                    cover[c] * 100.0,
+                    MIN_COVERAGE * 100.0
+                ));
+            }
+            if rms > 1.0 {
+                warnings.push(format!(
+                    "camera {}: reprojection RMS {rms:.2} px (above 1 px): check its intrinsics and distortion",
+                    rc.id
+                ));
+            }
+            CameraCard {
+                id: rc.id.clone(),
+                reprojection_rms_px: rms,
+                samples,
+                coverage: cover[c],
+                position: [at.x / scale, at.y / scale, at.z / scale],
+            }
+        })
+        .collect();
+    let err_mm = (sol.length_mean_m - wand.length_m()) * 1e3;
+    if err_mm.abs() > 1.0 || sol.length_sd_m * 1e3 > 2.0 {
+        warnings.push(format!(
+            "the wand measures {:.2} ± {:.2} mm against {:.2} mm: check its length and the cameras' intrinsics",
+            sol.length_mean_m * 1e3,
+            sol.length_sd_m * 1e3,
+            wand.length_m() * 1e3
+        ));
+    }
+    WandReport {
+        rig: rig.name.clone(),
+        units: rig.spec.units.to_string(),
+        frames_read: frames.len(),
+        frames_used: sol.frames_used,
+        frames_unusable: sol.frames_unusable,
+        frames_outliers: sol.frames_outliers,
+        wand_length_mm: wand.length_m() * 1e3,
+        wand_length_mean_error_mm: err_mm,
+        wand_length_sd_mm: sol.length_sd_m * 1e3,
+        cameras,
+        warnings,
+        world: format!(
+            "camera {}'s frame (x right, y down, z along its axis); set the floor with `stereoscope calibrate floor`",
+            rig.cameras[0].id
+        ),
+    }
+}
+
+fn markdown(r: &WandReport) -> String {
+    let mut s = format!(
+        "# Wand calibration of rig {}\n\nFrames: {} read, {} used, {} unusable (the wand whole in fewer than two cameras), {} outliers.\n\nWand: {:.2} mm; measured {:+.3} mm off on average, SD {:.3} mm.\n\n| camera | reprojection RMS px | samples | image coverage | position ({}) |\n|---|---|---|---|---|\n",
+        r.rig,
+        r.frames_read,
+        r.frames_used,
+        r.frames_unusable,
+        r.frames_outliers,
+        r.wand_length_mm,
+        r.wand_length_mean_error_mm,
+        r.wand_length_sd_mm,
+        r.units
+    );
+    for c in &r.cameras {
+        s.push_str(&format!(
+            "| {} | {:.3} | {} | {:.0} % | {:.2}, {:.2}, {:.2} |\n",
+            c.id,
+            c.reprojection_rms_px,
+            c.samples,
+            c.coverage * 100.0,
+            c.position[0],
+            c.position[1],
+            c.position[2]
+        ));
+    }
+    s.push_str(&format!("\nWorld: {}.\n", r.world));
+    if !r.warnings.is_empty() {
+        s.push_str("\nWarnings:\n\n");
+        for w in &r.warnings {
+            s.push_str(&format!("- {w}\n"));
+        }
+    }
+    s
+}
+
+/// The rig file's text with every camera's pose set to `cam_from_ref` (rotation rows and
+/// translation in the file's unit); the rest of the file, comments included, as it was.
+fn with_poses(text: &str, rig: &Rig, poses: &[Isometry3<f64>]) -> anyhow::Result<String> {
+    let mut doc: toml_edit::DocumentMut = text.parse()?;
+    let scale = rig.spec.units.metres();
+    let cams = doc
+        .get_mut("camera")
+        .and_then(|c| c.as_array_of_tables_mut())
+        .ok_or_else(|| anyhow!("the rig file has no [[camera]] tables"))?;
+    for (cam, pose) in cams.iter_mut().zip(poses) {
+        let r = pose.rotation.to_rotation_matrix();
+        let mut rows = toml_edit::Array::new();
+        for i in 0..3 {
+            let mut row = toml_edit::Array::new();
+            for j in 0..3 {
+                row.push(round(r[(i, j)], 1e12));
+            }
+            rows.push(row);
+        }
+        let mut t = toml_edit::Array::new();
+        for v in pose.translation.vector.iter() {
+            t.push(round(v / scale, 1e9));
+        }
+        let mut table = toml_edit::InlineTable::new();
+        table.insert("cam_from_world_rotation", rows.into());
+        table.insert("cam_from_world_translation", t.into());
+        cam.insert("pose", toml_edit::value(table));
+    }
+    Ok(doc.to_string())
+}
+
+fn round(v: f64, k: f64) -> f64 {
+    (v * k).round() / k
+}
+
+/// Runs the command; `Ok(0)` when the rig was calibrated (warnings or not).
+pub fn run(
+    opts: &WandOptions,
+    out: &mut impl Write,
+    err: &mut impl Write,
+) -> anyhow::Result<usize> {
+    let metres = opts.units.metres();
+    let mut offsets = vec![0.0];
+    offsets.extend(opts.wand.iter().map(|d| d * metres));
+    let wand = Wand::new(offsets).map_err(|e| anyhow!("--wand {:?}: {e}", opts.wand))?;
+    let (text, rig) = rig_without_poses(&opts.rig)?;
+    let ids: Vec<String> = rig.cameras.iter().map(|c| c.id.clone()).collect();
+    let cams: Vec<Camera> = rig.cameras.iter().map(|c| c.camera).collect();
+    let is_csv = opts
+        .observations
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("csv"));
+    let frames = if is_csv {
+        frames_from_csv(&opts.observations, &ids)?
+    } else {
+        let (obs, warnings) = stereoscope_recorder::session::read_observations(&opts.observations)?;
+        if obs.len() > MAX_ROWS {
+            bail!(
+                "{}: more than {MAX_ROWS} observations",
+                opts.observations.display()
+            );
+        }
+        for w in warnings {
+            writeln!(err, "warning: {w}")?;
+        }
+        let skew_ms = rig
+            .spec
+            .fusion
+            .as_ref()
+            .and_then(|f| f.max_skew_ms)
+            .unwrap_or(5.0);
+        frames_from_observations(&obs, &ids, (skew_ms * 1e6) as u64)?
+    };
+    if frames.is_empty() {
+        bail!("{}: no frames", opts.observations.display());
+    }
+    let sol = calibrate_wand(&cams, &frames, &wand, &WandConfig::default())
+        .map_err(|e| anyhow!("{}: {e}", opts.observations.display()))?;
+    let report = card(&rig, &sol, &frames, &wand, &cams);
+    if opts.json {
+        writeln!(out, "{}", serde_json::to_string(&report)?)?;
+    } else {
+        write!(out, "{}", markdown(&report))?;
+    }
+    if let Some(dir) = &opts.report {
+        std::fs::create_dir_all(dir)
+            .with_context(|| format!("{}: cannot create", dir.display()))?;
+        let md = dir.join("wand-report.md");
+        std::fs::write(&md, markdown(&report))
+            .with_context(|| format!("{}: cannot write", md.display()))?;
+        let js = dir.join("wand-report.json");
+        std::fs::write(&js, serde_json::to_string_pretty(&report)?)
+            .with_context(|| format!("{}: cannot write", js.display()))?;
+    }
+    if let Some(path) = &opts.out {
+        let written = with_poses(&text, &rig, &sol.cam_from_ref)?;
+        // What is written must load as a rig.
+        Rig::from_toml(&written).map_err(|e| anyhow!("the calibrated rig does not load: {e}"))?;
+        std::fs::write(path, written)
+            .with_context(|| format!("{}: cannot write", path.display()))?;
+        writeln!(err, "wrote {}", path.display())?;
+    }
+    Ok(0)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use stereoscope_proto::messages::{BlobObservation, SCHEMA_VERSION};
+
+    fn obs(camera: &str, t_ns: u64, xs: &[f64]) -> Observation {
+        Observation {
+            schema: SCHEMA_VERSION,
+            rig: "r".into(),
+            camera: camera.into(),
+            sequence: t_ns,
+            timestamp_ns: t_ns,
+            frame_published_ns: t_ns,
+            published_ns: t_ns,
+            width_px: 640,
+            height_px: 480,
+            threshold: 100,
+            dark: false,
+            full_frame: false,
+            dropped_blobs: 0,
+            blobs: xs
+                .iter()
+                .map(|&x| BlobObservation {
+                    track_id: 1,
+                    status: TrackState::Tracked,
+                    area_px: 20.0,
+                    x_px: x,
+                    y_px: 10.0,
+                    mu20: 1.0,
+                    mu02: 1.0,
+                    mu11: 0.0,
+                    orientation_deg: 0.0,
+                    roundness: 1.0,
+                    heading_deg: 0.0,
+                    directed: false,
+                    heading_ambiguous: true,
+                    clipped: x < 0.0,
+                    merged: false,
+                    window_px: [0, 0, 639, 479],
+                    bbox_px: [0, 0, 1, 1],
+                })
+                .collect(),
+        }
+    }
+
+    /// Recorded observations become frames by time: each camera at most once a frame, within
+    /// the rig's skew; clipped blobs are left out; a camera not in the rig is named.
+    #[test]
+    fn observations_are_grouped_into_frames_by_time() {
+        let ids = vec!["a".to_string(), "b".to_string()];
+        let ms = 1_000_000;
+        let list = vec![
+            obs("b", 100 * ms + 2 * ms, &[5.0, 6.0]),
+            obs("a", 100 * ms, &[1.0, 2.0]),
+            obs("a", 133 * ms, &[3.0, -1.0]),
+            obs("b", 134 * ms, &[7.0]),
+            obs("b", 166 * ms, &[8.0]),
+        ];
+        let frames = frames_from_observations(&list, &ids, 5 * ms).unwrap();
+        assert_eq!(frames.len(), 3);
+        assert_eq!(frames[0].pixels[0].len(), 2);
+        assert_eq!(frames[0].pixels[1][0].x, 5.0);
+        assert_eq!(frames[1].pixels[0].len(), 1, "the clipped blob is left out");
+        assert_eq!(frames[1].pixels[1][0].x, 7.0);
+        assert!(frames[2].pixels[0].is_empty());
+        let err = frames_from_observations(&[obs("c", 1, &[])], &ids, 5 * ms).unwrap_err();
+        assert!(err.to_string().contains("camera \"c\""), "{err}");
+    }
+}
