@@ -483,3 +483,180 @@ fn calibrate_wand_bad_input_is_named() {
     ]);
     assert!(stderr(&o).contains("--wand"), "{}", stderr(&o));
 }
+
+/// The rig of `synthetic::wand_rig_cameras` as `calibrate wand` leaves it: poses in the first
+/// camera's frame (millimetres).
+fn rig_in_first_camera_frame(truth: &[Camera]) -> String {
+    let mut rig = String::from("name = \"floor-test\"\nunits = \"mm\"\n");
+    let world_from_ref = truth[0].cam_from_world.inverse();
+    for (c, cam) in truth.iter().enumerate() {
+        let pose = cam.cam_from_world * world_from_ref;
+        let r = pose.rotation.to_rotation_matrix();
+        let row = |i: usize| format!("[{}, {}, {}]", r[(i, 0)], r[(i, 1)], r[(i, 2)]);
+        let t = pose.translation.vector * 1e3;
+        write!(
+            rig,
+            "\n[[camera]]\nid = \"cam{c}\"\nimage_size = [640, 480]\nfx = 600.0\nfy = 600.0\nprincipal_point = [319.5, 239.5]\npose = {{ cam_from_world_rotation = [{}, {}, {}], cam_from_world_translation = [{}, {}, {}] }}\n",
+            row(0),
+            row(1),
+            row(2),
+            t.x,
+            t.y,
+            t.z
+        )
+        .unwrap();
+    }
+    rig
+}
+
+/// A recording's poses.jsonl: the markers (true-world positions) seen from the first camera's
+/// frame, with 0.3 mm of noise, over 40 frames.
+fn still_markers_jsonl(truth: &[Camera], markers: &[Point3<f64>]) -> String {
+    use stereoscope_proto::messages::{Pose, PoseFrame, PoseMethod, SCHEMA_VERSION};
+    let mut rng = SplitMix64::new(3);
+    let ref_from_world = truth[0].cam_from_world;
+    let mut out = String::new();
+    for k in 0..40u64 {
+        let poses = markers
+            .iter()
+            .enumerate()
+            .map(|(i, m)| {
+                let p = ref_from_world * m
+                    + Vector3::new(rng.normal(), rng.normal(), rng.normal()) * 3e-4;
+                Pose {
+                    object_id: i as u32 + 1,
+                    position_m: [p.x, p.y, p.z],
+                    velocity_m_per_s: [0.0; 3],
+                    heading_deg: None,
+                    heading_directed: false,
+                    method: PoseMethod::Triangulated,
+                    cameras: vec!["cam0".into(), "cam1".into()],
+                    residual_px: 0.1,
+                    out_of_range: false,
+                    body: None,
+                }
+            })
+            .collect();
+        let f = PoseFrame {
+            schema: SCHEMA_VERSION,
+            rig: "floor-test".into(),
+            sequence: k,
+            timestamp_ns: 1_000_000_000 + k * 33_333_333,
+            frame_published_ns: 0,
+            published_ns: 0,
+            cameras: vec!["cam0".into(), "cam1".into()],
+            poses,
+            bodies: Vec::new(),
+        };
+        out.push_str(&serde_json::to_string(&f).unwrap());
+        out.push('\n');
+    }
+    out
+}
+
+#[test]
+fn calibrate_floor_puts_the_world_on_an_l_frame() {
+    let dir = TempDir::new("cal-floor");
+    let truth = wand_rig_cameras();
+    let rig = dir.file("rig.toml", &rig_in_first_camera_frame(&truth));
+    // An L of 600 × 400 mm on the floor (z = 0), turned 0.7 rad, its corner at (0.1, −0.2),
+    // and a marker elsewhere.
+    let (o, a) = (Point3::new(0.1, -0.2, 0.0), 0.7f64);
+    let ex = Vector3::new(a.cos(), a.sin(), 0.0);
+    let ey = Vector3::new(-a.sin(), a.cos(), 0.0);
+    let extra = Point3::new(-0.3, 0.4, 0.9);
+    let poses = dir.file(
+        "poses.jsonl",
+        &still_markers_jsonl(&truth, &[o + ey * 0.4, extra, o, o + ex * 0.6]),
+    );
+    let out = dir.0.join("floor.toml");
+    let o_run = run(&[
+        "calibrate",
+        "floor",
+        "--rig",
+        &rig,
+        "--poses",
+        &poses,
+        "--l-frame",
+        "600,400",
+        "--out",
+        out.to_str().unwrap(),
+        "--json",
+    ]);
+    assert!(o_run.status.success(), "{}", stderr(&o_run));
+    let r: serde_json::Value = serde_json::from_slice(&o_run.stdout).unwrap();
+    assert_eq!(
+        (
+            r["corner"].as_u64(),
+            r["x_arm"].as_u64(),
+            r["y_arm"].as_u64()
+        ),
+        (Some(3), Some(4), Some(1)),
+        "{r}"
+    );
+    let got = Rig::load(&out).unwrap();
+    let world_from_l = Isometry3::from_parts(
+        nalgebra::Translation3::from(o.coords),
+        nalgebra::UnitQuaternion::from_axis_angle(&Vector3::z_axis(), a),
+    );
+    for (c, cam) in truth.iter().enumerate() {
+        let want = cam.cam_from_world * world_from_l;
+        let pose = got.cameras[c].camera.cam_from_world;
+        let d = (pose.inverse() * Point3::origin() - want.inverse() * Point3::origin()).norm();
+        assert!(d < 1e-3, "camera {c}: {:.3} mm off", d * 1e3);
+        let ang = pose.rotation.angle_to(&want.rotation).to_degrees();
+        assert!(ang < 0.05, "camera {c}: {ang:.4}° off");
+        let h = r["camera_heights"][c][1].as_f64().unwrap();
+        assert!((h - (pose.inverse() * Point3::origin()).z * 1e3).abs() < 1e-6);
+        assert!(h > 900.0, "camera {c} {h} mm up");
+    }
+    // A mirrored L (the arms swapped on the floor): z would point down, away from every camera.
+    let mirrored = dir.file(
+        "mirrored.jsonl",
+        &still_markers_jsonl(&truth, &[o, o + ey * 0.6, o + ex * 0.4]),
+    );
+    let o_run = run(&[
+        "calibrate",
+        "floor",
+        "--rig",
+        &rig,
+        "--poses",
+        &mirrored,
+        "--l-frame",
+        "600,400",
+    ]);
+    assert!(!o_run.status.success());
+    assert!(
+        stderr(&o_run).contains("every camera is below this floor"),
+        "{}",
+        stderr(&o_run)
+    );
+    // No L of that size: the markers' distances are listed.
+    let o_run = run(&[
+        "calibrate",
+        "floor",
+        "--rig",
+        &rig,
+        "--poses",
+        &poses,
+        "--l-frame",
+        "800,300",
+    ]);
+    assert!(!o_run.status.success());
+    assert!(
+        stderr(&o_run).contains("no three steady markers make an L of 800.0 × 300.0 mm"),
+        "{}",
+        stderr(&o_run)
+    );
+    let o_run = run(&[
+        "calibrate",
+        "floor",
+        "--rig",
+        &rig,
+        "--poses",
+        &poses,
+        "--l-frame",
+        "400,600",
+    ]);
+    assert!(stderr(&o_run).contains("--l-frame"), "{}", stderr(&o_run));
+}

@@ -2,7 +2,7 @@
 //! (`stereoscope_bodies::tracker`); the bodies found label their markers' poses (body name and
 //! marker index) and become the frame's `bodies` (`docs/bodies.md`).
 
-use nalgebra::{Isometry3, Point3, Vector3};
+use nalgebra::{Isometry3, Point3};
 use stereoscope_bodies::tracker::{BodyTracker, TrackedBody};
 use stereoscope_proto::messages::{BodyLabel, BodyPose, MAX_BODY_MARKERS, Pose, PoseMethod};
 
@@ -17,7 +17,7 @@ pub struct Bodies {
     /// borrowed).
     markers_m: Vec<Vec<Point3<f64>>>,
     /// The last set's found bodies' unseen markers: world position and velocity.
-    unseen: Vec<(Point3<f64>, Vector3<f64>)>,
+    unseen: Vec<crate::fuser::MarkerMotion>,
 }
 
 impl Bodies {
@@ -133,7 +133,7 @@ impl Bodies {
 fn unseen_markers(
     found: &[TrackedBody],
     markers_m: &[Vec<Point3<f64>>],
-) -> Vec<(Point3<f64>, Vector3<f64>)> {
+) -> Vec<crate::fuser::MarkerMotion> {
     let mut out = Vec::new();
     for b in found.iter().filter(|b| !b.held) {
         for (k, m) in b.markers.iter().enumerate() {

@@ -149,7 +149,7 @@ pub struct Fuser {
     pub hiding_blobs: u64,
     /// Rigid bodies' markers unseen in the last set (`expect_unseen`): when, and each one's
     /// world position and velocity.
-    unseen: (u64, Vec<(Point3<f64>, Vector3<f64>)>),
+    unseen: (u64, Vec<MarkerMotion>),
 }
 
 /// What each camera saw of one object: (rig camera index, pixel as measured).
@@ -178,6 +178,9 @@ fn merge_duplicates(mut points: Vec<Point>, merge_m: f64) -> Vec<Point> {
 
 /// A blob fusion measures from: seen this frame, and not two objects' merged images (whose
 /// centroid lies between them: a point there would be a ghost).
+/// A marker's world position (metres) and velocity (metres per second).
+pub type MarkerMotion = (Point3<f64>, Vector3<f64>);
+
 /// How recently an object must have been seen for [`Fuser::hiding`] to look for its image.
 const HIDDEN_WITHIN_NS: u64 = 200_000_000;
 
@@ -265,7 +268,7 @@ impl Fuser {
     /// Where the markers of the bodies found in the set of `timestamp_ns` that were not seen
     /// are (world position and velocity, from each body's pose): [`Fuser::hiding`] looks for
     /// them in the next set's blobs.
-    pub fn expect_unseen(&mut self, timestamp_ns: u64, markers: Vec<(Point3<f64>, Vector3<f64>)>) {
+    pub fn expect_unseen(&mut self, timestamp_ns: u64, markers: Vec<MarkerMotion>) {
         self.unseen = (timestamp_ns, markers);
     }
 

@@ -175,12 +175,12 @@ fn read_lines<M: Message>(path: &Path, warnings: &mut Vec<String>) -> Result<Vec
     Ok(out)
 }
 
-/// A recorder's `observations.jsonl` read back (for a calibration from a recording), with its
-/// warnings (an incomplete last line).
-pub fn read_observations(path: &Path) -> Result<(Vec<Observation>, Vec<String>), SessionError> {
+/// A recorder's JSON-lines file read back (`observations.jsonl` for a calibration, `poses.jsonl`
+/// for the floor), with its warnings (an incomplete last line).
+pub fn read_messages<M: Message>(path: &Path) -> Result<(Vec<M>, Vec<String>), SessionError> {
     let mut warnings = Vec::new();
-    let obs = read_lines(path, &mut warnings)?;
-    Ok((obs, warnings))
+    let msgs = read_lines(path, &mut warnings)?;
+    Ok((msgs, warnings))
 }
 
 impl Session {

@@ -79,6 +79,57 @@ pub enum CalibrateStep {
     /// cameras' intrinsics from the rig, the wand's blobs from a recorder's observations.jsonl
     /// or a CSV frame,camera,u,v.
     Wand(WandArgs),
+    /// The world's frame from an L-frame on the floor (corner the origin, long arm +x, short
+    /// arm +y, z up), from a recording's poses.jsonl taken while it lay still.
+    Floor(FloorArgs),
+}
+
+/// `stereoscope calibrate floor`: its options.
+#[derive(clap::Args, Debug)]
+pub struct FloorArgs {
+    /// The rig file with its cameras' poses (from `calibrate wand`).
+    #[arg(long)]
+    pub rig: PathBuf,
+    /// A recorder's poses.jsonl taken while the L-frame lay still in view.
+    #[arg(long)]
+    pub poses: PathBuf,
+    /// The L-frame's arms, corner marker to end marker: LONG,SHORT (long is +x, short +y).
+    #[arg(long, value_delimiter = ',', required = true)]
+    pub l_frame: Vec<f64>,
+    /// Unit of --l-frame: m, cm or mm.
+    #[arg(long, default_value = "mm")]
+    pub units: stereoscope_rig::Units,
+    /// Write the rig file with the poses in the floor's world here.
+    #[arg(long)]
+    pub out: Option<PathBuf>,
+    /// Print the report as one JSON object.
+    #[arg(long)]
+    pub json: bool,
+}
+
+impl FloorArgs {
+    pub fn run(self) -> ExitCode {
+        let [long, short] = self.l_frame[..] else {
+            eprintln!(
+                "error: --l-frame takes LONG,SHORT (two lengths), not {:?}",
+                self.l_frame
+            );
+            return ExitCode::from(2);
+        };
+        let opts = stereoscope::floor::FloorOptions {
+            rig: self.rig,
+            poses: self.poses,
+            l_frame: [long, short],
+            units: self.units,
+            out: self.out,
+            json: self.json,
+        };
+        finish(stereoscope::floor::run(
+            &opts,
+            &mut std::io::stdout().lock(),
+            &mut std::io::stderr().lock(),
+        ))
+    }
 }
 
 /// `stereoscope calibrate wand`: its options.
@@ -92,7 +143,7 @@ pub struct WandArgs {
     #[arg(long)]
     pub observations: PathBuf,
     /// The wand: D (two markers D apart) or D1,D2 (three in a line, D1 and D2 from one end).
-    #[arg(long, value_delimiter = ',', num_args = 1..=2, required = true)]
+    #[arg(long, value_delimiter = ',', required = true)]
     pub wand: Vec<f64>,
     /// Unit of --wand: m, cm or mm.
     #[arg(long, default_value = "mm")]
@@ -341,8 +392,10 @@ impl CalibrateArgs {
             out,
             json,
         } = self;
-        if let Some(CalibrateStep::Wand(w)) = step {
-            return w.run();
+        match step {
+            Some(CalibrateStep::Wand(w)) => return w.run(),
+            Some(CalibrateStep::Floor(f)) => return f.run(),
+            None => {}
         }
         let source = match (points, dot_grid, spacing) {
             (Some(p), None, _) if images.is_empty() => Source::Points(p),

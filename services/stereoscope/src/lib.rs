@@ -7,6 +7,7 @@ pub mod calibrate;
 
 pub mod example;
 pub mod fitdepth;
+pub mod floor;
 pub mod live;
 pub mod progress;
 

@@ -351,7 +351,11 @@ fn markdown(r: &WandReport) -> String {
 
 /// The rig file's text with every camera's pose set to `cam_from_ref` (rotation rows and
 /// translation in the file's unit); the rest of the file, comments included, as it was.
-fn with_poses(text: &str, rig: &Rig, poses: &[Isometry3<f64>]) -> anyhow::Result<String> {
+pub(crate) fn with_poses(
+    text: &str,
+    rig: &Rig,
+    poses: &[Isometry3<f64>],
+) -> anyhow::Result<String> {
     let mut doc: toml_edit::DocumentMut = text.parse()?;
     let scale = rig.spec.units.metres();
     let cams = doc
@@ -404,7 +408,8 @@ pub fn run(
     let frames = if is_csv {
         frames_from_csv(&opts.observations, &ids)?
     } else {
-        let (obs, warnings) = stereoscope_recorder::session::read_observations(&opts.observations)?;
+        let (obs, warnings) =
+            stereoscope_recorder::session::read_messages::<Observation>(&opts.observations)?;
         if obs.len() > MAX_ROWS {
             bail!(
                 "{}: more than {MAX_ROWS} observations",
