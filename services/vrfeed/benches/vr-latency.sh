@@ -103,9 +103,15 @@ shape = "sphere"
 radius = 1.0
 motion = { kind = "line", from = [-30.0, -45.0, 30.0], to = [30.0, -45.0, 30.0], period_s = 8.0 }
 RIG
+# The VRPN client is libmotioncapture's, in the venv the system tests install it into.
+py="$root/target/py-clients/bin/python"
+if [ ! -x "$py" ]; then
+  echo "error: $py is missing: run 'cargo test -p stereoscope --test vrfeed' once to install the real clients" >&2
+  exit 1
+fi
 for r in $(seq "$runs"); do
   # The client connects once the feed listens, and stays until the run ends.
-  ( sleep 4; timeout $((seconds + 10)) python3 "$root/tests/clients/vrpn_client.py" "127.0.0.1:$port" "$((seconds - 2))" > "$out/vrpn-$r.jsonl" 2>/dev/null || true ) &
+  ( sleep 4; timeout $((seconds + 10)) "$py" "$root/tests/clients/vrpn_client.py" "127.0.0.1:$port" "$((seconds - 2))" > "$out/vrpn-$r.jsonl" 2> "$out/vrpn-$r.log" || true ) &
   "$bin" demo --rig "$out/rig.toml" --seconds "$seconds" --json 2> "$out/demo-$r.log" | tail -1 > "$out/summary-$r.json"
   wait
   python3 - "$out/summary-$r.json" "$out/vrpn-$r.jsonl" <<'PY'
