@@ -660,3 +660,89 @@ fn calibrate_floor_puts_the_world_on_an_l_frame() {
     ]);
     assert!(stderr(&o_run).contains("--l-frame"), "{}", stderr(&o_run));
 }
+
+/// The printable dot grid, SVG and PDF, rasterised by MuPDF (PyMuPDF) at 60 dpi as a camera
+/// looking straight at the print would see it: the dot-grid finder labels every dot — the big
+/// one the origin, x along the 7 columns, y down the 5 rows — each where the page put it at
+/// true size (30 mm = 70.9 px at 60 dpi), within a tenth of a pixel.
+#[test]
+fn a_printed_dot_grid_is_found_at_true_size_with_its_axes() {
+    let dir = TempDir::new("target");
+    let python = common::python_clients();
+    let script = repo_root().join("tests/clients/rasterise.py");
+    let grid = DotGrid::new(7, 5, 30.0).unwrap();
+    let layout = stereoscope::target::page(&grid, 1.0);
+    let dpi = 60.0;
+    let px_per_mm = dpi / 25.4;
+    for ext in ["svg", "pdf"] {
+        let page = dir.0.join(format!("grid.{ext}"));
+        let o = run(&[
+            "target",
+            "dot-grid",
+            "7x5",
+            "--spacing",
+            "30",
+            "--units",
+            "mm",
+            "--out",
+            page.to_str().unwrap(),
+        ]);
+        assert!(o.status.success(), "{}", stderr(&o));
+        assert!(String::from_utf8_lossy(&o.stdout).contains("7 columns along x"));
+        let png = dir.0.join(format!("grid-{ext}.png"));
+        let o = common::run_program_with_limit(
+            &python,
+            &[
+                script.to_str().unwrap(),
+                page.to_str().unwrap(),
+                png.to_str().unwrap(),
+                "60",
+            ],
+            std::time::Duration::from_secs(60),
+        );
+        assert!(o.status.success(), "{ext}: {}", stderr(&o));
+        let size: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+        let width_mm = size["width_pt"].as_f64().unwrap() * 25.4 / 72.0;
+        assert!((width_mm - layout.width_mm).abs() < 0.01, "{ext}: {size}");
+        let stereoscope_imageio::AnyGray::U8(img) = stereoscope_imageio::read_gray(&png).unwrap()
+        else {
+            panic!("{ext}: not an 8-bit image");
+        };
+        let dots = stereoscope_geometry::dotgrid::detect(img.view(), &grid).unwrap();
+        assert_eq!(dots.len(), 35, "{ext}");
+        let mut worst: f64 = 0.0;
+        for (i, px) in dots {
+            let q = grid.point(i);
+            // Pixel centres at integers: a point x mm from the page's edge is at x·k − ½.
+            let want = Point2::new(
+                (layout.origin[0] + q.x) * px_per_mm - 0.5,
+                (layout.origin[1] + q.y) * px_per_mm - 0.5,
+            );
+            worst = worst.max((px - want).norm());
+        }
+        assert!(
+            worst < 0.1,
+            "{ext}: a dot {worst:.3} px from its printed place"
+        );
+    }
+    let o = run(&[
+        "target",
+        "dot-grid",
+        "7x5",
+        "--spacing",
+        "30",
+        "--out",
+        "grid.png",
+    ]);
+    assert!(stderr(&o).contains(".svg or .pdf"), "{}", stderr(&o));
+    let o = run(&[
+        "target",
+        "dot-grid",
+        "1x5",
+        "--spacing",
+        "30",
+        "--out",
+        "g.svg",
+    ]);
+    assert!(stderr(&o).contains("2 × 2"), "{}", stderr(&o));
+}

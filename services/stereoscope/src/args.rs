@@ -58,7 +58,8 @@ pub struct CalibrateArgs {
     /// Unit of target coordinates and of the output translations: m, cm or mm.
     #[arg(long, default_value = "m")]
     pub units: stereoscope_rig::Units,
-    /// Distortion terms to estimate: none, radial (k1 k2) or full (k1 k2 p1 p2 k3).
+    /// Distortion terms to estimate: none, radial (k1 k2), tangential (k1 k2 p1 p2, k3 fixed at
+    /// 0: OpenCV's CALIB_FIX_K3) or full (k1 k2 p1 p2 k3).
     #[arg(long, default_value = "full", value_parser = parse_distortion)]
     pub distortion: DistortionModel,
     /// Camera id in the written camera table.
@@ -174,6 +175,39 @@ impl WandArgs {
             &opts,
             &mut std::io::stdout().lock(),
             &mut std::io::stderr().lock(),
+        ))
+    }
+}
+
+/// `stereoscope target dot-grid`: its options.
+#[derive(clap::Args, Debug)]
+pub struct DotGridTargetArgs {
+    /// COLSxROWS: dots along x (the rows run right from the big dot), dots along y.
+    #[arg(value_parser = parse_size)]
+    pub size: (u32, u32),
+    /// Dot spacing, in --units.
+    #[arg(long)]
+    pub spacing: f64,
+    /// Unit of --spacing: m, cm or mm.
+    #[arg(long, default_value = "mm")]
+    pub units: stereoscope_rig::Units,
+    /// The page to write: FILE.svg or FILE.pdf.
+    #[arg(long)]
+    pub out: PathBuf,
+}
+
+impl DotGridTargetArgs {
+    pub fn run(self) -> ExitCode {
+        let opts = stereoscope::target::TargetOptions {
+            cols: self.size.0 as usize,
+            rows: self.size.1 as usize,
+            spacing: self.spacing,
+            units: self.units,
+            out: self.out,
+        };
+        finish(stereoscope::target::run(
+            &opts,
+            &mut std::io::stdout().lock(),
         ))
     }
 }

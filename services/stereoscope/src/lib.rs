@@ -10,6 +10,7 @@ pub mod fitdepth;
 pub mod floor;
 pub mod live;
 pub mod progress;
+pub mod target;
 
 pub mod triangulate;
 pub mod wand;

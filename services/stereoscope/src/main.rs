@@ -55,6 +55,16 @@ enum Command {
     /// Rigid bodies: define one from the markers the running rig sees now.
     #[command(subcommand)]
     Body(BodyCommand),
+    /// Calibration targets to print.
+    #[command(subcommand)]
+    Target(TargetCommand),
+}
+
+#[derive(Subcommand, Debug)]
+enum TargetCommand {
+    /// A dot grid (the target `calibrate --dot-grid` finds) as an SVG or PDF page to print at
+    /// true size, its axes and origin dot marked.
+    DotGrid(args::DotGridTargetArgs),
 }
 
 #[derive(Subcommand, Debug)]
@@ -107,7 +117,7 @@ fn service_program() -> anyhow::Result<Vec<String>> {
 enum BadValue {
     #[error("{0:?} is not WxH with positive whole numbers (e.g. 640x480)")]
     Size(String),
-    #[error("{0:?} is not a distortion model: give none, radial or full")]
+    #[error("{0:?} is not a distortion model: give none, radial, tangential or full")]
     Distortion(String),
     #[error("{0:?} is not a threshold: give a number, auto, triangle or otsu")]
     Threshold(String),
@@ -132,6 +142,7 @@ fn parse_distortion(s: &str) -> Result<DistortionModel, BadValue> {
     match s {
         "none" => Ok(DistortionModel::None),
         "radial" => Ok(DistortionModel::Radial),
+        "tangential" => Ok(DistortionModel::Tangential),
         "full" => Ok(DistortionModel::Full),
         _ => Err(BadValue::Distortion(s.to_string())),
     }
@@ -167,6 +178,7 @@ fn main() -> ExitCode {
     match cli.command {
         Command::Blobs(a) => a.run(),
         Command::Calibrate(a) => a.run(),
+        Command::Target(TargetCommand::DotGrid(a)) => a.run(),
         Command::Reproduce(a) => a.run(),
         Command::FitDepth(args::FitDepthArgs { samples, json }) => finish(
             fitdepth::run(

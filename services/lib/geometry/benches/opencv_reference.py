@@ -4,7 +4,8 @@
 Usage: opencv_reference.py DATA_DIR   (writes DATA_DIR/opencv_reference.json)
 
 - calibration: cv2.calibrateCamera on tests/data/calibration_points.csv with OpenCV's
-  default model (fx, fy, cx, cy, k1, k2, p1, p2, k3; no skew), its RMS and parameters;
+  default model (fx, fy, cx, cy, k1, k2, p1, p2, k3; no skew), its RMS and parameters; and
+  again with CALIB_FIX_K3 (k1 k2 p1 p2, the model `--distortion tangential` fits);
 - triangulation: cv2.triangulatePoints on cameras 0 and 1 of tests/data/triangulation.json,
   after cv2.undistortPoints with a convergence criterion (converged, so that undistortion is not what differs), and
   each point's error against the truth.
@@ -34,6 +35,8 @@ def main():
     # DBL_EPSILON, whichever first).
     converged = (cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS, 200, 1e-12)
     rms, k, dist, _, _ = cv2.calibrateCamera(obj, img, (640, 480), None, None, criteria=converged)
+    rms3, k3, dist3, _, _ = cv2.calibrateCamera(obj, img, (640, 480), None, None,
+                                                flags=cv2.CALIB_FIX_K3, criteria=converged)
     tri = json.loads((data / "triangulation.json").read_text())
     crit = (cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS, 100, 1e-14)
     norm = []
@@ -85,6 +88,11 @@ def main():
             "rms_px": float(rms),
             "fx": float(k[0, 0]), "fy": float(k[1, 1]), "cx": float(k[0, 2]), "cy": float(k[1, 2]),
             "dist": [float(v) for v in dist.ravel()[:5]],
+        },
+        "calibration_fix_k3": {
+            "rms_px": float(rms3),
+            "fx": float(k3[0, 0]), "fy": float(k3[1, 1]), "cx": float(k3[0, 2]), "cy": float(k3[1, 2]),
+            "dist": [float(v) for v in dist3.ravel()[:5]],
         },
         "triangulation_two_view_errors_m": errors,
     }

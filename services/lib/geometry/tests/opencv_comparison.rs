@@ -2,7 +2,8 @@
 //! `examples/opencv_fixtures.rs`; OpenCV's answers in `opencv_reference.json`, made by
 //! `benches/opencv_reference.py` — run `benches/compare-opencv.sh` to redo both).
 //!
-//! - calibration RMS within 2 % of `cv2.calibrateCamera`'s on the same correspondences;
+//! - calibration RMS within 2 % of `cv2.calibrateCamera`'s on the same correspondences, with
+//!   OpenCV's default model and with k3 fixed (`CALIB_FIX_K3`);
 //! - two-view triangulation no worse than `cv2.triangulatePoints` linearly, better refined.
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
 
@@ -14,6 +15,36 @@ use stereoscope_geometry::triangulate::{Observation, triangulate, triangulate_dl
 
 fn f(v: &Value) -> f64 {
     v.as_f64().unwrap()
+}
+
+/// k1 k2 p1 p2 with k3 fixed against `cv2.calibrateCamera(..., flags=CALIB_FIX_K3)`: the same
+/// RMS within 2 %, the same four terms, and k3 left at 0 by both.
+#[test]
+fn tangential_model_matches_opencv_with_k3_fixed() {
+    let reference: Value = serde_json::from_str(&fixtures::read("opencv_reference.json")).unwrap();
+    let views = fixtures::calibration_views();
+    let cal = calibrate_camera(640, 480, &views, DistortionModel::Tangential).unwrap();
+    let cv = &reference["calibration_fix_k3"];
+    let (ours, theirs) = (cal.rms_px, f(&cv["rms_px"]));
+    let d = cal.cameras[0].distortion;
+    let dist: Vec<f64> = cv["dist"].as_array().unwrap().iter().map(f).collect();
+    println!(
+        "calibration RMS with k3 fixed: ours {ours:.5} px, OpenCV {theirs:.5} px; k1 k2 p1 p2 ours {:.5} {:.5} {:.6} {:.6}, OpenCV {:.5} {:.5} {:.6} {:.6}",
+        d.k1, d.k2, d.p1, d.p2, dist[0], dist[1], dist[2], dist[3]
+    );
+    assert!(
+        (ours - theirs).abs() / theirs <= 0.02,
+        "ours {ours} vs OpenCV {theirs}"
+    );
+    assert_eq!((d.k3, dist[4]), (0.0, 0.0));
+    assert!(
+        (d.k1 - dist[0]).abs() < 2e-3 && (d.k2 - dist[1]).abs() < 1e-2,
+        "{d:?} {dist:?}"
+    );
+    assert!(
+        (d.p1 - dist[2]).abs() < 5e-5 && (d.p2 - dist[3]).abs() < 5e-5,
+        "{d:?} {dist:?}"
+    );
 }
 
 #[test]
