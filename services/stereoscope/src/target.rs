@@ -79,7 +79,12 @@ fn legend(grid: &DotGrid, p: &Page) -> [String; 3] {
 
 /// Arrow segments of the axes on the board, outside the dots: x along the top margin from the
 /// origin dot, y along the left margin; and where their labels go.
-fn axes(p: &Page) -> ([[f64; 4]; 6], [(f64, f64, &'static str); 2]) {
+/// A line on the page, mm: from (x0, y0) to (x1, y1).
+type Segment = [f64; 4];
+/// A label on the page, mm: where, and what.
+type Label = (f64, f64, &'static str);
+
+fn axes(p: &Page) -> ([Segment; 6], [Label; 2]) {
     let [ox, oy] = p.origin;
     let s = p.spacing_mm;
     let (len, head) = (s * 1.5, s * 0.15);
