@@ -420,6 +420,14 @@ fn calibrate_wand_places_a_ring_of_cameras_and_writes_the_rig() {
         r["wand_length_mean_error_mm"].as_f64().unwrap().abs() < 0.3,
         "{r}"
     );
+    // Eight regions of the volume, every used frame in one, none biased.
+    let regions = r["regions"].as_array().unwrap();
+    assert_eq!(regions.len(), 8, "{r}");
+    let n: u64 = regions.iter().map(|g| g["samples"].as_u64().unwrap()).sum();
+    assert_eq!(n, r["frames_used"].as_u64().unwrap(), "{r}");
+    for g in regions {
+        assert!(g["mean_error_mm"].as_f64().unwrap().abs() < 0.5, "{g}");
+    }
     assert!(report.join("wand-report.md").exists() && report.join("wand-report.json").exists());
     // The written rig loads, keeps its comment, and puts every camera where it is, camera 0's
     // frame being the world.

@@ -925,16 +925,17 @@ fn a_recording_replays_to_the_same_poses_and_survives_sigkill() {
     ]);
     let watcher = PoseWatcher::new(&endpoint, "demo");
     watcher.until(Duration::from_secs(30), "three objects", both_cameras);
-    // Until the recorder has written 60 pose frames (bounded), not for a guessed while.
+    // Until the recorder has written 60 pose frames and the helmet (bounded), not for a
+    // guessed while: the helmet is out of view or short of three markers in about 3 % of the
+    // demo's frames, in stretches, and a recording of the first 60 frames fell in one.
     let end = Instant::now() + Duration::from_secs(60);
     while std::fs::read_to_string(session.join("poses.jsonl"))
-        .map(|t| t.lines().count())
-        .unwrap_or(0)
-        < 60
+        .map(|t| t.lines().count() < 60 || !t.contains("\"body\":{\"name\":\"head\""))
+        .unwrap_or(true)
     {
         assert!(
             Instant::now() < end,
-            "fewer than 60 pose frames recorded in 60 s:\n{}",
+            "fewer than 60 pose frames, or none with the helmet, recorded in 60 s:\n{}",
             recorder.output()
         );
         std::thread::sleep(Duration::from_millis(100));

@@ -51,6 +51,48 @@ pub struct CameraCard {
 }
 
 #[derive(Debug, Clone, Serialize)]
+pub struct RegionCard {
+    /// `"+x-y+z"`: which side of the median along camera 0's x, y and z.
+    pub octant: String,
+    pub samples: usize,
+    pub mean_error_mm: f64,
+    pub sd_mm: f64,
+}
+
+/// The wand's length error (measured − true) in each octant of the swept volume.
+fn regions(sol: &WandSolution, length_m: f64) -> Vec<RegionCard> {
+    let median = |i: usize| {
+        let mut v: Vec<f64> = sol.lengths.iter().map(|(p, _)| p[i]).collect();
+        v.sort_by(f64::total_cmp);
+        v.get(v.len() / 2).copied().unwrap_or(0.0)
+    };
+    let mid = [median(0), median(1), median(2)];
+    let mut errs: Vec<Vec<f64>> = vec![Vec::new(); 8];
+    for (p, l) in &sol.lengths {
+        let k = (0..3).fold(0, |k, i| k | (usize::from(p[i] >= mid[i]) << i));
+        errs[k].push((l - length_m) * 1e3);
+    }
+    errs.iter()
+        .enumerate()
+        .filter(|(_, e)| !e.is_empty())
+        .map(|(k, e)| {
+            let n = e.len() as f64;
+            let mean = e.iter().sum::<f64>() / n;
+            let sd =
+                (e.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (n - 1.0).max(1.0)).sqrt();
+            let sign =
+                |i: usize, axis: char| format!("{}{axis}", if k >> i & 1 == 1 { '+' } else { '-' });
+            RegionCard {
+                octant: format!("{}{}{}", sign(0, 'x'), sign(1, 'y'), sign(2, 'z')),
+                samples: e.len(),
+                mean_error_mm: mean,
+                sd_mm: sd,
+            }
+        })
+        .collect()
+}
+
+#[derive(Debug, Clone, Serialize)]
 pub struct WandReport {
     pub rig: String,
     pub units: String,
@@ -62,6 +104,9 @@ pub struct WandReport {
     pub wand_length_mean_error_mm: f64,
     pub wand_length_sd_mm: f64,
     pub cameras: Vec<CameraCard>,
+    /// The wand's length error by region of the volume: the volume the wand swept cut at its
+    /// median along each of camera 0's axes into eight octants.
+    pub regions: Vec<RegionCard>,
     pub warnings: Vec<String>,
     /// The world until `calibrate floor` sets one: camera 0's frame.
     pub world: String,
@@ -306,6 +351,7 @@ fn card(
         wand_length_mean_error_mm: err_mm,
         wand_length_sd_mm: sol.length_sd_m * 1e3,
         cameras,
+        regions: regions(sol, wand.length_m()),
         warnings,
         world: format!(
             "camera {}'s frame (x right, y down, z along its axis); set the floor with `stereoscope calibrate floor`",
@@ -337,6 +383,13 @@ fn markdown(r: &WandReport) -> String {
             c.position[0],
             c.position[1],
             c.position[2]
+        ));
+    }
+    s.push_str("\nThe wand's length error by region (octants of the swept volume about its median, camera 0's axes):\n\n| octant | samples | mean error mm | SD mm |\n|---|---|---|---|\n");
+    for g in &r.regions {
+        s.push_str(&format!(
+            "| {} | {} | {:+.3} | {:.3} |\n",
+            g.octant, g.samples, g.mean_error_mm, g.sd_mm
         ));
     }
     s.push_str(&format!("\nWorld: {}.\n", r.world));

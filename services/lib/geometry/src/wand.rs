@@ -121,6 +121,9 @@ pub struct WandSolution {
     /// cameras: mean and standard deviation, metres.
     pub length_mean_m: f64,
     pub length_sd_m: f64,
+    /// Each used frame's wand: where it was (its markers' mean, camera 0's frame) and its
+    /// freely triangulated length, metres.
+    pub lengths: Vec<(Point3<f64>, f64)>,
 }
 
 /// Each usable frame in normalised coordinates: per camera, the wand's blobs if that camera
@@ -591,12 +594,18 @@ pub fn calibrate_wand(
         .into_iter()
         .map(|(s, k)| ((s / (2 * k).max(1) as f64).sqrt(), k))
         .collect();
-    // The wand's length, triangulated freely.
-    let lengths: Vec<f64> = chosen
+    // The wand's length, triangulated freely, with where the wand was (its markers' mean).
+    let sampled: Vec<(Point3<f64>, f64)> = chosen
         .iter()
         .zip(&views)
-        .filter_map(|(f, v)| free_length(&solved, f, wand, v))
+        .filter_map(|(f, v)| {
+            let m = wand_markers(wand, v);
+            let centre =
+                Point3::from(m.iter().map(|p| p.coords).sum::<Vector3<f64>>() / m.len() as f64);
+            Some((centre, free_length(&solved, f, wand, v)?))
+        })
         .collect();
+    let lengths: Vec<f64> = sampled.iter().map(|s| s.1).collect();
     let mean = lengths.iter().sum::<f64>() / lengths.len().max(1) as f64;
     let sd = (lengths.iter().map(|l| (l - mean).powi(2)).sum::<f64>()
         / (lengths.len().max(2) - 1) as f64)
@@ -609,6 +618,7 @@ pub fn calibrate_wand(
         frames_outliers: outliers,
         length_mean_m: mean,
         length_sd_m: sd,
+        lengths: sampled,
     })
 }
 
