@@ -9,7 +9,7 @@ use stereoscope_geometry::dotgrid::{DotGrid, render};
 use stereoscope_geometry::synthetic::{
     ViewSpread, calibration_views, example_camera, grid, wand_frames, wand_rig_cameras,
 };
-use stereoscope_geometry::transform::look_at;
+use stereoscope_geometry::transform::{camera_pose_error, look_at};
 use stereoscope_geometry::{Camera, Distortion, Intrinsics};
 use stereoscope_numeric::SplitMix64;
 use stereoscope_proto::reports::{CalibrationReport, DepthFitReport, TriangulatedPoint};
@@ -440,10 +440,8 @@ fn calibrate_wand_places_a_ring_of_cameras_and_writes_the_rig() {
     let ref_from_world = truth[0].cam_from_world;
     for (c, cam) in truth.iter().enumerate() {
         let want: Isometry3<f64> = cam.cam_from_world * ref_from_world.inverse();
-        let pose = got.cameras[c].camera.cam_from_world;
-        let d = (pose.inverse() * Point3::origin() - want.inverse() * Point3::origin()).norm();
+        let (d, a) = camera_pose_error(&got.cameras[c].camera.cam_from_world, &want);
         assert!(d < 1e-3, "camera {c}: {:.3} mm off", d * 1e3);
-        let a = pose.rotation.angle_to(&want.rotation).to_degrees();
         assert!(a < 0.05, "camera {c}: {a:.4}° off");
     }
 }
@@ -610,9 +608,8 @@ fn calibrate_floor_puts_the_world_on_an_l_frame() {
     for (c, cam) in truth.iter().enumerate() {
         let want = cam.cam_from_world * world_from_l;
         let pose = got.cameras[c].camera.cam_from_world;
-        let d = (pose.inverse() * Point3::origin() - want.inverse() * Point3::origin()).norm();
+        let (d, ang) = camera_pose_error(&pose, &want);
         assert!(d < 1e-3, "camera {c}: {:.3} mm off", d * 1e3);
-        let ang = pose.rotation.angle_to(&want.rotation).to_degrees();
         assert!(ang < 0.05, "camera {c}: {ang:.4}° off");
         let h = r["camera_heights"][c][1].as_f64().unwrap();
         assert!((h - (pose.inverse() * Point3::origin()).z * 1e3).abs() < 1e-6);

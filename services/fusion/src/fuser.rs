@@ -715,6 +715,17 @@ mod tests {
 
     const RIG: &str = include_str!("../../../deploy/rigs/demo.toml");
 
+    /// A fuser whose points become objects in their first set.
+    fn confirmed_at_once(rig: &Rig) -> Fuser {
+        Fuser::new(
+            rig,
+            FuserConfig {
+                confirm_sets: 1,
+                ..FuserConfig::default()
+            },
+        )
+    }
+
     /// The set of both demo cameras seeing one ball at `point`.
     fn set_at(rig: &Rig, point: Point3<f64>, t_ns: u64) -> Vec<(usize, Observation)> {
         (0..2)
@@ -812,13 +823,7 @@ mod tests {
     #[test]
     fn an_object_back_from_a_short_loss_keeps_its_id() {
         let rig = Rig::from_toml(RIG).unwrap();
-        let mut f = Fuser::new(
-            &rig,
-            FuserConfig {
-                confirm_sets: 1,
-                ..FuserConfig::default()
-            },
-        );
+        let mut f = confirmed_at_once(&rig);
         let s = 1_000_000_000u64;
         let p = Point3::new(0.05, -0.03, 0.6);
         let id = |poses: &[Pose]| {
@@ -895,13 +900,7 @@ mod tests {
     #[test]
     fn a_blob_that_hides_a_followed_marker_gives_no_point() {
         let rig = Rig::from_toml(RIG).unwrap();
-        let mut f = Fuser::new(
-            &rig,
-            FuserConfig {
-                confirm_sets: 1,
-                ..FuserConfig::default()
-            },
-        );
+        let mut f = confirmed_at_once(&rig);
         let dt = 33_333_333u64;
         let (a, b) = (Point3::new(-0.1, 0.15, 0.4), Point3::new(-0.1, 0.18, 0.6));
         for k in 1..=3 {
@@ -929,13 +928,7 @@ mod tests {
         assert_eq!(f.fuse(&set_of(&rig, &[a, b], 5 * dt), 5 * dt).len(), 2);
 
         // A body's marker never followed as an object, known only from the body's pose.
-        let mut g = Fuser::new(
-            &rig,
-            FuserConfig {
-                confirm_sets: 1,
-                ..FuserConfig::default()
-            },
-        );
+        let mut g = confirmed_at_once(&rig);
         for k in 1..=3 {
             assert_eq!(g.fuse(&set_of(&rig, &[a], k * dt), k * dt).len(), 1);
         }

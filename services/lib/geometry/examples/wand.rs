@@ -5,9 +5,9 @@
 //!   cargo run --release -p stereoscope-geometry --example wand -- [--frames 2000] [--noise 0.2] [--runs 3]
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
-use nalgebra::Point3;
 use std::time::Instant;
 use stereoscope_geometry::synthetic::{wand_frames, wand_rig_cameras};
+use stereoscope_geometry::transform::camera_pose_error;
 use stereoscope_geometry::wand::{Wand, WandConfig, WandFrame, calibrate_wand};
 
 fn arg(args: &[String], name: &str, default: f64) -> f64 {
@@ -46,9 +46,7 @@ fn main() {
     let (mut worst_mm, mut worst_deg) = (0.0f64, 0.0f64);
     for (c, cam) in truth.iter().enumerate() {
         let want = cam.cam_from_world * ref_from_world.inverse();
-        let got = sol.cam_from_ref[c];
-        let d = (got.inverse() * Point3::origin() - want.inverse() * Point3::origin()).norm();
-        let a = got.rotation.angle_to(&want.rotation).to_degrees();
+        let (d, a) = camera_pose_error(&sol.cam_from_ref[c], &want);
         println!(
             "camera {c}: {:.3} mm, {a:.4}° from truth; reprojection RMS {:.3} px over {} marker images",
             d * 1e3,

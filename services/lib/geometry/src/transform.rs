@@ -21,6 +21,16 @@ use nalgebra::{
     Isometry3, Matrix3, Matrix4, Point3, Rotation3, Translation3, UnitQuaternion, Vector3,
 };
 
+/// How far a camera pose `got` is from `want` (both `cam_from_world`): the distance between
+/// the two optical centres (metres) and the angle between the two rotations (degrees).
+pub fn camera_pose_error(got: &Isometry3<f64>, want: &Isometry3<f64>) -> (f64, f64) {
+    let centre = |p: &Isometry3<f64>| p.inverse() * Point3::origin();
+    (
+        (centre(got) - centre(want)).norm(),
+        got.rotation.angle_to(&want.rotation).to_degrees(),
+    )
+}
+
 /// A rigid transform as the 4×4 homogeneous matrix of Eq. 2.2.
 pub fn homogeneous(t: &Isometry3<f64>) -> Matrix4<f64> {
     t.to_homogeneous()

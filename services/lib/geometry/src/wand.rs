@@ -724,9 +724,21 @@ fn free_length(cams: &[Camera], f: &WandFrame, wand: &Wand, v: &[f64]) -> Option
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::transform::camera_pose_error;
 
     fn ring() -> Vec<Camera> {
         crate::synthetic::wand_rig_cameras()
+    }
+
+    /// Every camera within 1 mm and 0.05° of the truth, the first camera's frame the world.
+    fn assert_placed(truth: &[Camera], sol: &WandSolution) {
+        let ref_from_world = truth[0].cam_from_world;
+        for (c, cam) in truth.iter().enumerate() {
+            let want = cam.cam_from_world * ref_from_world.inverse();
+            let (dpos, drot) = camera_pose_error(&sol.cam_from_ref[c], &want);
+            assert!(dpos < 1e-3, "camera {c}: {:.3} mm off", dpos * 1e3);
+            assert!(drot < 0.05, "camera {c}: {drot:.4}° off");
+        }
     }
 
     fn frames(cams: &[Camera], wand: &Wand, count: usize, noise_px: f64) -> Vec<WandFrame> {
@@ -752,16 +764,7 @@ mod tests {
             }
         }
         let sol = calibrate_wand(&truth, &fs, &wand, &WandConfig::default()).unwrap();
-        let ref_from_world = truth[0].cam_from_world;
-        for (c, cam) in truth.iter().enumerate() {
-            let want = cam.cam_from_world * ref_from_world.inverse();
-            let got = sol.cam_from_ref[c];
-            let dpos =
-                ((got.inverse() * Point3::origin()) - (want.inverse() * Point3::origin())).norm();
-            let drot = got.rotation.angle_to(&want.rotation).to_degrees();
-            assert!(dpos < 1e-3, "camera {c}: {:.3} mm off", dpos * 1e3);
-            assert!(drot < 0.05, "camera {c}: {drot:.4}° off");
-        }
+        assert_placed(&truth, &sol);
         // Each end triangulated on its own: with 0.2 px at 3 m and f = 600 px, about 0.6 mm
         // a point, so the length's spread is of that order; its mean is the wand's.
         assert!((sol.length_mean_m - 0.5).abs() < 2e-4, "{sol:?}");
@@ -783,15 +786,7 @@ mod tests {
             f.pixels[2].pop();
         }
         let sol = calibrate_wand(&truth, &fs, &wand, &WandConfig::default()).unwrap();
-        let ref_from_world = truth[0].cam_from_world;
-        for (c, cam) in truth.iter().enumerate() {
-            let want = cam.cam_from_world * ref_from_world.inverse();
-            let got = sol.cam_from_ref[c];
-            let dpos =
-                ((got.inverse() * Point3::origin()) - (want.inverse() * Point3::origin())).norm();
-            assert!(dpos < 1e-3, "camera {c}: {:.3} mm off", dpos * 1e3);
-            assert!(got.rotation.angle_to(&want.rotation).to_degrees() < 0.05);
-        }
+        assert_placed(&truth, &sol);
         assert!((sol.length_mean_m - 0.5).abs() < 2e-4, "{sol:?}");
     }
 
