@@ -93,6 +93,16 @@ pub mod zenoh {
         format!("stereoscope/{rig}/truth/{camera}")
     }
 
+    /// A camera's preview for people (binary `Preview`, a few a second, only while someone
+    /// subscribes): `stereoscope/<rig>/preview/<camera>`.
+    pub fn preview(rig: &str, camera: &str) -> String {
+        format!("stereoscope/{rig}/preview/{camera}")
+    }
+
+    pub fn all_previews(rig: &str) -> String {
+        format!("stereoscope/{rig}/preview/*")
+    }
+
     /// A service's health reports.
     pub fn health(rig: &str, host: &str, service: &str) -> String {
         format!("stereoscope/{rig}/health/{host}/{service}")

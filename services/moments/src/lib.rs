@@ -19,7 +19,7 @@ use std::time::Duration;
 use stereoscope_numeric::heading::HeadingStatus;
 use stereoscope_proto::frame::{FrameHeader, PixelFormat};
 use stereoscope_proto::messages::{
-    BlobObservation, Observation, SCHEMA_VERSION, TrackState, now_ns,
+    BlobObservation, Message, Observation, Preview, SCHEMA_VERSION, TrackState, now_ns,
 };
 use stereoscope_proto::names::{iox as iox_names, zenoh as keys};
 use stereoscope_rig::Context;
@@ -29,6 +29,11 @@ use stereoscope_transport::iox::FrameSubscriber;
 use stereoscope_transport::{Flow, Outlet, Service, ServiceNode, Shutdown, drive};
 use stereoscope_vision::extract::{BlobFlags, Weighting};
 use stereoscope_vision::{GrayView, Histogram, Pixel, TrackStatus, Tracker, VisionError};
+
+/// A camera's preview for the viewer (`docs/viewer.md`): at most one every this many
+/// milliseconds, at most this wide, and only while someone subscribes to it.
+pub const PREVIEW_EVERY_MS: u64 = 250;
+pub const PREVIEW_MAX_WIDTH_PX: u32 = 320;
 
 /// Most blobs one observation carries.
 pub const MAX_REPORTED_BLOBS: usize = 64;
@@ -321,6 +326,56 @@ impl Worker {
         };
         Ok(result?)
     }
+
+    /// The frame reduced for people to look at, with the blobs of its observation `obs` (made
+    /// from the same frame): called after the observation is out, so it delays no pose.
+    pub fn preview(
+        &self,
+        header: &FrameHeader,
+        payload: &[u8],
+        obs: &Observation,
+    ) -> Result<Preview, FrameRejected> {
+        use stereoscope_vision::preview::{reduce, scale_for};
+        let format = header.validate(payload.len())?;
+        let (w, h) = (header.width, header.height);
+        let scale = scale_for(w, PREVIEW_MAX_WIDTH_PX);
+        let dark = self.settings.dark;
+        let (reduced, level_shift) = match format {
+            PixelFormat::Gray8 => {
+                let view = GrayView::new(payload, w, h, header.stride_bytes as usize)?;
+                (reduce(&view, scale, 0, dark), 0)
+            }
+            PixelFormat::Gray16 => {
+                // SAFETY: as in `process_frame`.
+                let (pre, mid, _) = unsafe { payload.align_to::<u16>() };
+                if !pre.is_empty() || !header.stride_bytes.is_multiple_of(2) {
+                    return Err(FrameRejected::Unaligned);
+                }
+                let view = GrayView::new(mid, w, h, header.stride_bytes as usize / 2)?;
+                let bits = 32 - self.settings.max_level.max(255).leading_zeros();
+                let shift = bits.saturating_sub(8).min(8);
+                (reduce(&view, scale, shift, dark), shift)
+            }
+        };
+        Ok(Preview {
+            schema: SCHEMA_VERSION,
+            rig: self.rig.clone(),
+            camera: self.camera.clone(),
+            sequence: header.sequence,
+            timestamp_ns: header.timestamp_ns,
+            width_px: w,
+            height_px: h,
+            scale,
+            preview_width_px: reduced.width,
+            preview_height_px: reduced.height,
+            level_shift,
+            threshold: obs.threshold,
+            dark,
+            histogram: reduced.histogram,
+            pixels: reduced.pixels,
+            blobs: obs.blobs.clone(),
+        })
+    }
 }
 
 /// Runs until shutdown (or `max_frames`).
@@ -337,6 +392,9 @@ pub struct MomentsService {
     worker: Worker,
     frames: FrameSubscriber,
     observations: Outlet<Observation>,
+    /// Previews for the viewer, on Zenoh only, and when the next is due.
+    preview: stereoscope_transport::net::JsonPublisher,
+    next_preview: std::time::Instant,
     last_sequence: Option<u64>,
     processed: u64,
 }
@@ -379,6 +437,11 @@ impl MomentsService {
                 &keys::observations(rig, &cam),
             )
             .map_err(transport)?;
+        let preview = stereoscope_transport::net::JsonPublisher::binary_low_priority(
+            &node.session,
+            &keys::preview(rig, &cam),
+        )
+        .map_err(transport)?;
         tracing::info!(camera = %cam, "moment worker ready");
         Ok(MomentsService {
             cfg,
@@ -386,6 +449,8 @@ impl MomentsService {
             worker,
             frames,
             observations,
+            preview,
+            next_preview: std::time::Instant::now(),
             last_sequence: None,
             processed: 0,
         })
@@ -435,7 +500,6 @@ impl Service for MomentsService {
             let header = *sample.user_header();
             self.count_gap(header.sequence, skipped);
             let result = self.worker.process_frame(&header, sample.payload());
-            drop(sample);
             let counters = &mut self.node.counters;
             match result {
                 Ok(mut obs) => {
@@ -443,6 +507,20 @@ impl Service for MomentsService {
                     self.observations.publish(&obs, counters);
                     self.processed += 1;
                     counters.processed = self.processed;
+                    // The preview, when due and wanted, once the observation is out.
+                    let now = std::time::Instant::now();
+                    if now >= self.next_preview {
+                        self.next_preview = now + Duration::from_millis(PREVIEW_EVERY_MS);
+                        if self.preview.matching() {
+                            let p = self.worker.preview(&header, sample.payload(), &obs);
+                            drop(sample);
+                            match p.map(|p| self.preview.put_bytes(p.to_binary())) {
+                                Ok(Ok(())) => {}
+                                Ok(Err(e)) => counters.note::<(), _>(Err(e)),
+                                Err(e) => counters.reject("bad_frame", &e.to_string()),
+                            }
+                        }
+                    }
                 }
                 Err(e) => {
                     let m = format!(
@@ -555,6 +633,29 @@ mod tests {
                 stereoscope_proto::frame::FrameError::PayloadSize { .. }
             ))
         ));
+    }
+
+    /// A 1920-pixel frame's preview is 320 wide, shows its marker, carries the frame's blobs
+    /// and threshold, and decodes as the viewer will read it.
+    #[test]
+    fn a_preview_shows_the_frame_its_blobs_and_threshold() {
+        let (w, h) = (1920u32, 1080u32);
+        let mut img = vec![12u8; (w * h) as usize];
+        for y in 500..504 {
+            for x in 900..904 {
+                img[(y * w + x) as usize] = 240;
+            }
+        }
+        let s = stereoscope_rig::moments::worker_settings(None, 1.0, [w, h], 255, "m").unwrap();
+        let mut worker = Worker::new(s, "r", "c").unwrap();
+        let hd = FrameHeader::new("c", PixelFormat::Gray8, w, h).unwrap();
+        let obs = worker.process_frame(&hd, &img).unwrap();
+        let p = worker.preview(&hd, &img, &obs).unwrap();
+        assert_eq!((p.scale, p.preview_width_px, p.preview_height_px), (6, 320, 180));
+        assert_eq!(p.pixels[(501 / 6) * 320 + 901 / 6], 240);
+        assert_eq!((p.blobs.len(), p.threshold), (1, obs.threshold));
+        let back = Preview::from_binary(&p.to_binary()).unwrap();
+        assert_eq!(back, p);
     }
 
     /// The thesis's helmet target: a dark rectangle on a bright background. With polarity

@@ -222,18 +222,51 @@ impl std::fmt::Debug for JsonPublisher {
 
 impl JsonPublisher {
     pub fn new(session: &zenoh::Session, key: &str) -> Result<Self, TransportError> {
+        Self::declare(session, key, Encoding::APPLICATION_JSON, Priority::RealTime)
+    }
+
+    /// A publisher of binary messages (postcard) for people to look at — camera previews —
+    /// at low priority, so they never delay poses on a shared link.
+    pub fn binary_low_priority(
+        session: &zenoh::Session,
+        key: &str,
+    ) -> Result<Self, TransportError> {
+        Self::declare(
+            session,
+            key,
+            Encoding::APPLICATION_OCTET_STREAM,
+            Priority::DataLow,
+        )
+    }
+
+    fn declare(
+        session: &zenoh::Session,
+        key: &str,
+        encoding: Encoding,
+        priority: Priority,
+    ) -> Result<Self, TransportError> {
         let publisher = session
             .declare_publisher(key.to_string())
-            .encoding(Encoding::APPLICATION_JSON)
+            .encoding(encoding)
             .congestion_control(CongestionControl::Drop)
-            .priority(Priority::RealTime)
-            .express(true)
+            .priority(priority)
+            .express(priority == Priority::RealTime)
             .wait()
             .map_err(|e| zerr(format!("declare publisher {key}"), e))?;
         Ok(JsonPublisher {
             publisher,
             key: key.to_string(),
         })
+    }
+
+    /// Whether any subscriber anywhere matches the key now (what is costly to make is only
+    /// made while someone wants it).
+    pub fn matching(&self) -> bool {
+        self.publisher
+            .matching_status()
+            .wait()
+            .map(|m| m.matching())
+            .unwrap_or(false)
     }
 
     pub fn put<M: Message>(&self, msg: &M) -> Result<(), TransportError> {

@@ -19,6 +19,7 @@ pub mod extract;
 pub mod histogram;
 pub mod image;
 pub mod moments;
+pub mod preview;
 pub mod raster;
 pub mod tracker;
 
