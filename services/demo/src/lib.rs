@@ -69,6 +69,8 @@ pub struct DemoConfig {
     pub live: bool,
     /// Where to write the rig file the services read.
     pub work_dir: std::path::PathBuf,
+    /// Run the viewer too, serving the live view here (`docs/viewer.md`).
+    pub view: Option<std::net::SocketAddr>,
 }
 
 /// Error statistics of one target.
@@ -246,9 +248,15 @@ pub fn run(cfg: DemoConfig, shutdown: Shutdown) -> Result<DemoSummary, DemoError
     let port = net::free_loopback_port().map_err(DemoError::NoPort)?;
     let prefix = format!("stsc_demo{}_", std::process::id());
     let base = cfg.rig_text.clone().unwrap_or_else(|| DEMO_RIG.to_string());
-    let text = format!(
+    let mut text = format!(
         "{base}\n[[host]]\nname = \"demo\"\nzenoh_listen = [\"tcp/127.0.0.1:{port}\"]\niceoryx2_prefix = \"{prefix}\"\n"
     );
+    if let Some(addr) = cfg.view {
+        // A rig of the user's that has its own [viewer] keeps it (and its address).
+        if !base.lines().any(|l| l.trim() == "[viewer]") {
+            text.push_str(&format!("\n[viewer]\nlisten = \"{addr}\"\n"));
+        }
+    }
     let rig = Rig::from_toml(&text)?;
     // The demo scores against the synthetic scene's truth: every camera must render it.
     if let Some((i, c)) = rig.spec.cameras.iter().enumerate().find(|(_, c)| {

@@ -159,6 +159,16 @@ pub fn services_here(ctx: &Context, service_zenoh: &ZenohSpec) -> Vec<ServiceSpe
             args,
         });
     }
+    if let Some(v) = &ctx.rig.spec.viewer
+        && v.host.as_deref().is_none_or(|h| h == ctx.host)
+    {
+        let mut args = vec!["viewer".to_string()];
+        args.extend(common.clone());
+        out.push(ServiceSpec {
+            name: "viewer".into(),
+            args,
+        });
+    }
     if let Some(r) = &ctx.rig.spec.recorder
         && r.host.as_deref().is_none_or(|h| h == ctx.host)
     {

@@ -350,6 +350,7 @@ fn live_table(quick: bool, json_out: Option<String>, mut json: Vec<String>) {
             rig_text: Some(rig_at(640, 480, 120.0, Some(240), true)),
             live: false,
             work_dir: work_dir.clone(),
+            view: None,
         },
         Shutdown::new(),
     )

@@ -260,6 +260,47 @@ pub struct DemoArgs {
     /// The summary as one JSON object.
     #[arg(long)]
     pub json: bool,
+    /// Also serve the live view in a browser (docs/viewer.md); the URL is printed.
+    #[arg(long)]
+    pub view: bool,
+    /// Where the live view is served, with --view.
+    #[arg(long, default_value = "127.0.0.1:8750")]
+    pub view_listen: std::net::SocketAddr,
+}
+
+/// `stereoscope view`: the live view of a running rig.
+#[derive(clap::Args, Debug)]
+pub struct ViewArgs {
+    /// The rig file.
+    pub rig: PathBuf,
+    #[command(flatten)]
+    pub place: stereoscope_rig::HostArgs,
+    /// Serve on this address and port instead of the rig's `[viewer] listen` (default
+    /// 127.0.0.1:8750; port 0 takes a free one, printed at start).
+    #[arg(long)]
+    pub listen: Option<std::net::SocketAddr>,
+    /// A Zenoh router to connect to (default: this host's, from the rig).
+    #[arg(long)]
+    pub connect: Vec<String>,
+    #[command(flatten)]
+    pub tls: stereoscope_rig::context::TlsArgs,
+}
+
+impl ViewArgs {
+    /// The viewer service's own arguments.
+    pub fn into_service_args(self) -> stereoscope_viewer::cli::Args {
+        stereoscope_viewer::cli::Args {
+            common: stereoscope_rig::CommonArgs {
+                rig: self.rig,
+                place: self.place,
+                zenoh_mode: (!self.connect.is_empty()).then(|| "client".to_string()),
+                zenoh_connect: self.connect,
+                zenoh_listen: Vec::new(),
+                tls: self.tls,
+            },
+            listen: self.listen,
+        }
+    }
 }
 
 /// `stereoscope run`: its options.

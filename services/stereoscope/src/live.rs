@@ -128,6 +128,7 @@ pub fn demo(
     rig: Option<PathBuf>,
     live: bool,
     json: bool,
+    view: Option<std::net::SocketAddr>,
     program: anyhow::Result<Vec<String>>,
 ) -> anyhow::Result<usize> {
     if !(seconds.is_finite() && seconds > 0.0) {
@@ -140,6 +141,9 @@ pub fn demo(
         None => None,
     };
     let work_dir = std::env::temp_dir().join(format!("stereoscope-demo-{}", std::process::id()));
+    if let Some(a) = view {
+        eprintln!("Live view: http://{a}/ (open it in a browser)");
+    }
     let summary = stereoscope_demo::run(
         DemoConfig {
             seconds,
@@ -147,6 +151,7 @@ pub fn demo(
             rig_text,
             live,
             work_dir: work_dir.clone(),
+            view,
         },
         shutdown,
     );

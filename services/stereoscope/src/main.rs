@@ -37,6 +37,9 @@ enum Command {
     Run(args::RunArgs),
     /// Show every service of a rig on every PC: liveliness, rates, drops, errors, objects.
     Status(args::StatusArgs),
+    /// Serve the live view of a running rig in a browser: the 3D scene, each camera's
+    /// monitor, the services' health (docs/viewer.md).
+    View(args::ViewArgs),
     /// Record a running rig's poses and observations into a session folder (docs/recording.md).
     Record {
         #[command(flatten)]
@@ -90,6 +93,8 @@ enum ServiceCommand {
     Vrfeed(stereoscope_vrfeed::cli::Args),
     /// Record poses, observations and optionally raw frames into a session folder.
     Recorder(stereoscope_recorder::cli::Args),
+    /// Serve the live view in a browser (what `view` runs).
+    Viewer(stereoscope_viewer::cli::Args),
     /// Run only this host's Zenoh router (with the rig's TLS and access control).
     Router(stereoscope_launcher::router_cli::Args),
 }
@@ -103,6 +108,7 @@ fn service(cmd: ServiceCommand) -> anyhow::Result<()> {
         ServiceCommand::Vrfeed(a) => stereoscope_vrfeed::cli::main(a),
         ServiceCommand::Recorder(a) => stereoscope_recorder::cli::main(a),
         ServiceCommand::Router(a) => stereoscope_launcher::router_cli::main(a),
+        ServiceCommand::Viewer(a) => stereoscope_viewer::cli::main(a),
     }
 }
 
@@ -279,13 +285,19 @@ fn main() -> ExitCode {
             rig,
             quiet,
             json,
+            view,
+            view_listen,
         }) => finish(stereoscope::live::demo(
             seconds,
             rig,
             !quiet && !json,
             json,
+            view.then_some(view_listen),
             service_program(),
         )),
+        Command::View(a) => {
+            stereoscope_rig::exit::exit_code(stereoscope_viewer::cli::main(a.into_service_args()))
+        }
         Command::Triangulate(args::TriangulateArgs { rig, points, json }) => {
             let opts = TriangulateOptions { rig, points, json };
             finish(triangulate::run(

@@ -412,6 +412,7 @@ mod tests {
             insecure: false,
             bodies: Vec::new(),
             vr: None,
+            viewer: None,
         };
         let back = Rig::from_toml(&file.to_toml().unwrap()).unwrap();
         let b = back.cameras[0].camera;

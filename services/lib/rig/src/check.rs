@@ -412,6 +412,25 @@ pub(crate) fn check(file: &RigFile, base: Option<&Path>, sources: bool) -> Resul
     if let Some(v) = &file.vr {
         known_host("vr.host".into(), &v.host)?;
     }
+    if let Some(v) = &file.viewer {
+        known_host("viewer.host".into(), &v.host)?;
+        if let Some(l) = &v.listen
+            && l.parse::<std::net::SocketAddr>().is_err()
+        {
+            return Err(err(
+                "viewer.listen",
+                format!("{l:?} is not an address and port such as \"127.0.0.1:8750\""),
+            ));
+        }
+        if let Some(m) = v.max_clients
+            && !(1..=256).contains(&m)
+        {
+            return Err(err(
+                "viewer.max_clients",
+                format!("{m} is not between 1 and 256"),
+            ));
+        }
+    }
     if let Some(r) = &file.recorder {
         known_host("recorder.host".into(), &r.host)?;
         if r.folder.trim().is_empty() {

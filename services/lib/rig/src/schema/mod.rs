@@ -196,11 +196,34 @@ pub struct RigFile {
     /// The VR feed (`docs/vr.md`): VRPN, VirtualMotionTracker/VMC over OSC, opentrack.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub vr: Option<VrSpec>,
+    /// The live view in a browser (`docs/viewer.md`), which the launcher runs and supervises.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub viewer: Option<ViewerSpec>,
     /// Accept plain-TCP Zenoh links between PCs (unauthenticated, unencrypted). Without it a
     /// rig whose hosts listen or connect beyond loopback must use `tls/` endpoints.
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]
     pub insecure: bool,
 }
+
+/// The viewer service: a web page with the 3D scene, the cameras' monitors and the services'
+/// health, served from the binary.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ViewerSpec {
+    /// The PC it runs on.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub host: Option<String>,
+    /// Address and port the page is served on (default `127.0.0.1:8750`: this PC only; give
+    /// `0.0.0.0:8750` to show it to the network).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub listen: Option<String>,
+    /// Most browsers connected at once (default 16); more are answered 503.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub max_clients: Option<u32>,
+}
+
+/// Where the viewer listens when the rig does not say.
+pub const DEFAULT_VIEWER_LISTEN: &str = "127.0.0.1:8750";
 
 /// A supervised recorder: each start (the first, and every restart after a crash) records a
 /// new session folder inside `folder`.
