@@ -14,7 +14,7 @@ const $ = (id) => document.getElementById(id);
 
 // What tests read (tests/clients/viewer_check.py): counts, the newest frame drawn, the view.
 const state = window.stereoscope = {
-  connects: 0, poseFrames: 0, previews: 0, healthReports: 0, errors: [],
+  connects: 0, poseFrames: 0, truthFrames: 0, previews: 0, healthReports: 0, errors: [],
   socketOpen: false, frozen: false, drawnFrame: null,
   freeze(on) { state.frozen = on; },
   health(key) { return health.get(key)?.h ?? null; },
@@ -185,15 +185,15 @@ const ringTexture = (() => {
   const c = document.createElement('canvas');
   c.width = c.height = 64;
   const g = c.getContext('2d');
-  g.strokeStyle = '#ffffff'; g.lineWidth = 5;
-  g.beginPath(); g.arc(32, 32, 28, 0, 2 * Math.PI); g.stroke();
+  g.strokeStyle = '#ffffff'; g.lineWidth = 8;
+  g.beginPath(); g.arc(32, 32, 27, 0, 2 * Math.PI); g.stroke();
   return new THREE.CanvasTexture(c);
 })();
 
 function drawTruth(t) {
   const targets = t.targets;
   while (ghosts.length < targets.length) {
-    const m = new THREE.Sprite(new THREE.SpriteMaterial({ map: ringTexture, transparent: true, opacity: 0.7, depthTest: false }));
+    const m = new THREE.Sprite(new THREE.SpriteMaterial({ map: ringTexture, transparent: true, opacity: 0.85, depthTest: false }));
     m.scale.setScalar(markerRadius * 4);
     scene.add(m);
     ghosts.push(m);
@@ -202,12 +202,14 @@ function drawTruth(t) {
     m.visible = showTruth && i < targets.length;
     if (i < targets.length) m.position.set(...targets[i].position_m);
   });
+  state.drawnTruth = t;
 }
 
 let pendingFrame = null, pendingTruth = null;
 function render() {
   const now = performance.now();
-  if (!state.frozen) {
+  // Objects are sized from the rig: nothing is drawn before it is known.
+  if (!state.frozen && rig) {
     if (pendingFrame) { drawFrame(pendingFrame, now); pendingFrame = null; }
     if (pendingTruth) { drawTruth(pendingTruth); pendingTruth = null; }
   }
@@ -326,7 +328,7 @@ function connect() {
     if (ev.data instanceof ArrayBuffer) { drawPreview(ev.data); return; }
     const m = JSON.parse(ev.data);
     if (m.type === 'poses') { pendingFrame = m.frame; state.poseFrames++; rateCount++; }
-    else if (m.type === 'truth') pendingTruth = m.truth;
+    else if (m.type === 'truth') { pendingTruth = m.truth; state.truthFrames++; }
     else if (m.type === 'health') { health.set(`${m.health.host}/${m.health.service}`, { h: m.health, at: performance.now() }); state.healthReports++; }
     else if (m.type === 'hello') { if (!rig) loadRig(); }
     else if (m.type === 'error') state.errors.push(m.message);
