@@ -681,8 +681,18 @@ impl Preview {
         let w = self.width_px.div_ceil(self.scale) as f64;
         let h = self.height_px.div_ceil(self.scale) as f64;
         let pside = limits::MAX_PREVIEW_SIDE_PX as f64;
-        c.range("preview_width_px", self.preview_width_px as f64, w, w.min(pside))?;
-        c.range("preview_height_px", self.preview_height_px as f64, h, h.min(pside))?;
+        c.range(
+            "preview_width_px",
+            self.preview_width_px as f64,
+            w,
+            w.min(pside),
+        )?;
+        c.range(
+            "preview_height_px",
+            self.preview_height_px as f64,
+            h,
+            h.min(pside),
+        )?;
         let n = (self.preview_width_px as usize) * (self.preview_height_px as usize);
         c.range("pixels", self.pixels.len() as f64, n as f64, n as f64)?;
         let bins = PREVIEW_HISTOGRAM_BINS as f64;

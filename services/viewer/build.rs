@@ -7,10 +7,11 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 
 fn fail(what: &str) -> ! {
-    panic!(
+    eprintln!(
         "stereoscope-viewer: {what}. The viewer's page bundles three.js from npm at build \
          time: install Node.js (20 or later) and npm, with the npm registry reachable once"
-    )
+    );
+    std::process::exit(1)
 }
 
 fn run(cmd: &mut Command, what: &str) {
@@ -23,12 +24,17 @@ fn run(cmd: &mut Command, what: &str) {
 
 fn copy(from: &Path, to: &Path) {
     if let Err(e) = std::fs::copy(from, to) {
-        fail(&format!("copying {} to {}: {e}", from.display(), to.display()));
+        fail(&format!(
+            "copying {} to {}: {e}",
+            from.display(),
+            to.display()
+        ));
     }
 }
 
 fn main() {
-    let manifest = std::env::var("CARGO_MANIFEST_DIR").unwrap_or_else(|_| fail("no CARGO_MANIFEST_DIR"));
+    let manifest =
+        std::env::var("CARGO_MANIFEST_DIR").unwrap_or_else(|_| fail("no CARGO_MANIFEST_DIR"));
     let out = std::env::var("OUT_DIR").unwrap_or_else(|_| fail("no OUT_DIR"));
     let web = PathBuf::from(manifest).join("web");
     let out = PathBuf::from(out);
@@ -48,10 +54,19 @@ fn main() {
         || !npm_dir.join("node_modules/.bin/esbuild").exists()
     {
         copy(&web.join("package.json"), &npm_dir.join("package.json"));
-        copy(&web.join("package-lock.json"), &npm_dir.join("package-lock.json"));
+        copy(
+            &web.join("package-lock.json"),
+            &npm_dir.join("package-lock.json"),
+        );
         run(
             Command::new("npm")
-                .args(["ci", "--ignore-scripts", "--no-audit", "--no-fund", "--loglevel=error"])
+                .args([
+                    "ci",
+                    "--ignore-scripts",
+                    "--no-audit",
+                    "--no-fund",
+                    "--loglevel=error",
+                ])
                 .current_dir(&npm_dir),
             "npm ci (three.js and esbuild)",
         );

@@ -651,7 +651,10 @@ mod tests {
         let hd = FrameHeader::new("c", PixelFormat::Gray8, w, h).unwrap();
         let obs = worker.process_frame(&hd, &img).unwrap();
         let p = worker.preview(&hd, &img, &obs).unwrap();
-        assert_eq!((p.scale, p.preview_width_px, p.preview_height_px), (6, 320, 180));
+        assert_eq!(
+            (p.scale, p.preview_width_px, p.preview_height_px),
+            (6, 320, 180)
+        );
         assert_eq!(p.pixels[(501 / 6) * 320 + 901 / 6], 240);
         assert_eq!((p.blobs.len(), p.threshold), (1, obs.threshold));
         let back = Preview::from_binary(&p.to_binary()).unwrap();

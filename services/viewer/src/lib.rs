@@ -222,9 +222,7 @@ impl ViewerService {
             rig: rig.clone(),
             cameras: cameras.clone(),
             rig_json: scene::rig_json(&ctx.rig).to_string(),
-            max_clients: spec
-                .max_clients
-                .map_or(DEFAULT_MAX_CLIENTS, |m| m as usize),
+            max_clients: spec.max_clients.map_or(DEFAULT_MAX_CLIENTS, |m| m as usize),
             tx,
             previews: Mutex::new(HashMap::new()),
             health: Mutex::new(BTreeMap::new()),
@@ -340,8 +338,10 @@ fn subscribe(
     let rig = shared.rig.clone();
     let mut subs = Vec::new();
     let s = shared.clone();
-    subs.push(net::subscribe(session, &keys::poses(&rig), move |k, b| {
-        match PoseFrame::from_json(b) {
+    subs.push(net::subscribe(
+        session,
+        &keys::poses(&rig),
+        move |k, b| match PoseFrame::from_json(b) {
             Ok(f) if f.rig == s.rig => {
                 if let Some(t) = wrap("poses", "frame", b) {
                     s.stats.pose_frames.fetch_add(1, Ordering::Relaxed);
@@ -350,8 +350,8 @@ fn subscribe(
             }
             Ok(f) => s.reject("foreign", format!("{k}: pose frame of rig {:?}", f.rig)),
             Err(e) => s.reject(e.reason(), format!("{k}: {e}")),
-        }
-    })?);
+        },
+    )?);
     if let Some(cam) = &shared.truth_camera {
         let s = shared.clone();
         subs.push(net::subscribe(
@@ -507,7 +507,10 @@ async fn ws(State(s): State<Arc<Shared>>, upgrade: WebSocketUpgrade) -> Response
         s.stats.refused.fetch_add(1, Ordering::Relaxed);
         return (
             StatusCode::SERVICE_UNAVAILABLE,
-            format!("{} browsers are connected, the most this viewer serves\n", taken),
+            format!(
+                "{} browsers are connected, the most this viewer serves\n",
+                taken
+            ),
         )
             .into_response();
     }
@@ -645,4 +648,87 @@ async fn client(mut socket: WebSocket, seat: Seat) {
         }
     }
     drop(seat);
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn shared() -> Shared {
+        let (tx, _) = broadcast::channel(4);
+        Shared {
+            rig: "lab".into(),
+            cameras: vec!["cam0".into(), "cam1".into()],
+            rig_json: String::new(),
+            max_clients: 2,
+            tx,
+            previews: Mutex::new(HashMap::new()),
+            health: Mutex::new(BTreeMap::new()),
+            truth_camera: None,
+            rejections: Mutex::new(Vec::new()),
+            stats: Stats::default(),
+        }
+    }
+
+    /// A browser's requests: a camera list is taken only if every camera is the rig's, and
+    /// each wrong request is answered naming what was wrong.
+    #[test]
+    fn requests_are_checked_and_answered() {
+        let s = shared();
+        assert_eq!(
+            request(&s, r#"{"type":"monitor","cameras":["cam1"]}"#),
+            Ok(Some(vec!["cam1".to_string()]))
+        );
+        assert_eq!(request(&s, r#"{"type":"ping"}"#), Ok(None));
+        let e = request(&s, r#"{"type":"monitor","cameras":["cam1","cam7"]}"#).unwrap_err();
+        assert!(e.contains("\"cam7\"") && e.contains("cam0"), "{e}");
+        let e = request(&s, r#"{"type":"monitor","cameras":"cam1"}"#).unwrap_err();
+        assert!(e.contains("cameras"), "{e}");
+        assert!(
+            request(&s, "{{{")
+                .unwrap_err()
+                .contains("not a JSON request")
+        );
+        assert!(
+            request(&s, r#"{"type":"reboot"}"#)
+                .unwrap_err()
+                .contains("unknown")
+        );
+        // A long name is shown cut, not echoed whole.
+        let long = format!(
+            r#"{{"type":"monitor","cameras":["{}"]}}"#,
+            "x".repeat(10_000)
+        );
+        assert!(request(&s, &long).unwrap_err().len() < 300);
+    }
+
+    /// The preview's binary form: the length, the JSON head (no pixels), the pixels.
+    #[test]
+    fn a_preview_is_sent_as_length_head_pixels() {
+        let p = Preview {
+            schema: stereoscope_proto::messages::SCHEMA_VERSION,
+            rig: "lab".into(),
+            camera: "cam0".into(),
+            sequence: 9,
+            timestamp_ns: 1,
+            width_px: 6,
+            height_px: 4,
+            scale: 2,
+            preview_width_px: 3,
+            preview_height_px: 2,
+            level_shift: 0,
+            threshold: 50,
+            dark: false,
+            histogram: vec![0; 256],
+            pixels: vec![1, 2, 3, 4, 5, 6],
+            blobs: Vec::new(),
+        };
+        let b = preview_bytes(&p);
+        let n = u32::from_le_bytes([b[0], b[1], b[2], b[3]]) as usize;
+        let head: serde_json::Value = serde_json::from_slice(&b[4..4 + n]).unwrap();
+        assert_eq!(head["camera"], "cam0");
+        assert_eq!(head["preview_width_px"], 3);
+        assert!(head.get("pixels").is_none());
+        assert_eq!(&b[4 + n..], &[1, 2, 3, 4, 5, 6]);
+    }
 }

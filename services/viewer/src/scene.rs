@@ -100,7 +100,10 @@ mod tests {
                     .project_cam(&(rc.camera.cam_from_world * Point3::new(p[0], p[1], p[2])))
                     .unwrap();
                 // Distortion is left out of the drawing: within a few pixels at the corner.
-                assert!((px.x - u).abs() < 5.0 && (px.y - v).abs() < 5.0, "{px} {u} {v}");
+                assert!(
+                    (px.x - u).abs() < 5.0 && (px.y - v).abs() < 5.0,
+                    "{px} {u} {v}"
+                );
             }
             let centre = rc.camera.position_world();
             assert!((c["centre_m"][0].as_f64().unwrap() - centre.x).abs() < 1e-9);
