@@ -185,3 +185,91 @@ fn bad_options_are_rejected_with_the_value() {
     assert_eq!(out.status.code(), Some(1));
     assert!(String::from_utf8_lossy(&out.stderr).contains("pixel aspect ratio 0"));
 }
+
+/// `stereoscope grab` on the demo rig's synthetic camera: three frames half a second of
+/// scene time apart and a preview, read back by MuPDF (PyMuPDF), software the project did
+/// not write: the frames have the camera's size and the preview marks in red the pixels the
+/// worker's threshold keeps (less those its boxes and crosses cover). A camera the rig does
+/// not have, and a count of 0, are refused with the value named.
+#[test]
+fn grab_saves_frames_and_a_preview_to_aim_a_camera_with() {
+    let dir = TempDir::new("grab");
+    let out_dir = dir.0.join("frames");
+    let out_s = out_dir.to_str().unwrap();
+    let grab = |camera: &str, count: &str| {
+        run(&[
+            "grab",
+            "deploy/rigs/demo.toml",
+            "--camera",
+            camera,
+            "--count",
+            count,
+            "--every",
+            "0.5",
+            out_s,
+        ])
+    };
+    let o = grab("cam0", "3");
+    let text = String::from_utf8_lossy(&o.stdout).to_string();
+    assert!(o.status.success(), "{}{text}", common::stderr(&o));
+    // The last frame's threshold: the preview is of the last frame.
+    let threshold: u32 = text
+        .lines()
+        .filter(|l| l.contains("(frame "))
+        .filter_map(|l| l.split("threshold ").nth(1))
+        .next_back()
+        .and_then(|r| r.split(',').next())
+        .and_then(|t| t.parse().ok())
+        .unwrap_or_else(|| panic!("no threshold in {text}"));
+    assert!(text.contains("cam0-preview.png"), "{text}");
+    let files: Vec<String> = [
+        "cam0-0001.pgm",
+        "cam0-0002.pgm",
+        "cam0-0003.pgm",
+        "cam0-preview.png",
+    ]
+    .iter()
+    .map(|f| out_dir.join(f).to_str().unwrap().to_string())
+    .collect();
+    let script = repo_root().join("tests/clients/image_stats.py");
+    let mut args = vec![script.to_str().unwrap()];
+    args.extend(files.iter().map(String::as_str));
+    let o = common::run_program_with_limit(
+        &common::python_clients(),
+        &args,
+        std::time::Duration::from_secs(120),
+    );
+    assert!(o.status.success(), "{}", common::stderr(&o));
+    let stats: Vec<serde_json::Value> = String::from_utf8_lossy(&o.stdout)
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap())
+        .collect();
+    for s in &stats[..3] {
+        assert_eq!(
+            (s["width"].as_u64(), s["height"].as_u64()),
+            (Some(320), Some(240)),
+            "{s}"
+        );
+    }
+    // Frames of a moving scene half a second apart differ.
+    assert_ne!(stats[0]["levels"], stats[2]["levels"]);
+    let over = stats[2]["levels"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter(|v| v.as_u64().unwrap() as u32 >= threshold)
+        .count();
+    let red = stats[3]["red"].as_u64().unwrap() as usize;
+    assert!(over > 50, "{over} pixels over {threshold}");
+    assert!(
+        red <= over && red * 10 >= over * 6,
+        "{red} red of {over} over the threshold"
+    );
+    // Refusals name the value.
+    let o = grab("cam7", "1");
+    assert!(!o.status.success());
+    let e = common::stderr(&o);
+    assert!(e.contains("cam7") && e.contains("cam0"), "{e}");
+    let o = grab("cam0", "0");
+    assert!(!o.status.success() && common::stderr(&o).contains("--count 0"));
+}

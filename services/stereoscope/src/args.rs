@@ -268,6 +268,41 @@ pub struct DemoArgs {
     pub view_listen: std::net::SocketAddr,
 }
 
+/// `stereoscope grab`: its options.
+#[derive(clap::Args, Debug)]
+pub struct GrabArgs {
+    /// The rig file.
+    pub rig: PathBuf,
+    /// The camera (its source as the rig describes it: V4L2, Y4M, images, synthetic).
+    #[arg(long)]
+    pub camera: String,
+    /// Frames to save.
+    #[arg(long, default_value_t = 1)]
+    pub count: u32,
+    /// Seconds between saved frames.
+    #[arg(long, default_value_t = 1.0)]
+    pub every: f64,
+    /// pgm (8- or 16-bit, as the camera gives) or png.
+    #[arg(long, value_enum, default_value = "pgm")]
+    pub format: stereoscope::grab::GrabFormat,
+    /// The folder to save into (made if missing).
+    pub out: PathBuf,
+}
+
+impl GrabArgs {
+    pub fn run(self) -> ExitCode {
+        let opts = stereoscope::grab::GrabOptions {
+            rig: self.rig,
+            camera: self.camera,
+            count: self.count,
+            every_s: self.every,
+            format: self.format,
+            out: self.out,
+        };
+        finish(stereoscope::grab::run(&opts, &mut std::io::stdout().lock()))
+    }
+}
+
 /// `stereoscope view`: the live view of a running rig.
 #[derive(clap::Args, Debug)]
 pub struct ViewArgs {

@@ -8,6 +8,7 @@ pub mod calibrate;
 pub mod example;
 pub mod fitdepth;
 pub mod floor;
+pub mod grab;
 pub mod live;
 pub mod progress;
 pub mod target;

@@ -58,6 +58,9 @@ enum Command {
     /// Rigid bodies: define one from the markers the running rig sees now.
     #[command(subcommand)]
     Body(BodyCommand),
+    /// Save frames of one camera (for calibration) and a preview of what its moment worker
+    /// finds in them, to aim the camera and set its exposure.
+    Grab(args::GrabArgs),
     /// Calibration targets to print.
     #[command(subcommand)]
     Target(TargetCommand),
@@ -185,6 +188,7 @@ fn main() -> ExitCode {
         Command::Blobs(a) => a.run(),
         Command::Calibrate(a) => a.run(),
         Command::Target(TargetCommand::DotGrid(a)) => a.run(),
+        Command::Grab(a) => a.run(),
         Command::Reproduce(a) => a.run(),
         Command::FitDepth(args::FitDepthArgs { samples, json }) => finish(
             fitdepth::run(

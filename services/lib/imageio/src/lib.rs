@@ -299,20 +299,63 @@ pub fn encode_pgm_u16(img: &GrayImage<u16>, max_value: u16) -> Vec<u8> {
     out
 }
 
-/// Encodes an 8-bit grey PNG.
-pub fn encode_png_u8(img: &GrayImage<u8>) -> Result<Vec<u8>, ImageIoError> {
+/// Encodes a 16-bit grey PNG (PNG's samples are big-endian).
+pub fn encode_png_u16(img: &GrayImage<u16>) -> Result<Vec<u8>, ImageIoError> {
+    let bytes: Vec<u8> = img
+        .as_slice()
+        .iter()
+        .flat_map(|v| v.to_be_bytes())
+        .collect();
+    encode_png(
+        &bytes,
+        img.width(),
+        img.height(),
+        png::ColorType::Grayscale,
+        png::BitDepth::Sixteen,
+    )
+}
+
+/// Encodes an 8-bit RGB PNG from `width × height` pixels of three bytes.
+pub fn encode_png_rgb8(rgb: &[u8], width: u32, height: u32) -> Result<Vec<u8>, ImageIoError> {
+    encode_png(
+        rgb,
+        width,
+        height,
+        png::ColorType::Rgb,
+        png::BitDepth::Eight,
+    )
+}
+
+fn encode_png(
+    data: &[u8],
+    width: u32,
+    height: u32,
+    color: png::ColorType,
+    depth: png::BitDepth,
+) -> Result<Vec<u8>, ImageIoError> {
     let mut out = Vec::new();
     {
-        let mut enc = png::Encoder::new(&mut out, img.width(), img.height());
-        enc.set_color(png::ColorType::Grayscale);
-        enc.set_depth(png::BitDepth::Eight);
+        let mut enc = png::Encoder::new(&mut out, width, height);
+        enc.set_color(color);
+        enc.set_depth(depth);
         let mut w = enc
             .write_header()
             .map_err(|e| ImageIoError::Png(e.to_string()))?;
-        w.write_image_data(img.as_slice())
+        w.write_image_data(data)
             .map_err(|e| ImageIoError::Png(e.to_string()))?;
     }
     Ok(out)
+}
+
+/// Encodes an 8-bit grey PNG.
+pub fn encode_png_u8(img: &GrayImage<u8>) -> Result<Vec<u8>, ImageIoError> {
+    encode_png(
+        img.as_slice(),
+        img.width(),
+        img.height(),
+        png::ColorType::Grayscale,
+        png::BitDepth::Eight,
+    )
 }
 
 #[cfg(test)]
