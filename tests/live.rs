@@ -1683,3 +1683,114 @@ fn a_second_launcher_or_fusion_for_a_running_rig_is_refused() {
     assert!(e.contains("fusion already runs on host \"pc\""), "{e}");
     watcher.until(Duration::from_secs(20), "poses still", both_cameras);
 }
+
+/// Masks (`docs/calibration.md`, "Masks"): a scene with a static lamp and a reflection on the
+/// floor and no marker. Running, both are objects to fusion. `calibrate mask` watches the
+/// rig and writes a rectangle round each into the cameras' `moments.mask`; restarted on that
+/// rig, `calibrate mask --check` says the cameras see nothing. Then a marker circles beside
+/// them: it is the only object fusion reports, on its circle, and neither lamp nor reflection
+/// comes back.
+#[test]
+fn a_masked_lamp_and_reflection_are_ignored_and_a_marker_still_tracked() {
+    let _serial = serial();
+    let dir = TempDir::new("mask");
+    let demo = demo_rig();
+    let cut = demo.find("[[synthetic.target]]").unwrap();
+    let base = demo[..cut].replace("[vr]\nvrpn = {}\nvmt = {}\nopentrack = {}\n", "");
+    // cm: a lamp 60 cm up and a reflection on the floor, both inside both views.
+    let lamps = "[[synthetic.target]]\nshape = \"sphere\"\nradius = 4.0\ncontrast = 220.0\nmotion = { kind = \"static\", position = [40.0, 30.0, 60.0] }\n\n[[synthetic.target]]\nshape = \"disc\"\nradius = 6.0\ncontrast = 90.0\nmotion = { kind = \"static\", position = [-35.0, -25.0, 0.0] }\n";
+    let near = |p: &[f64; 3], q: [f64; 3]| {
+        ((p[0] - q[0]).powi(2) + (p[1] - q[1]).powi(2) + (p[2] - q[2]).powi(2)).sqrt() < 0.05
+    };
+    let (lamp, reflection) = ([0.40, 0.30, 0.60], [-0.35, -0.25, 0.0]);
+    let (path, port) = one_pc_rig_of(&dir, 'k', &format!("{base}{lamps}"));
+    let endpoint = format!("tcp/127.0.0.1:{port}");
+    let masked = dir.0.join("masked.toml");
+    let masked_s = masked.to_str().unwrap();
+    {
+        let mut launcher = Proc::start(&["run", &path]);
+        let watcher = PoseWatcher::new(&endpoint, "demo");
+        // Unmasked, the lamp and the reflection are objects: what the masks must remove.
+        watcher.until(
+            Duration::from_secs(40),
+            "the lamp and the reflection",
+            |f| {
+                f.poses.iter().any(|p| near(&p.position_m, lamp))
+                    && f.poses.iter().any(|p| near(&p.position_m, reflection))
+            },
+        );
+        let out = run_with_limit(
+            &[
+                "calibrate",
+                "mask",
+                "--rig",
+                &path,
+                "--seconds",
+                "2",
+                "--out",
+                masked_s,
+            ],
+            Duration::from_secs(60),
+        );
+        let text = String::from_utf8_lossy(&out.stdout).to_string();
+        assert!(out.status.success(), "{}{text}", stderr(&out));
+        assert!(
+            text.contains("cam0: 2 rectangles (2 new)")
+                && text.contains("cam1: 2 rectangles (2 new)"),
+            "{text}"
+        );
+        launcher.stop();
+    }
+    let rig_text = std::fs::read_to_string(&masked).unwrap();
+    assert_eq!(rig_text.matches("mask = [[").count(), 2, "{rig_text}");
+    // The masked rig sees nothing.
+    {
+        let mut launcher = Proc::start(&["run", masked_s]);
+        let watcher = PoseWatcher::new(&endpoint, "demo");
+        watcher.until(Duration::from_secs(40), "pose frames", |f| {
+            f.cameras.len() == 2
+        });
+        let out = run_with_limit(
+            &[
+                "calibrate",
+                "mask",
+                "--rig",
+                masked_s,
+                "--seconds",
+                "2",
+                "--check",
+            ],
+            Duration::from_secs(60),
+        );
+        let text = String::from_utf8_lossy(&out.stdout).to_string();
+        assert!(out.status.success(), "{}{text}", stderr(&out));
+        assert!(
+            text.contains("cam0: sees nothing") && text.contains("cam1: sees nothing"),
+            "{text}"
+        );
+        launcher.stop();
+    }
+    // A marker circling beside the lamp and the reflection is still tracked, and is all.
+    let marker = "\n[[synthetic.target]]\nshape = \"sphere\"\nradius = 1.5\nmotion = { kind = \"circle\", centre = [0.0, 0.0, 50.0], radius = 25.0, period_s = 4.0 }\n";
+    let with_marker = dir.file("marker.toml", &format!("{rig_text}{marker}"));
+    let _ = std::fs::remove_file(&masked);
+    let mut launcher = Proc::start(&["run", &with_marker]);
+    let watcher = PoseWatcher::new(&endpoint, "demo");
+    let on_circle =
+        |p: &[f64; 3]| ((p[0].hypot(p[1]) - 0.25).abs() < 0.03) && (p[2] - 0.50).abs() < 0.03;
+    watcher.until(Duration::from_secs(40), "the marker", |f| {
+        f.cameras.len() == 2 && f.poses.iter().any(|p| on_circle(&p.position_m))
+    });
+    for _ in 0..60 {
+        let f = watcher.until(Duration::from_secs(10), "a pose frame", |_| true);
+        assert!(
+            f.poses
+                .iter()
+                .all(|p| !near(&p.position_m, lamp) && !near(&p.position_m, reflection)),
+            "a masked light came back: {:?}",
+            f.poses
+        );
+        assert!(f.poses.len() <= 1, "{:?}", f.poses);
+    }
+    launcher.stop();
+}

@@ -104,7 +104,8 @@ pub struct Worker {
 
 impl Worker {
     pub fn new(settings: WorkerSettings, rig: &str, camera: &str) -> Result<Self, VisionError> {
-        let tracker = Tracker::new(settings.tracker, settings.extract)?;
+        let mut tracker = Tracker::new(settings.tracker, settings.extract)?;
+        tracker.set_mask(settings.mask.clone());
         Ok(Worker {
             settings,
             tracker,

@@ -83,6 +83,50 @@ pub enum CalibrateStep {
     /// The world's frame from an L-frame on the floor (corner the origin, long arm +x, short
     /// arm +y, z up), from a recording's poses.jsonl taken while it lay still.
     Floor(FloorArgs),
+    /// Masks for what is bright and not a marker (lamps, reflections): watch the running rig
+    /// with no markers in view and write a rectangle round each blob into the cameras'
+    /// moments.mask; --check shows what the cameras still see.
+    Mask(MaskArgs),
+}
+
+/// `stereoscope calibrate mask`: its options.
+#[derive(clap::Args, Debug)]
+pub struct MaskArgs {
+    /// The rig file (running: its services are asked).
+    #[arg(long)]
+    pub rig: PathBuf,
+    /// Seconds to watch.
+    #[arg(long, default_value_t = 3.0)]
+    pub seconds: f64,
+    /// Pixels added round each blob's box.
+    #[arg(long, default_value_t = 4)]
+    pub grow: u32,
+    /// Write the rig file with the masks here (may be the rig file itself).
+    #[arg(long)]
+    pub out: Option<PathBuf>,
+    /// Only say what each camera sees now (exit status 1 if any camera sees something).
+    #[arg(long)]
+    pub check: bool,
+    /// A Zenoh router to ask (default: the rig's first host's).
+    #[arg(long)]
+    pub connect: Option<String>,
+    #[command(flatten)]
+    pub tls: stereoscope_rig::context::TlsArgs,
+}
+
+impl MaskArgs {
+    pub fn run(self) -> ExitCode {
+        let opts = stereoscope::mask::MaskOptions {
+            rig: self.rig,
+            connect: self.connect,
+            seconds: self.seconds,
+            grow_px: self.grow,
+            out: self.out,
+            check: self.check,
+            tls: self.tls,
+        };
+        finish(stereoscope::mask::run(&opts, &mut std::io::stdout().lock()))
+    }
 }
 
 /// `stereoscope calibrate floor`: its options.
@@ -505,6 +549,7 @@ impl CalibrateArgs {
         match step {
             Some(CalibrateStep::Wand(w)) => return w.run(),
             Some(CalibrateStep::Floor(f)) => return f.run(),
+            Some(CalibrateStep::Mask(m)) => return m.run(),
             None => {}
         }
         let source = match (points, dot_grid, spacing) {

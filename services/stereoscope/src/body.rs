@@ -163,24 +163,14 @@ pub fn define_live(
 ) -> anyhow::Result<String> {
     use anyhow::Context as _;
     use stereoscope_proto::messages::Message;
-    use stereoscope_transport::net::{self, ZenohSpec};
+    use stereoscope_transport::net;
     let rig = stereoscope_rig::Rig::load(rig_path)?;
     if !stereoscope_proto::names::valid_segment(name) {
         anyhow::bail!(
             "body name {name:?}: 1–32 letters, digits, '_' or '-' (it is part of network keys)"
         );
     }
-    let endpoint = connect
-        .or_else(|| {
-            rig.spec
-                .hosts
-                .first()
-                .and_then(stereoscope_rig::security::service_endpoint)
-        })
-        .unwrap_or_else(|| "tcp/127.0.0.1:7447".to_string());
-    let mut zenoh = ZenohSpec::client_of(&endpoint);
-    zenoh.tls = tls.files();
-    let session = net::open(&zenoh).with_context(|| format!("asking the router at {endpoint}"))?;
+    let (session, endpoint) = crate::mask::client_session(&rig, connect, &tls)?;
     let (tx, rx) = std::sync::mpsc::sync_channel::<PoseFrame>(100_000);
     let rig_name = rig.name.clone();
     let _sub = net::subscribe(

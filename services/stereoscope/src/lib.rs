@@ -10,6 +10,7 @@ pub mod fitdepth;
 pub mod floor;
 pub mod grab;
 pub mod live;
+pub mod mask;
 pub mod progress;
 pub mod target;
 

@@ -5,7 +5,7 @@
 use crate::error::{RigError, err};
 use crate::schema::{MomentsSpec, ThresholdMethodSpec, ThresholdSpec, WeightingSpec};
 use stereoscope_vision::extract::{Connectivity, ExtractConfig, Weighting};
-use stereoscope_vision::{ThresholdMethod, TrackerConfig};
+use stereoscope_vision::{PixelRect, ThresholdMethod, TrackerConfig};
 
 /// Most objects one worker tracks (and one observation carries).
 pub const MAX_OBJECTS: usize = 64;
@@ -24,7 +24,12 @@ pub struct WorkerSettings {
     pub full_level: Option<u32>,
     pub tracker: TrackerConfig,
     pub extract: ExtractConfig,
+    /// Where blobs are ignored (the `mask` rectangles).
+    pub mask: Vec<PixelRect>,
 }
+
+/// Most mask rectangles one camera has.
+pub const MAX_MASK_RECTS: usize = 256;
 
 fn method(m: ThresholdMethodSpec) -> ThresholdMethod {
     match m {
@@ -122,6 +127,25 @@ pub fn worker_settings(
             ));
         }
     }
+    if s.mask.len() > MAX_MASK_RECTS {
+        return Err(err(
+            format!("{key}.mask"),
+            format!("has {} rectangles, over {MAX_MASK_RECTS}", s.mask.len()),
+        ));
+    }
+    let mut mask = Vec::with_capacity(s.mask.len());
+    for (i, &[x0, y0, x1, y1]) in s.mask.iter().enumerate() {
+        if x0 > x1 || y0 > y1 || x1 >= image_size[0] || y1 >= image_size[1] {
+            return Err(err(
+                format!("{key}.mask[{i}]"),
+                format!(
+                    "[{x0}, {y0}, {x1}, {y1}] is not a rectangle [x0, y0, x1, y1] inside the {}×{} image (x0 <= x1, y0 <= y1)",
+                    image_size[0], image_size[1]
+                ),
+            ));
+        }
+        mask.push(PixelRect { x0, y0, x1, y1 });
+    }
     let tracker = TrackerConfig {
         max_objects,
         min_new_area_px: min_area_px,
@@ -149,12 +173,37 @@ pub fn worker_settings(
             weighting: Weighting::Binary,
             threads: 1,
         },
+        mask,
     })
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_mask_rectangle_must_be_inside_the_image() {
+        let m = |r: [u32; 4]| MomentsSpec {
+            mask: vec![[0, 0, 9, 9], r],
+            ..Default::default()
+        };
+        let ok =
+            worker_settings(Some(&m([300, 200, 319, 239])), 1.0, [320, 240], 255, "c").unwrap();
+        assert_eq!(
+            ok.mask[1],
+            PixelRect {
+                x0: 300,
+                y0: 200,
+                x1: 319,
+                y1: 239
+            }
+        );
+        for bad in [[0, 0, 320, 10], [5, 5, 4, 9], [0, 240, 1, 240]] {
+            let e = worker_settings(Some(&m(bad)), 1.0, [320, 240], 255, "c").unwrap_err();
+            assert_eq!(e.key, "c.mask[1]", "{bad:?}");
+            assert!(e.message.contains(&format!("{}", bad[2])), "{e}");
+        }
+    }
 
     #[test]
     fn settings_name_the_bad_key() {

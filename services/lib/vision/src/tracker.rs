@@ -178,6 +178,8 @@ pub struct TrackStep {
     pub lost: usize,
     pub new: usize,
     pub dropped: usize,
+    /// Blobs ignored because their centroid is in a mask rectangle.
+    pub masked: usize,
 }
 
 /// Self-adaptive multi-object tracker over one camera's frames.
@@ -196,6 +198,8 @@ pub struct Tracker {
     centroids: Vec<(f64, f64)>,
     assigner: Assigner,
     taken: Vec<bool>,
+    /// Where blobs are not markers (lamps, reflections): ignored.
+    mask: Vec<PixelRect>,
 }
 
 /// `c.round() as i64` (halves away from zero, saturating) without the library call that
@@ -249,7 +253,15 @@ impl Tracker {
             centroids: Vec::new(),
             assigner: Assigner::default(),
             taken: Vec::new(),
+            mask: Vec::new(),
         })
+    }
+
+    /// Rectangles where bright things are not markers (`docs/calibration.md`, "Masks"): a
+    /// blob whose centroid is in one is neither followed nor made a new object, and what is
+    /// bright there does not force a full-frame search. A few comparisons a blob.
+    pub fn set_mask(&mut self, mask: Vec<PixelRect>) {
+        self.mask = mask;
     }
 
     pub fn config(&self) -> &TrackerConfig {
@@ -296,8 +308,13 @@ impl Tracker {
         self.step_frame(img, threshold, frame)
     }
 
-    fn window_rects(&self) -> Vec<PixelRect> {
-        self.windows.iter().map(|w| w.rect).collect()
+    /// The windows and the mask: what a foreground pixel outside of needs a full search.
+    fn searched_or_masked(&self) -> Vec<PixelRect> {
+        self.windows
+            .iter()
+            .map(|w| w.rect)
+            .chain(self.mask.iter().copied())
+            .collect()
     }
 
     /// [`Tracker::step`] for frame number `frame` (the camera's sequence number): the periodic
@@ -342,7 +359,7 @@ impl Tracker {
         let searched_in_windows = searching
             && !needs_full
             && self.cfg.window_threshold.is_none()
-            && !any_foreground_outside(&img, threshold, &self.window_rects());
+            && !any_foreground_outside(&img, threshold, &self.searched_or_masked());
         let full_frame = needs_full || (searching && !searched_in_windows);
         if full_frame {
             self.windows.clear();
@@ -360,21 +377,29 @@ impl Tracker {
         self.centroids.clear();
         self.centroids
             .extend(blobs.iter().map(|b| b.best_centroid_px()));
+        // A masked blob is as good as taken: no track follows it, none starts from it.
+        self.taken.clear();
+        self.taken.extend(
+            self.centroids
+                .iter()
+                .map(|&(x, y)| self.mask.iter().any(|m| m.contains(x, y))),
+        );
+        step.masked = self.taken.iter().filter(|&&m| m).count();
         for t in &self.tracks {
             let (px, py) = t.predicted();
-            self.cost.extend(self.centroids.iter().map(|&(bx, by)| {
-                if t.window.contains(bx, by) {
-                    (bx - px).powi(2) + (by - py).powi(2)
-                } else {
-                    f64::INFINITY
-                }
-            }));
+            let masked = &self.taken;
+            self.cost
+                .extend(self.centroids.iter().zip(masked).map(|(&(bx, by), &m)| {
+                    if !m && t.window.contains(bx, by) {
+                        (bx - px).powi(2) + (by - py).powi(2)
+                    } else {
+                        f64::INFINITY
+                    }
+                }));
         }
         let assignment = self
             .assigner
             .solve(&self.cost, self.tracks.len(), blobs.len());
-        self.taken.clear();
-        self.taken.resize(blobs.len(), false);
         let par = self.cfg.par;
         let skew = self.cfg.direction_min_skewness;
         for (t, a) in self.tracks.iter_mut().zip(assignment) {
@@ -514,6 +539,38 @@ mod tests {
             draw_ellipse(&mut img, &Ellipse::disc(x, y, r), 1.0, 10.0, 210.0, 4);
         }
         img
+    }
+
+    /// A lamp inside a mask rectangle is never followed, a marker is, also while it passes
+    /// beside the lamp; without the mask the lamp is an object.
+    #[test]
+    fn a_masked_lamp_is_ignored_and_a_marker_beside_it_followed() {
+        let scene = |f: u64| frame(&[(250.0, 60.0, 7.0), (120.0 + 3.0 * f as f64, 62.0, 4.0)]);
+        let lamp = PixelRect {
+            x0: 238,
+            y0: 48,
+            x1: 262,
+            y1: 72,
+        };
+        let mut masked = Tracker::new(TrackerConfig::default(), ExtractConfig::default()).unwrap();
+        masked.set_mask(vec![lamp]);
+        let mut open = Tracker::new(TrackerConfig::default(), ExtractConfig::default()).unwrap();
+        for f in 0..40 {
+            let img = scene(f);
+            let step = masked.step_frame(img.view(), 100, f).unwrap();
+            open.step_frame(img.view(), 100, f).unwrap();
+            assert_eq!(masked.tracks().len(), 1, "frame {f}");
+            let t = &masked.tracks()[0];
+            assert!(
+                t.status != TrackStatus::Lost && (t.x_px - (120.0 + 3.0 * f as f64)).abs() < 0.5,
+                "frame {f}: {t:?}"
+            );
+            assert!(!lamp.contains(t.x_px, t.y_px));
+            // Seen at the first (full) search and when the marker's window reaches it; the
+            // lamp, masked, forces no full search of its own.
+            assert!(step.masked <= 1 && (f > 0 || step.masked == 1), "frame {f}");
+        }
+        assert_eq!(open.tracks().len(), 2);
     }
 
     /// Two trackers fed the same numbered frames, one from frame 0 and one from frame 13 (a

@@ -411,6 +411,11 @@ pub struct MomentsSpec {
     /// Frames between fresh automatic thresholds (default 30).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub threshold_every_frames: Option<u32>,
+    /// Rectangles `[x0, y0, x1, y1]` (pixels, inclusive) where what is bright is not a marker
+    /// — a lamp, a reflection: a blob whose centroid falls in one is ignored
+    /// (`stereoscope calibrate mask` makes them, `docs/calibration.md`).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub mask: Vec<[u32; 4]>,
 }
 
 /// A threshold: a method name or a grey level.

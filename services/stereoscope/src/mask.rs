@@ -1,0 +1,311 @@
+//! `stereoscope calibrate mask`: rectangles where what is bright is not a marker — a lamp, a
+//! window, a reflection on a shiny floor — found by watching a running rig with no markers in
+//! view, as motion-capture systems do before a wand wave (`docs/calibration.md`, "Masks").
+//! Every blob the moment workers report while it listens becomes a rectangle (its bounding
+//! box grown by a margin, overlapping ones joined); written into each camera's
+//! `moments.mask`, they make the workers ignore blobs whose centroid falls inside
+//! (`stereoscope_vision::Tracker::set_mask`). `--check` listens again and names what the
+//! cameras still see.
+
+use anyhow::{Context as _, anyhow};
+use std::collections::BTreeMap;
+use std::io::Write;
+use std::path::{Path, PathBuf};
+use stereoscope_proto::messages::{Message, Observation, TrackState};
+use stereoscope_rig::Rig;
+use stereoscope_rig::moments::MAX_MASK_RECTS;
+use stereoscope_transport::net::{self, ZenohSpec};
+
+#[derive(Debug, Clone)]
+pub struct MaskOptions {
+    pub rig: PathBuf,
+    /// A Zenoh router to ask (default: the rig's first host's).
+    pub connect: Option<String>,
+    pub seconds: f64,
+    /// Pixels added round each blob's box.
+    pub grow_px: u32,
+    /// Write the rig with the masks here.
+    pub out: Option<PathBuf>,
+    /// Only report what the cameras see now.
+    pub check: bool,
+    pub tls: stereoscope_rig::context::TlsArgs,
+}
+
+/// A rectangle `[x0, y0, x1, y1]`, pixels, inclusive.
+pub type Rect = [u32; 4];
+
+fn overlap(a: &Rect, b: &Rect) -> bool {
+    a[0] <= b[2] + 1 && b[0] <= a[2] + 1 && a[1] <= b[3] + 1 && b[1] <= a[3] + 1
+}
+
+/// Joins touching or overlapping rectangles until none touch.
+pub fn join(mut rects: Vec<Rect>) -> Vec<Rect> {
+    loop {
+        let mut joined = false;
+        let mut out: Vec<Rect> = Vec::with_capacity(rects.len());
+        for r in rects {
+            match out.iter_mut().find(|o| overlap(o, &r)) {
+                Some(o) => {
+                    *o = [
+                        o[0].min(r[0]),
+                        o[1].min(r[1]),
+                        o[2].max(r[2]),
+                        o[3].max(r[3]),
+                    ];
+                    joined = true;
+                }
+                None => out.push(r),
+            }
+        }
+        rects = out;
+        if !joined {
+            rects.sort();
+            return rects;
+        }
+    }
+}
+
+/// Each camera's blobs of `observations` as grown, joined rectangles inside its image.
+pub fn rectangles(
+    observations: &[Observation],
+    size_of: impl Fn(&str) -> Option<[u32; 2]>,
+    grow_px: u32,
+) -> BTreeMap<String, Vec<Rect>> {
+    let mut per: BTreeMap<String, Vec<Rect>> = BTreeMap::new();
+    for o in observations {
+        let Some([w, h]) = size_of(&o.camera) else {
+            continue;
+        };
+        let rects = per.entry(o.camera.clone()).or_default();
+        for b in o.blobs.iter().filter(|b| b.status != TrackState::Lost) {
+            let [x0, y0, x1, y1] = b.bbox_px;
+            rects.push([
+                x0.saturating_sub(grow_px),
+                y0.saturating_sub(grow_px),
+                x1.saturating_add(grow_px).min(w - 1),
+                y1.saturating_add(grow_px).min(h - 1),
+            ]);
+        }
+    }
+    per.into_iter().map(|(k, v)| (k, join(v))).collect()
+}
+
+/// Percent of a `w × h` image the rectangles (which do not overlap) cover.
+fn share_pct(rects: &[Rect], w: u32, h: u32) -> f64 {
+    let px: u64 = rects
+        .iter()
+        .map(|r| (r[2] - r[0] + 1) as u64 * (r[3] - r[1] + 1) as u64)
+        .sum();
+    100.0 * px as f64 / (w as f64 * h as f64)
+}
+
+/// A client session to the rig's router (or `connect`), and the endpoint asked.
+pub fn client_session(
+    rig: &Rig,
+    connect: Option<String>,
+    tls: &stereoscope_rig::context::TlsArgs,
+) -> anyhow::Result<(zenoh::Session, String)> {
+    let endpoint = connect
+        .or_else(|| {
+            rig.spec
+                .hosts
+                .first()
+                .and_then(stereoscope_rig::security::service_endpoint)
+        })
+        .unwrap_or_else(|| "tcp/127.0.0.1:7447".to_string());
+    let mut zenoh = ZenohSpec::client_of(&endpoint);
+    zenoh.tls = tls.files();
+    let session = net::open(&zenoh).with_context(|| format!("asking the router at {endpoint}"))?;
+    Ok((session, endpoint))
+}
+
+/// Listens to every camera's observations for `seconds`.
+fn listen(rig: &Rig, opts: &MaskOptions) -> anyhow::Result<Vec<Observation>> {
+    let (session, endpoint) = client_session(rig, opts.connect.clone(), &opts.tls)?;
+    let (tx, rx) = std::sync::mpsc::sync_channel::<Observation>(100_000);
+    let rig_name = rig.name.clone();
+    let _sub = net::subscribe(
+        &session,
+        &stereoscope_proto::names::zenoh::all_observations(&rig.name),
+        move |_, b| {
+            if let Ok(o) = Observation::from_json(b)
+                && o.rig == rig_name
+            {
+                let _ = tx.try_send(o);
+            }
+        },
+    )?;
+    eprintln!(
+        "listening {} s to {endpoint} for what the cameras see …",
+        opts.seconds
+    );
+    std::thread::sleep(std::time::Duration::from_secs_f64(opts.seconds));
+    Ok(rx.try_iter().collect())
+}
+
+/// Runs the command; returns how many cameras still see something with `--check` (the exit
+/// status is 1 when any does), else 0.
+pub fn run(opts: &MaskOptions, out: &mut impl Write) -> anyhow::Result<usize> {
+    if !(opts.seconds.is_finite() && (0.5..=600.0).contains(&opts.seconds)) {
+        anyhow::bail!("--seconds {} is not between 0.5 and 600", opts.seconds);
+    }
+    if opts.grow_px > 1000 {
+        anyhow::bail!("--grow {} is over 1000 pixels", opts.grow_px);
+    }
+    let rig = Rig::load(&opts.rig)?;
+    let size_of = |id: &str| rig.camera_index(id).map(|i| rig.spec.cameras[i].image_size);
+    let observations = listen(&rig, opts)?;
+    let silent: Vec<&str> = rig
+        .cameras
+        .iter()
+        .map(|c| c.id.as_str())
+        .filter(|id| !observations.iter().any(|o| o.camera == *id))
+        .collect();
+    if silent.len() == rig.cameras.len() {
+        anyhow::bail!(
+            "no observation from any camera of rig {:?} in {} s: is it running (stereoscope run)?",
+            rig.name,
+            opts.seconds
+        );
+    }
+    for id in &silent {
+        writeln!(
+            out,
+            "warning: camera {id} sent nothing: is its worker running?"
+        )?;
+    }
+    let found = rectangles(
+        &observations,
+        size_of,
+        if opts.check { 0 } else { opts.grow_px },
+    );
+    if opts.check {
+        let mut seeing = 0;
+        for c in &rig.cameras {
+            let rects = found.get(&c.id).map(Vec::as_slice).unwrap_or_default();
+            if rects.is_empty() {
+                writeln!(out, "{}: sees nothing", c.id)?;
+            } else {
+                seeing += 1;
+                writeln!(out, "{}: sees {} places: {:?}", c.id, rects.len(), rects)?;
+            }
+        }
+        return Ok(seeing);
+    }
+    let mut masks: BTreeMap<String, Vec<Rect>> = BTreeMap::new();
+    for (i, c) in rig.cameras.iter().enumerate() {
+        let spec = &rig.spec.cameras[i];
+        let [w, h] = spec.image_size;
+        // The masks the workers use already (they report nothing there) stay.
+        let mut rects: Vec<Rect> = spec
+            .moments
+            .as_ref()
+            .map(|m| m.mask.clone())
+            .unwrap_or_default();
+        let before = rects.len();
+        rects.extend(found.get(&c.id).cloned().unwrap_or_default());
+        let rects = join(rects);
+        if rects.len() > MAX_MASK_RECTS {
+            anyhow::bail!(
+                "camera {}: {} rectangles, over the {MAX_MASK_RECTS} a camera may have: is a marker in view?",
+                c.id,
+                rects.len()
+            );
+        }
+        writeln!(
+            out,
+            "{}: {} rectangles ({} new), {:.2} % of the image masked{}",
+            c.id,
+            rects.len(),
+            rects.len().saturating_sub(before),
+            share_pct(&rects, w, h),
+            if share_pct(&rects, w, h) > 5.0 {
+                " — much: was a marker in view?"
+            } else {
+                ""
+            }
+        )?;
+        masks.insert(c.id.clone(), rects);
+    }
+    match &opts.out {
+        Some(path) => {
+            write_masks(&opts.rig, path, &masks)?;
+            writeln!(
+                out,
+                "wrote {}: restart the rig's services on it, then `stereoscope calibrate mask --check` shows what the cameras still see",
+                path.display()
+            )?;
+        }
+        None => writeln!(out, "(give --out RIG.toml to write the masks)")?,
+    }
+    Ok(0)
+}
+
+/// The rig file with each camera's `moments.mask` set, comments and layout kept.
+fn write_masks(
+    rig_path: &Path,
+    out: &Path,
+    masks: &BTreeMap<String, Vec<Rect>>,
+) -> anyhow::Result<()> {
+    let text = std::fs::read_to_string(rig_path)
+        .with_context(|| format!("reading {}", rig_path.display()))?;
+    let mut doc: toml_edit::DocumentMut = text
+        .parse()
+        .map_err(|e| anyhow!("{}: {e}", rig_path.display()))?;
+    let cams = doc
+        .get_mut("camera")
+        .and_then(|c| c.as_array_of_tables_mut())
+        .ok_or_else(|| anyhow!("{}: no [[camera]] tables", rig_path.display()))?;
+    for cam in cams.iter_mut() {
+        let Some(id) = cam.get("id").and_then(|v| v.as_str()).map(str::to_string) else {
+            continue;
+        };
+        let Some(rects) = masks.get(&id) else {
+            continue;
+        };
+        let mut list = toml_edit::Array::new();
+        for r in rects {
+            let mut a = toml_edit::Array::new();
+            for v in r {
+                a.push(*v as i64);
+            }
+            list.push(a);
+        }
+        match cam.get_mut("moments") {
+            Some(toml_edit::Item::Value(toml_edit::Value::InlineTable(t))) => {
+                t.insert("mask", toml_edit::Value::Array(list));
+            }
+            Some(toml_edit::Item::Table(t)) => {
+                t.insert("mask", toml_edit::value(list));
+            }
+            _ => {
+                let mut t = toml_edit::InlineTable::new();
+                t.insert("mask", toml_edit::Value::Array(list));
+                cam.insert("moments", toml_edit::value(t));
+            }
+        }
+    }
+    let text = doc.to_string();
+    // What is written must load.
+    Rig::from_toml(&text).with_context(|| format!("the rig with masks for {}", out.display()))?;
+    std::fs::write(out, text).with_context(|| format!("writing {}", out.display()))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn touching_rectangles_are_joined() {
+        assert_eq!(
+            join(vec![
+                [0, 0, 4, 4],
+                [5, 0, 9, 2],
+                [20, 20, 21, 21],
+                [3, 3, 6, 6]
+            ]),
+            vec![[0, 0, 9, 6], [20, 20, 21, 21]]
+        );
+        assert_eq!(share_pct(&[[0, 0, 9, 9]], 100, 10), 10.0);
+    }
+}
