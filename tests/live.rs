@@ -1794,3 +1794,118 @@ fn a_masked_lamp_and_reflection_are_ignored_and_a_marker_still_tracked() {
     }
     launcher.stop();
 }
+
+/// A live wand calibration through the real services (`docs/calibration.md`): three
+/// synthetic cameras look at a rendered two-marker wand (25 cm) turning and nodding round a
+/// circle; `calibrate wand --live` collects the running rig's observations until each
+/// camera's image is covered, with the coverage published for the viewer (read here from the
+/// viewer's WebSocket by websocket-client), then solves. The cameras' poses, relative to the
+/// first camera (the calibration's world), are compared with the rig's true ones.
+#[test]
+fn a_live_wand_calibration_finds_the_cameras_and_the_viewer_shows_its_coverage() {
+    let _serial = serial();
+    let dir = TempDir::new("wandlive");
+    let view_port = free_port();
+    let camera = |id: &str, at: [f64; 3]| {
+        format!(
+            "[[camera]]\nid = \"{id}\"\nimage_size = [320, 240]\nfocal_length_mm = 6.0\npixel_pitch_um = [15.0, 15.0]\npose = {{ position = [{}, {}, {}], look_at = [0.0, 0.0, 60.0], up = [0.0, 0.0, 1.0] }}\nsource = {{ kind = \"synthetic\", fps = 60.0 }}\nmoments = {{ threshold = \"auto\", max_objects = 6 }}\n\n",
+            at[0], at[1], at[2]
+        )
+    };
+    let rig = format!(
+        "name = \"wandlive\"\nunits = \"cm\"\n\n{}{}{}[fusion]\nmax_skew_ms = 5.0\n\n[[body]]\nname = \"wand\"\nmarkers = [[0.0, 0.0, 0.0], [25.0, 0.0, 0.0]]\n\n[viewer]\nlisten = \"127.0.0.1:{view_port}\"\n\n[synthetic]\nseed = 3\nnoise_sigma = 2.0\nblur_sigma_px = 0.6\nlight = \"ring\"\n\n[[synthetic.target]]\nshape = \"body\"\nbody = \"wand\"\nradius = 1.0\nmotion = {{ kind = \"head\", centre = [0.0, 0.0, 60.0], radius = 30.0, period_s = 5.0, turn_period_s = 3.0, nod_deg = 35.0 }}\n",
+        camera("cam0", [-90.0, -50.0, 220.0]),
+        camera("cam1", [90.0, -50.0, 220.0]),
+        camera("cam2", [0.0, 100.0, 200.0]),
+    );
+    let (path, port) = one_pc_rig_of(&dir, 'w', &rig);
+    let truth = stereoscope_rig::Rig::load(std::path::Path::new(&path)).unwrap();
+    let mut launcher = Proc::start(&["run", &path]);
+    let watcher = PoseWatcher::new(&format!("tcp/127.0.0.1:{port}"), "wandlive");
+    watcher.until(Duration::from_secs(40), "the wand in three cameras", |f| {
+        f.cameras.len() == 3 && f.poses.len() == 2
+    });
+    let ws = common::Proc::start_program(
+        &common::python_clients(),
+        &[
+            repo_root()
+                .join("tests/clients/ws_collect.py")
+                .to_str()
+                .unwrap(),
+            &format!("ws://127.0.0.1:{view_port}/ws"),
+            "15",
+        ],
+        &[],
+    );
+    let out_rig = dir.0.join("calibrated.toml");
+    let out = run_with_limit(
+        &[
+            "calibrate",
+            "wand",
+            "--rig",
+            &path,
+            "--live",
+            "--seconds",
+            "60",
+            "--coverage",
+            "0.5",
+            "--min-samples",
+            "1200",
+            "--wand",
+            "250",
+            "--units",
+            "mm",
+            "--out",
+            out_rig.to_str().unwrap(),
+        ],
+        Duration::from_secs(120),
+    );
+    let report = String::from_utf8_lossy(&out.stdout).to_string();
+    let err = stderr(&out);
+    assert!(out.status.success(), "{err}\n{report}");
+    assert!(
+        err.contains("cam2 [") && !err.contains("out of time"),
+        "{err}"
+    );
+    let got = stereoscope_rig::Rig::load(&out_rig).unwrap();
+    let world_from_cam0 = truth.cameras[0].camera.cam_from_world.inverse();
+    for (g, t) in got.cameras.iter().zip(&truth.cameras) {
+        let want = t.camera.cam_from_world * world_from_cam0;
+        let (d_m, a_deg) =
+            stereoscope_geometry::transform::camera_pose_error(&g.camera.cam_from_world, &want);
+        println!("{}: {:.2} mm, {:.3}°", g.id, d_m * 1e3, a_deg);
+        assert!(
+            d_m < 0.01 && a_deg < 0.3,
+            "{}: {d_m} m, {a_deg}°\n{report}",
+            g.id
+        );
+    }
+    // The viewer forwarded the coverage as it grew.
+    let end = Instant::now() + Duration::from_secs(30);
+    let mut ws = ws;
+    while ws.child.try_wait().unwrap().is_none() {
+        assert!(Instant::now() < end, "ws_collect.py did not finish");
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    let seen: serde_json::Value = serde_json::from_str(
+        ws.output()
+            .lines()
+            .rev()
+            .find(|l| l.starts_with('{'))
+            .unwrap_or_else(|| panic!("ws_collect.py: {}", ws.output())),
+    )
+    .unwrap();
+    assert!(
+        seen["counts"]["coverage"].as_u64().unwrap_or(0) >= 2,
+        "{seen}"
+    );
+    let cams = seen["last"]["coverage"]["coverage"]["cameras"]
+        .as_array()
+        .unwrap();
+    assert_eq!(cams.len(), 3, "{seen}");
+    assert!(
+        cams.iter().all(|c| c["coverage"].as_f64().unwrap() > 0.0),
+        "{seen}"
+    );
+    launcher.stop();
+}

@@ -349,6 +349,40 @@ pub struct Preview {
     pub blobs: Vec<BlobObservation>,
 }
 
+/// How much of each camera's image a live wand calibration has seen the wand in
+/// (`stereoscope calibrate wand --live`, `docs/calibration.md`): each image cut into
+/// `cols × rows` cells, counting the wand samples (views with exactly the wand's markers)
+/// whose markers fell in each.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct WandCoverage {
+    pub schema: u32,
+    pub rig: String,
+    pub published_ns: u64,
+    /// The share of cells each camera must reach before the solve starts.
+    pub target: f64,
+    /// Collecting has ended (covered, or out of time).
+    pub done: bool,
+    pub cameras: Vec<CameraCoverage>,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CameraCoverage {
+    pub camera: String,
+    pub cols: u32,
+    pub rows: u32,
+    /// Samples per cell, row by row (`cols × rows`).
+    pub counts: Vec<u32>,
+    /// Share of cells with a sample.
+    pub coverage: f64,
+    /// Wand samples (frames with exactly the wand's markers in view).
+    pub samples: u64,
+}
+
+/// Most cells of a coverage grid.
+pub const MAX_COVERAGE_CELLS: usize = 4096;
+
 /// Bins of a preview's histogram (one per 8-bit level).
 pub const PREVIEW_HISTOGRAM_BINS: usize = 256;
 
@@ -706,6 +740,24 @@ impl Preview {
     }
 }
 
+impl WandCoverage {
+    fn validate(&self, c: &mut Checker) -> Checked {
+        c.name("rig", &self.rig)?;
+        c.range("target", self.target, 0.0, 1.0)?;
+        c.count("cameras", self.cameras.len(), limits::MAX_CAMERAS)?;
+        for (i, cam) in self.cameras.iter().enumerate() {
+            c.within(format!("cameras[{i}]"), |c| {
+                c.name("camera", &cam.camera)?;
+                let n = cam.cols as usize * cam.rows as usize;
+                c.range("cols", n as f64, 1.0, MAX_COVERAGE_CELLS as f64)?;
+                c.range("counts", cam.counts.len() as f64, n as f64, n as f64)?;
+                c.range("coverage", cam.coverage, 0.0, 1.0)
+            })?;
+        }
+        Ok(())
+    }
+}
+
 impl Health {
     fn validate(&self, c: &mut Checker) -> Checked {
         c.name("rig", &self.rig)?;
@@ -789,7 +841,8 @@ message!(
     BodyUpdate,
     Truth,
     Health,
-    Preview
+    Preview,
+    WandCoverage
 );
 
 /// Nanoseconds since the Unix epoch now (CLOCK_REALTIME).

@@ -103,6 +103,12 @@ pub mod zenoh {
         format!("stereoscope/{rig}/preview/*")
     }
 
+    /// A live wand calibration's coverage of each camera's image (`WandCoverage`, twice a
+    /// second while it collects).
+    pub fn wand_coverage(rig: &str) -> String {
+        format!("stereoscope/{rig}/calibration/coverage")
+    }
+
     /// A service's health reports.
     pub fn health(rig: &str, host: &str, service: &str) -> String {
         format!("stereoscope/{rig}/health/{host}/{service}")

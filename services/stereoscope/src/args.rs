@@ -185,8 +185,26 @@ pub struct WandArgs {
     pub rig: PathBuf,
     /// The wand's blobs: a recorder's observations.jsonl, or a .csv with the header
     /// frame,camera,u,v (camera by its rig id, pixels as observed).
+    #[arg(long, required_unless_present = "live", conflicts_with = "live")]
+    pub observations: Option<PathBuf>,
+    /// Collect the wand's blobs from the running rig until every camera's image is covered
+    /// (a bar per camera fills; the viewer shows the coverage), then solve.
     #[arg(long)]
-    pub observations: PathBuf,
+    pub live: bool,
+    /// With --live: the longest collection, seconds.
+    #[arg(long, default_value_t = 300.0)]
+    pub seconds: f64,
+    /// With --live: the share of each camera's image cells (8 × 6) to cover.
+    #[arg(long, default_value_t = 0.7)]
+    pub coverage: f64,
+    /// With --live: the fewest wand samples per camera.
+    #[arg(long, default_value_t = 1000)]
+    pub min_samples: u64,
+    /// With --live: a Zenoh router to ask (default: the rig's first host's).
+    #[arg(long)]
+    pub connect: Option<String>,
+    #[command(flatten)]
+    pub tls: stereoscope_rig::context::TlsArgs,
     /// The wand: D (two markers D apart) or D1,D2 (three in a line, D1 and D2 from one end).
     #[arg(long, value_delimiter = ',', required = true)]
     pub wand: Vec<f64>,
@@ -206,9 +224,20 @@ pub struct WandArgs {
 
 impl WandArgs {
     pub fn run(self) -> ExitCode {
+        use stereoscope::wand::{LiveWand, WandInput};
+        let input = match self.observations {
+            Some(path) => WandInput::File(path),
+            None => WandInput::Live(LiveWand {
+                connect: self.connect,
+                tls: self.tls,
+                max_seconds: self.seconds,
+                target: self.coverage,
+                min_samples: self.min_samples,
+            }),
+        };
         let opts = stereoscope::wand::WandOptions {
             rig: self.rig,
-            observations: self.observations,
+            input,
             wand: self.wand,
             units: self.units,
             out: self.out,

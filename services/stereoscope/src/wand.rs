@@ -1,6 +1,8 @@
 //! `stereoscope calibrate wand`: every camera's pose from a wand waved through the volume
-//! (`stereoscope_geometry::wand`), read from a recorder's `observations.jsonl` or a CSV
-//! `frame,camera,u,v` of blob centroids; prints a report card, writes it as Markdown and JSON,
+//! (`stereoscope_geometry::wand`), read from a recorder's `observations.jsonl`, a CSV
+//! `frame,camera,u,v` of blob centroids, or (`--live`) the running rig's observations until
+//! every camera's image is covered — with a bar per camera filling meanwhile, and the
+//! coverage published for the viewer; prints a report card, writes it as Markdown and JSON,
 //! and writes the rig file with the poses (`docs/calibration.md`).
 
 use anyhow::{Context, anyhow, bail};
@@ -11,7 +13,9 @@ use std::io::Write;
 use std::path::{Path, PathBuf};
 use stereoscope_geometry::Camera;
 use stereoscope_geometry::wand::{Wand, WandConfig, WandFrame, WandSolution, calibrate_wand};
-use stereoscope_proto::messages::{Observation, TrackState};
+use stereoscope_proto::messages::{
+    CameraCoverage, Message, Observation, SCHEMA_VERSION, TrackState, WandCoverage, now_ns,
+};
 use stereoscope_rig::{Rig, Units};
 
 /// More rows or frames than this in an input is refused (a day of 8 cameras at 120 fps is
@@ -21,13 +25,38 @@ pub const MAX_ROWS: usize = 20_000_000;
 pub const MAX_BLOBS_PER_VIEW: usize = 16;
 /// Image coverage is counted on a grid of this many cells across and down each image.
 const COVERAGE_CELLS: (usize, usize) = (8, 6);
+/// A solution with a camera reprojecting worse than this did not converge, and is refused.
+pub const MAX_SOLVED_RMS_PX: f64 = 5.0;
 /// A camera whose wand samples cover less of its image than this is warned about.
 const MIN_COVERAGE: f64 = 0.5;
+
+/// Where the wand's blobs come from.
+#[derive(Debug, Clone)]
+pub enum WandInput {
+    /// A recorder's `observations.jsonl` or a CSV `frame,camera,u,v`.
+    File(PathBuf),
+    /// The running rig's observations, until covered.
+    Live(LiveWand),
+}
+
+/// `--live`: how long to collect and what is enough.
+#[derive(Debug, Clone)]
+pub struct LiveWand {
+    /// A Zenoh router to ask (default: the rig's first host's).
+    pub connect: Option<String>,
+    pub tls: stereoscope_rig::context::TlsArgs,
+    /// Longest collection, seconds.
+    pub max_seconds: f64,
+    /// Share of each camera's image cells to cover before solving.
+    pub target: f64,
+    /// Fewest wand samples per camera before solving.
+    pub min_samples: u64,
+}
 
 #[derive(Debug, Clone)]
 pub struct WandOptions {
     pub rig: PathBuf,
-    pub observations: PathBuf,
+    pub input: WandInput,
     /// The wand's markers' distances from its end marker, in `units`: one (two markers) or
     /// two (three markers).
     pub wand: Vec<f64>,
@@ -267,27 +296,154 @@ fn frames_from_csv(path: &Path, ids: &[String]) -> anyhow::Result<Vec<WandFrame>
         .collect())
 }
 
+/// The coverage cell (row by row) of pixel `p` in camera `cam`'s image.
+fn cell_of(cam: &Camera, p: &Point2<f64>) -> usize {
+    let (cx, cy) = COVERAGE_CELLS;
+    let (w, h) = (cam.intrinsics.width as f64, cam.intrinsics.height as f64);
+    let i = ((p.x / w * cx as f64).floor() as isize).clamp(0, cx as isize - 1);
+    let j = ((p.y / h * cy as f64).floor() as isize).clamp(0, cy as isize - 1);
+    j as usize * cx + i as usize
+}
+
+/// Share of cells with a sample.
+fn share(counts: &[u32]) -> f64 {
+    counts.iter().filter(|&&n| n > 0).count() as f64 / counts.len().max(1) as f64
+}
+
 /// Share of each camera's image cells that hold a sample of the wand (frames used).
 fn coverage(cams: &[Camera], frames: &[WandFrame], wand: &Wand) -> Vec<f64> {
     let (cx, cy) = COVERAGE_CELLS;
     cams.iter()
         .enumerate()
         .map(|(c, cam)| {
-            let (w, h) = (cam.intrinsics.width as f64, cam.intrinsics.height as f64);
-            let mut cells = vec![false; cx * cy];
-            for f in frames {
-                if f.pixels[c].len() != wand.markers() {
-                    continue;
-                }
+            let mut counts = vec![0u32; cx * cy];
+            for f in frames
+                .iter()
+                .filter(|f| f.pixels[c].len() == wand.markers())
+            {
                 for p in &f.pixels[c] {
-                    let i = ((p.x / w * cx as f64).floor() as isize).clamp(0, cx as isize - 1);
-                    let j = ((p.y / h * cy as f64).floor() as isize).clamp(0, cy as isize - 1);
-                    cells[j as usize * cx + i as usize] = true;
+                    counts[cell_of(cam, p)] += 1;
                 }
             }
-            cells.iter().filter(|&&b| b).count() as f64 / (cx * cy) as f64
+            share(&counts)
         })
         .collect()
+}
+
+/// Collects the running rig's observations until every camera's image is covered (or
+/// `max_seconds` pass): a bar per camera on `err`, and the coverage published on Zenoh
+/// (`stereoscope/<rig>/calibration/coverage`) for the viewer, twice a second.
+fn collect_live(
+    rig: &Rig,
+    cams: &[Camera],
+    wand: &Wand,
+    live: &LiveWand,
+    err: &mut impl Write,
+) -> anyhow::Result<Vec<Observation>> {
+    use stereoscope_proto::names::zenoh as keys;
+    use stereoscope_transport::net;
+    let ids: Vec<String> = rig.cameras.iter().map(|c| c.id.clone()).collect();
+    let (session, endpoint) = crate::mask::client_session(rig, live.connect.clone(), &live.tls)?;
+    let (tx, rx) = std::sync::mpsc::sync_channel::<Observation>(100_000);
+    let (rig_name, known) = (rig.name.clone(), ids.clone());
+    let _sub = net::subscribe(&session, &keys::all_observations(&rig.name), move |_, b| {
+        if let Ok(o) = Observation::from_json(b)
+            && o.rig == rig_name
+            && known.contains(&o.camera)
+        {
+            let _ = tx.try_send(o);
+        }
+    })?;
+    let publisher = net::JsonPublisher::new(&session, &keys::wand_coverage(&rig.name))?;
+    let (cx, cy) = COVERAGE_CELLS;
+    let mut counts = vec![vec![0u32; cx * cy]; ids.len()];
+    let mut samples = vec![0u64; ids.len()];
+    let mut all = Vec::new();
+    let start = std::time::Instant::now();
+    let every = std::time::Duration::from_millis(500);
+    let mut next_report = start;
+    writeln!(
+        err,
+        "wave the wand through the volume ({endpoint}); each camera's bar fills as the wand covers its image (goal {:.0} %, {} samples) …",
+        100.0 * live.target,
+        live.min_samples
+    )?;
+    loop {
+        if let Ok(o) = rx.recv_timeout(std::time::Duration::from_millis(50)) {
+            for o in std::iter::once(o).chain(rx.try_iter()) {
+                if all.len() >= MAX_ROWS {
+                    bail!("more than {MAX_ROWS} observations collected");
+                }
+                if let Some(c) = ids.iter().position(|id| *id == o.camera) {
+                    let px = blob_pixels(&o);
+                    if px.len() == wand.markers() {
+                        samples[c] += 1;
+                        for p in &px {
+                            counts[c][cell_of(&cams[c], p)] += 1;
+                        }
+                    }
+                }
+                all.push(o);
+            }
+        }
+        let cov: Vec<f64> = counts.iter().map(|c| share(c)).collect();
+        let covered = cov
+            .iter()
+            .zip(&samples)
+            .all(|(&f, &n)| f >= live.target && n >= live.min_samples);
+        let out_of_time = start.elapsed().as_secs_f64() >= live.max_seconds;
+        let done = covered || out_of_time;
+        if std::time::Instant::now() >= next_report || done {
+            next_report += every;
+            let bars: Vec<String> = ids
+                .iter()
+                .zip(&cov)
+                .zip(&samples)
+                .map(|((id, f), n)| {
+                    let full = (f * 10.0).round() as usize;
+                    format!(
+                        "{id} [{}{}] {:3.0} % {n}",
+                        "#".repeat(full),
+                        "-".repeat(10 - full.min(10)),
+                        f * 100.0
+                    )
+                })
+                .collect();
+            write!(err, "\r{}", bars.join("  "))?;
+            let msg = WandCoverage {
+                schema: SCHEMA_VERSION,
+                rig: rig.name.clone(),
+                published_ns: now_ns(),
+                target: live.target,
+                done,
+                cameras: ids
+                    .iter()
+                    .enumerate()
+                    .map(|(c, id)| CameraCoverage {
+                        camera: id.clone(),
+                        cols: cx as u32,
+                        rows: cy as u32,
+                        counts: counts[c].clone(),
+                        coverage: cov[c],
+                        samples: samples[c],
+                    })
+                    .collect(),
+            };
+            // The viewer's picture only: a failed put loses nothing of the calibration.
+            let _ = publisher.put(&msg);
+        }
+        if done {
+            writeln!(err)?;
+            if !covered {
+                writeln!(
+                    err,
+                    "warning: out of time ({} s) before every camera was covered; solving with what there is",
+                    live.max_seconds
+                )?;
+            }
+            return Ok(all);
+        }
+    }
 }
 
 /// The report card of a solution.
@@ -454,38 +610,64 @@ pub fn run(
     let (text, rig) = rig_without_poses(&opts.rig)?;
     let ids: Vec<String> = rig.cameras.iter().map(|c| c.id.clone()).collect();
     let cams: Vec<Camera> = rig.cameras.iter().map(|c| c.camera).collect();
-    let is_csv = opts
-        .observations
-        .extension()
-        .is_some_and(|e| e.eq_ignore_ascii_case("csv"));
-    let frames = if is_csv {
-        frames_from_csv(&opts.observations, &ids)?
-    } else {
-        let (obs, warnings) =
-            stereoscope_recorder::session::read_messages::<Observation>(&opts.observations)?;
-        if obs.len() > MAX_ROWS {
-            bail!(
-                "{}: more than {MAX_ROWS} observations",
-                opts.observations.display()
-            );
+    let skew_ns = (rig
+        .spec
+        .fusion
+        .as_ref()
+        .and_then(|f| f.max_skew_ms)
+        .unwrap_or(5.0)
+        * 1e6) as u64;
+    let (source, frames) = match &opts.input {
+        WandInput::File(path) => {
+            let is_csv = path
+                .extension()
+                .is_some_and(|e| e.eq_ignore_ascii_case("csv"));
+            let frames = if is_csv {
+                frames_from_csv(path, &ids)?
+            } else {
+                let (obs, warnings) =
+                    stereoscope_recorder::session::read_messages::<Observation>(path)?;
+                if obs.len() > MAX_ROWS {
+                    bail!("{}: more than {MAX_ROWS} observations", path.display());
+                }
+                for w in warnings {
+                    writeln!(err, "warning: {w}")?;
+                }
+                frames_from_observations(&obs, &ids, skew_ns)?
+            };
+            (path.display().to_string(), frames)
         }
-        for w in warnings {
-            writeln!(err, "warning: {w}")?;
+        WandInput::Live(live) => {
+            if !(live.max_seconds.is_finite() && live.max_seconds > 0.0) {
+                bail!("--seconds {} must be above zero", live.max_seconds);
+            }
+            if !(0.0..=1.0).contains(&live.target) {
+                bail!("--coverage {} is not between 0 and 1", live.target);
+            }
+            let obs = collect_live(&rig, &cams, &wand, live, err)?;
+            let frames = frames_from_observations(&obs, &ids, skew_ns)?;
+            ("the live observations".to_string(), frames)
         }
-        let skew_ms = rig
-            .spec
-            .fusion
-            .as_ref()
-            .and_then(|f| f.max_skew_ms)
-            .unwrap_or(5.0);
-        frames_from_observations(&obs, &ids, (skew_ms * 1e6) as u64)?
     };
     if frames.is_empty() {
-        bail!("{}: no frames", opts.observations.display());
+        bail!("{source}: no frames");
     }
     let sol = calibrate_wand(&cams, &frames, &wand, &WandConfig::default())
-        .map_err(|e| anyhow!("{}: {e}", opts.observations.display()))?;
+        .map_err(|e| anyhow!("{source}: {e}"))?;
     let report = card(&rig, &sol, &frames, &wand, &cams);
+    // A solve that did not converge (too few frames, or all of them in one plane) is refused,
+    // not written.
+    if let Some(c) = report
+        .cameras
+        .iter()
+        .find(|c| !(c.reprojection_rms_px <= MAX_SOLVED_RMS_PX))
+    {
+        bail!(
+            "{source}: the solve did not converge: camera {} reprojects {:.1} px RMS (over {MAX_SOLVED_RMS_PX} px). Collect more frames, and move the wand through more of the volume, turning it, not in one plane",
+            c.id,
+            c.reprojection_rms_px
+        );
+    }
     if opts.json {
         writeln!(out, "{}", serde_json::to_string(&report)?)?;
     } else {

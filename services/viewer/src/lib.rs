@@ -1,7 +1,8 @@
 //! The viewer (`docs/viewer.md`): a web page with the 3D scene, each camera's monitor and
 //! every service's health, served by this process on `127.0.0.1:8750` unless the rig's
 //! `[viewer]` says otherwise, and fed over one WebSocket per browser from the Zenoh streams —
-//! pose frames, the synthetic scene's truth, camera previews and health. The thesis's fourth
+//! pose frames, the synthetic scene's truth, camera previews, health and a live wand
+//! calibration's coverage. The thesis's fourth
 //! computer "displays the 3D graphical model of the object" (§6.2); its lab watched each
 //! camera on a monitor with the tracking windows drawn: this is both, in a browser.
 //!
@@ -31,7 +32,7 @@ use std::net::SocketAddr;
 use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
-use stereoscope_proto::messages::{Health, Message, PoseFrame, Preview, Truth};
+use stereoscope_proto::messages::{Health, Message, PoseFrame, Preview, Truth, WandCoverage};
 use stereoscope_proto::names::zenoh as keys;
 use stereoscope_rig::Context;
 use stereoscope_rig::schema::DEFAULT_VIEWER_LISTEN;
@@ -387,6 +388,20 @@ fn subscribe(
                 "foreign",
                 format!("{k}: preview of camera {:?} of rig {:?}", p.camera, p.rig),
             ),
+            Err(e) => s.reject(e.reason(), format!("{k}: {e}")),
+        },
+    )?);
+    let s = shared.clone();
+    subs.push(net::subscribe(
+        session,
+        &keys::wand_coverage(&rig),
+        move |k, b| match WandCoverage::from_json(b) {
+            Ok(c) if c.rig == s.rig => {
+                if let Some(t) = wrap("coverage", "coverage", b) {
+                    s.send(Out::Text(t));
+                }
+            }
+            Ok(c) => s.reject("foreign", format!("{k}: coverage of rig {:?}", c.rig)),
             Err(e) => s.reject(e.reason(), format!("{k}: {e}")),
         },
     )?);

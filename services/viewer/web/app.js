@@ -9,12 +9,13 @@ THREE.Object3D.DEFAULT_UP.set(0, 0, 1);
 const TRAIL_POINTS = 90;       // 1.5 s at 60 Hz
 const FORGET_MS = 1000;        // an object not seen for this long leaves the scene
 const ALIVE_MS = 3000;         // a service without a health report for this long is shown dead
+const COVERAGE_SHOWN_MS = 10000; // a wand calibration's coverage stays drawn this long after its last report
 const CAMERA_COLOUR = 0x4fc3f7;
 const $ = (id) => document.getElementById(id);
 
 // What tests read (tests/clients/viewer_check.py): counts, the newest frame drawn, the view.
 const state = window.stereoscope = {
-  connects: 0, poseFrames: 0, truthFrames: 0, previews: 0, healthReports: 0, errors: [],
+  connects: 0, poseFrames: 0, truthFrames: 0, previews: 0, healthReports: 0, coverageReports: 0, errors: [],
   socketOpen: false, frozen: false, drawnFrame: null,
   freeze(on) { state.frozen = on; },
   health(key) { return health.get(key)?.h ?? null; },
@@ -225,10 +226,11 @@ function monitorFor(id) {
   if (!m) {
     const div = document.createElement('div');
     div.className = 'monitor';
-    div.innerHTML = `<div><b></b> <span class="caption"></span></div><canvas class="image"></canvas><canvas class="hist" width="256" height="48"></canvas>`;
+    div.innerHTML = `<div><b></b> <span class="caption"></span></div><canvas class="image"></canvas><canvas class="hist" width="256" height="48"></canvas><div class="cov"><div class="bar"></div><span></span></div>`;
     div.querySelector('b').textContent = id;
     $('monitors').append(div);
-    m = { div, image: div.querySelector('.image'), hist: div.querySelector('.hist'), caption: div.querySelector('.caption') };
+    m = { div, image: div.querySelector('.image'), hist: div.querySelector('.hist'), caption: div.querySelector('.caption'),
+          cov: div.querySelector('.cov'), covBar: div.querySelector('.cov .bar'), covText: div.querySelector('.cov span') };
     monitors.set(id, m);
   }
   return m;
@@ -278,6 +280,15 @@ function drawPreview(buf) {
     g.fillStyle = '#ffb300'; g.font = '11px sans-serif';
     g.fillText(String(b.track_id), wx0 * f + 2, wy0 * f + 11);
   }
+  // A live wand calibration's coverage: the cells the wand has been seen in, green.
+  const cov = coverage.get(head.camera);
+  if (cov && performance.now() - cov.at < COVERAGE_SHOWN_MS) {
+    const cw = (w * k) / cov.cols, ch = (h * k) / cov.rows;
+    cov.counts.forEach((n, i) => {
+      g.fillStyle = n > 0 ? 'rgba(102, 187, 106, 0.30)' : 'rgba(239, 83, 80, 0.10)';
+      g.fillRect((i % cov.cols) * cw, Math.floor(i / cov.cols) * ch, cw - 1, ch - 1);
+    });
+  }
   // Histogram, log counts, with the threshold.
   const hg = m.hist.getContext('2d');
   hg.clearRect(0, 0, 256, 48);
@@ -289,6 +300,21 @@ function drawPreview(buf) {
   m.caption.textContent = `frame ${head.sequence} · ${head.width_px}×${head.height_px} ÷${s} · threshold ${head.threshold}${head.dark ? ' (dark)' : ''} · ${head.blobs.length} blobs`;
   state.previews++;
   state.lastPreview = head;
+}
+
+// ---- a live wand calibration's coverage (stereoscope calibrate wand --live) ------------------
+const coverage = new Map();   // camera -> {cols, rows, counts, at}
+function drawCoverage(c) {
+  for (const cam of c.cameras) {
+    coverage.set(cam.camera, { ...cam, at: performance.now() });
+    const m = monitors.get(cam.camera);
+    if (!m) continue;
+    m.cov.style.display = 'block';
+    m.covBar.style.width = `${Math.round(100 * cam.coverage)}%`;
+    m.covBar.className = cam.coverage >= c.target ? 'bar done' : 'bar';
+    m.covText.textContent = `wand coverage ${Math.round(100 * cam.coverage)} % of ${Math.round(100 * c.target)} % · ${cam.samples} samples${c.done ? ' · collected' : ''}`;
+  }
+  state.coverageReports++;
 }
 
 // ---- status ---------------------------------------------------------------------------------
@@ -331,6 +357,7 @@ function connect() {
     else if (m.type === 'truth') { pendingTruth = m.truth; state.truthFrames++; }
     else if (m.type === 'health') { health.set(`${m.health.host}/${m.health.service}`, { h: m.health, at: performance.now() }); state.healthReports++; }
     else if (m.type === 'hello') { if (!rig) loadRig(); }
+    else if (m.type === 'coverage') drawCoverage(m.coverage);
     else if (m.type === 'error') state.errors.push(m.message);
   };
 }
