@@ -1837,6 +1837,22 @@ fn a_live_wand_calibration_finds_the_cameras_and_the_viewer_shows_its_coverage()
         ],
         &[],
     );
+    // And a browser on cam0's page, checking the covered cells drawn on its monitor.
+    let shot = dir.0.join("coverage.png");
+    let browser = common::Proc::start_program(
+        &common::python_clients(),
+        &[
+            repo_root()
+                .join("tests/clients/viewer_coverage.py")
+                .to_str()
+                .unwrap(),
+            "chromium",
+            &format!("http://127.0.0.1:{view_port}"),
+            "cam0",
+            shot.to_str().unwrap(),
+        ],
+        &[],
+    );
     let out_rig = dir.0.join("calibrated.toml");
     let out = run_with_limit(
         &[
@@ -1907,5 +1923,19 @@ fn a_live_wand_calibration_finds_the_cameras_and_the_viewer_shows_its_coverage()
         cams.iter().all(|c| c["coverage"].as_f64().unwrap() > 0.0),
         "{seen}"
     );
+    let mut browser = browser;
+    let end = Instant::now() + Duration::from_secs(60);
+    let status = loop {
+        if let Some(s) = browser.child.try_wait().unwrap() {
+            break s;
+        }
+        assert!(Instant::now() < end, "viewer_coverage.py did not finish");
+        std::thread::sleep(Duration::from_millis(100));
+    };
+    assert!(status.success(), "viewer_coverage.py: {}", browser.output());
+    println!("{}", browser.output());
+    if std::env::var_os("STEREOSCOPE_DOCS_SCREENSHOTS").is_some() {
+        std::fs::copy(&shot, repo_root().join("docs/images/viewer-coverage.png")).unwrap();
+    }
     launcher.stop();
 }

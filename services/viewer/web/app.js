@@ -16,6 +16,7 @@ const $ = (id) => document.getElementById(id);
 // What tests read (tests/clients/viewer_check.py): counts, the newest frame drawn, the view.
 const state = window.stereoscope = {
   connects: 0, poseFrames: 0, truthFrames: 0, previews: 0, healthReports: 0, coverageReports: 0, errors: [],
+  drawnCoverage: {},
   socketOpen: false, frozen: false, drawnFrame: null,
   freeze(on) { state.frozen = on; },
   health(key) { return health.get(key)?.h ?? null; },
@@ -240,6 +241,7 @@ function drawPreview(buf) {
   const n = new DataView(buf).getUint32(0, true);
   const head = JSON.parse(new TextDecoder().decode(new Uint8Array(buf, 4, n)));
   if (single && head.camera !== single) return;
+  if (state.frozen) return;
   const px = new Uint8Array(buf, 4 + n);
   const m = monitorFor(head.camera);
   const { preview_width_px: w, preview_height_px: h, scale: s } = head;
@@ -282,7 +284,9 @@ function drawPreview(buf) {
   }
   // A live wand calibration's coverage: the cells the wand has been seen in, green.
   const cov = coverage.get(head.camera);
+  state.drawnCoverage[head.camera] = null;
   if (cov && performance.now() - cov.at < COVERAGE_SHOWN_MS) {
+    state.drawnCoverage[head.camera] = { cols: cov.cols, rows: cov.rows, counts: cov.counts.slice(), scale: k };
     const cw = (w * k) / cov.cols, ch = (h * k) / cov.rows;
     cov.counts.forEach((n, i) => {
       g.fillStyle = n > 0 ? 'rgba(102, 187, 106, 0.30)' : 'rgba(239, 83, 80, 0.10)';
