@@ -1939,3 +1939,57 @@ fn a_live_wand_calibration_finds_the_cameras_and_the_viewer_shows_its_coverage()
     }
     launcher.stop();
 }
+
+/// `stereoscope view RIG` beside a running rig, as a user on another terminal (or PC) starts
+/// it: it prints its URL, serves the rig, and its socket carries pose frames and health
+/// (read by websocket-client).
+#[test]
+fn stereoscope_view_shows_a_running_rig() {
+    let _serial = serial();
+    let dir = TempDir::new("view");
+    let (path, port) = one_pc_rig_of(&dir, 'v', &demo_rig_without_helmet());
+    let _launcher = Proc::start(&["run", &path]);
+    let watcher = PoseWatcher::new(&format!("tcp/127.0.0.1:{port}"), "demo");
+    watcher.until(Duration::from_secs(40), "three objects", both_cameras);
+    let view_port = free_port();
+    let listen = format!("127.0.0.1:{view_port}");
+    let view = Proc::start(&[
+        "view",
+        &path,
+        "--listen",
+        &listen,
+        "--iox-prefix",
+        "stsc_view_",
+    ]);
+    view.wait_for(Duration::from_secs(30), "the URL", |o| {
+        o.contains(&format!("http://{listen}/"))
+    });
+    let o = common::run_program_with_limit(
+        &common::python_clients(),
+        &[
+            repo_root()
+                .join("tests/clients/ws_collect.py")
+                .to_str()
+                .unwrap(),
+            &format!("ws://{listen}/ws"),
+            "3",
+        ],
+        Duration::from_secs(60),
+    );
+    assert!(o.status.success(), "{}", stderr(&o));
+    let seen: serde_json::Value =
+        serde_json::from_str(String::from_utf8_lossy(&o.stdout).trim()).unwrap();
+    assert_eq!(seen["last"]["hello"]["rig"], "demo", "{seen}");
+    assert!(
+        seen["counts"]["poses"].as_u64().unwrap_or(0) >= 30,
+        "{seen}"
+    );
+    assert!(
+        seen["counts"]["health"].as_u64().unwrap_or(0) >= 3,
+        "{seen}"
+    );
+    assert!(
+        seen["counts"]["preview"].as_u64().unwrap_or(0) >= 2,
+        "{seen}"
+    );
+}
