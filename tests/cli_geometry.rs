@@ -429,6 +429,30 @@ fn calibrate_wand_places_a_ring_of_cameras_and_writes_the_rig() {
         assert!(g["mean_error_mm"].as_f64().unwrap().abs() < 0.5, "{g}");
     }
     assert!(report.join("wand-report.md").exists() && report.join("wand-report.json").exists());
+    // The coverage heat map, read back by MuPDF: a 160 × 120 tile per camera, 4 px apart.
+    let o = common::run_program_with_limit(
+        &common::python_clients(),
+        &[
+            common::repo_root()
+                .join("tests/clients/image_stats.py")
+                .to_str()
+                .unwrap(),
+            report.join("wand-coverage.png").to_str().unwrap(),
+        ],
+        std::time::Duration::from_secs(120),
+    );
+    assert!(o.status.success(), "{}", common::stderr(&o));
+    let png: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(
+        (
+            png["width"].as_u64(),
+            png["height"].as_u64(),
+            png["channels"].as_u64()
+        ),
+        (Some(4 * 164 - 4), Some(120), Some(3)),
+        "{png}"
+    );
+    assert!(r["cameras"][0]["masked"].as_f64().unwrap() == 0.0, "{r}");
     // The written rig loads, keeps its comment, and puts every camera where it is, camera 0's
     // frame being the world.
     let text = std::fs::read_to_string(&out).unwrap();

@@ -91,7 +91,7 @@ pub fn rectangles(
 }
 
 /// Percent of a `w × h` image the rectangles (which do not overlap) cover.
-fn share_pct(rects: &[Rect], w: u32, h: u32) -> f64 {
+pub fn share_pct(rects: &[Rect], w: u32, h: u32) -> f64 {
     let px: u64 = rects
         .iter()
         .map(|r| (r[2] - r[0] + 1) as u64 * (r[3] - r[1] + 1) as u64)

@@ -75,6 +75,8 @@ pub struct CameraCard {
     pub samples: usize,
     /// Share of the image's grid cells with wand samples.
     pub coverage: f64,
+    /// Share of the image the camera's masks cover (`moments.mask`: nothing is seen there).
+    pub masked: f64,
     /// The camera's position in camera 0's frame, the rig's unit.
     pub position: [f64; 3],
 }
@@ -330,6 +332,66 @@ fn coverage(cams: &[Camera], frames: &[WandFrame], wand: &Wand) -> Vec<f64> {
         .collect()
 }
 
+/// Tiles of the heat map, pixels.
+const TILE: (usize, usize) = (160, 120);
+
+/// The report's picture (`wand-coverage.png`): one tile per camera, left to right in the rig's
+/// order, each its image shrunk to 160 × 120 with the wand's samples as heat (none: black;
+/// few: blue; many: yellow) on a 32 × 24 grid, and the 8 × 6 coverage cells outlined in grey.
+fn heat_map(cams: &[Camera], frames: &[WandFrame], wand: &Wand) -> anyhow::Result<Vec<u8>> {
+    let (tw, th) = TILE;
+    let (gx, gy) = (32usize, 24usize);
+    let gap = 4;
+    let width = cams.len() * (tw + gap) - gap;
+    let mut rgb = vec![30u8; width * th * 3];
+    for (c, cam) in cams.iter().enumerate() {
+        let (w, h) = (cam.intrinsics.width as f64, cam.intrinsics.height as f64);
+        let mut counts = vec![0u32; gx * gy];
+        for f in frames
+            .iter()
+            .filter(|f| f.pixels[c].len() == wand.markers())
+        {
+            for p in &f.pixels[c] {
+                let i = ((p.x / w * gx as f64).floor() as isize).clamp(0, gx as isize - 1);
+                let j = ((p.y / h * gy as f64).floor() as isize).clamp(0, gy as isize - 1);
+                counts[j as usize * gx + i as usize] += 1;
+            }
+        }
+        let top = counts.iter().copied().max().unwrap_or(0).max(1) as f64;
+        let (cx, cy) = COVERAGE_CELLS;
+        for y in 0..th {
+            for x in 0..tw {
+                let n = counts[(y * gy / th) * gx + x * gx / tw] as f64;
+                // Log scale: a single sample shows.
+                let t = if n > 0.0 {
+                    (1.0 + n).ln() / (1.0 + top).ln()
+                } else {
+                    0.0
+                };
+                let mut px = if n > 0.0 {
+                    [
+                        (255.0 * t) as u8,
+                        (255.0 * t) as u8,
+                        (255.0 * (1.0 - t)) as u8,
+                    ]
+                } else {
+                    [0, 0, 0]
+                };
+                if x % (tw / cx) == 0 || y % (th / cy) == 0 || x == tw - 1 || y == th - 1 {
+                    px = [90, 90, 90];
+                }
+                let i = 3 * (y * width + c * (tw + gap) + x);
+                rgb[i..i + 3].copy_from_slice(&px);
+            }
+        }
+    }
+    Ok(stereoscope_imageio::encode_png_rgb8(
+        &rgb,
+        width as u32,
+        th as u32,
+    )?)
+}
+
 /// Collects the running rig's observations until every camera's image is covered (or
 /// `max_seconds` pass): a bar per camera on `err`, and the coverage published on Zenoh
 /// (`stereoscope/<rig>/calibration/coverage`) for the viewer, twice a second.
@@ -478,11 +540,18 @@ fn card(
                     rc.id
                 ));
             }
+            let [w, h] = rig.spec.cameras[c].image_size;
+            let mask = rig.spec.cameras[c]
+                .moments
+                .as_ref()
+                .map(|m| m.mask.as_slice())
+                .unwrap_or_default();
             CameraCard {
                 id: rc.id.clone(),
                 reprojection_rms_px: rms,
                 samples,
                 coverage: cover[c],
+                masked: crate::mask::share_pct(mask, w, h) / 100.0,
                 position: [at.x / scale, at.y / scale, at.z / scale],
             }
         })
@@ -518,7 +587,7 @@ fn card(
 
 fn markdown(r: &WandReport) -> String {
     let mut s = format!(
-        "# Wand calibration of rig {}\n\nFrames: {} read, {} used, {} unusable (the wand whole in fewer than two cameras), {} outliers.\n\nWand: {:.2} mm; measured {:+.3} mm off on average, SD {:.3} mm.\n\n| camera | reprojection RMS px | samples | image coverage | position ({}) |\n|---|---|---|---|---|\n",
+        "# Wand calibration of rig {}\n\nFrames: {} read, {} used, {} unusable (the wand whole in fewer than two cameras), {} outliers.\n\nWand: {:.2} mm; measured {:+.3} mm off on average, SD {:.3} mm.\n\n| camera | reprojection RMS px | samples | image coverage | masked | position ({}) |\n|---|---|---|---|---|---|\n",
         r.rig,
         r.frames_read,
         r.frames_used,
@@ -531,11 +600,12 @@ fn markdown(r: &WandReport) -> String {
     );
     for c in &r.cameras {
         s.push_str(&format!(
-            "| {} | {:.3} | {} | {:.0} % | {:.2}, {:.2}, {:.2} |\n",
+            "| {} | {:.3} | {} | {:.0} % | {:.1} % | {:.2}, {:.2}, {:.2} |\n",
             c.id,
             c.reprojection_rms_px,
             c.samples,
             c.coverage * 100.0,
+            c.masked * 100.0,
             c.position[0],
             c.position[1],
             c.position[2]
@@ -682,6 +752,9 @@ pub fn run(
         let js = dir.join("wand-report.json");
         std::fs::write(&js, serde_json::to_string_pretty(&report)?)
             .with_context(|| format!("{}: cannot write", js.display()))?;
+        let png = dir.join("wand-coverage.png");
+        std::fs::write(&png, heat_map(&cams, &frames, &wand)?)
+            .with_context(|| format!("{}: cannot write", png.display()))?;
     }
     if let Some(path) = &opts.out {
         let written = with_poses(&text, &rig, &sol.cam_from_ref)?;
