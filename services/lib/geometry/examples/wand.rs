@@ -2,11 +2,17 @@
 //! from the volume (`synthetic::wand_rig_cameras`), a two-marker wand of 500 mm, Gaussian
 //! pixel noise.
 //!
-//!   cargo run --release -p stereoscope-geometry --example wand -- [--frames 2000] [--noise 0.2] [--runs 3]
+//!   cargo run --release -p stereoscope-geometry --example wand -- [--frames 2000] [--noise 0.2] [--runs 3] [--export FILE.json]
+//!
+//! `--export` writes the same detections labelled by marker, the cameras' intrinsics, their
+//! true poses, the adjustment's starting estimate and this solution (all relative to camera
+//! 0), and the solve's time, for a peer to adjust from the same start
+//! (`services/lib/geometry/examples/wand_aniposelib.py`).
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
+use nalgebra::Isometry3;
 use std::time::Instant;
-use stereoscope_geometry::synthetic::{wand_frames, wand_rig_cameras};
+use stereoscope_geometry::synthetic::{wand_frames, wand_frames_in_order, wand_rig_cameras};
 use stereoscope_geometry::transform::camera_pose_error;
 use stereoscope_geometry::wand::{Wand, WandConfig, WandFrame, calibrate_wand};
 
@@ -55,6 +61,52 @@ fn main() {
         );
         worst_mm = worst_mm.max(d * 1e3);
         worst_deg = worst_deg.max(a);
+    }
+    if let Some(path) = args
+        .iter()
+        .position(|a| a == "--export")
+        .and_then(|i| args.get(i + 1))
+    {
+        let pose = |p: &Isometry3<f64>| {
+            let r = p.rotation.scaled_axis();
+            let t = p.translation.vector;
+            serde_json::json!({"rvec": [r.x, r.y, r.z], "tvec": [t.x, t.y, t.z]})
+        };
+        let labelled = wand_frames_in_order(&truth, &wand.offsets_m, count, noise, 5, false);
+        let markers = wand.markers();
+        let cameras: Vec<serde_json::Value> = truth
+            .iter()
+            .enumerate()
+            .map(|(c, cam)| {
+                let k = &cam.intrinsics;
+                let d = &cam.distortion;
+                serde_json::json!({
+                    "size": [k.width, k.height],
+                    "matrix": [[k.fx, 0.0, k.cx], [0.0, k.fy, k.cy], [0.0, 0.0, 1.0]],
+                    "dist": [d.k1, d.k2, d.p1, d.p2, d.k3],
+                    "truth": pose(&(cam.cam_from_world * ref_from_world.inverse())),
+                    "initial": pose(&sol.initial_cam_from_ref[c]),
+                    "ours": pose(&sol.cam_from_ref[c]),
+                    // Each frame's two markers in order, null where the view lacks one.
+                    "points": labelled
+                        .iter()
+                        .flat_map(|views| {
+                            let v = &views[c];
+                            (0..markers)
+                                .map(move |m| (v.len() == markers).then(|| [v[m].x, v[m].y]))
+                        })
+                        .collect::<Vec<_>>(),
+                })
+            })
+            .collect();
+        let out = serde_json::json!({
+            "wand_m": wand.length_m(),
+            "noise_px": noise,
+            "cameras": cameras,
+            "ours_solve_s": times[times.len() / 2],
+            "ours_rms_px": sol.per_camera.iter().map(|p| p.0).collect::<Vec<_>>(),
+        });
+        std::fs::write(path, out.to_string()).unwrap();
     }
     println!(
         "{count} frames, {noise} px: worst camera {worst_mm:.3} mm and {worst_deg:.4}°; wand {:.3} ± {:.3} mm (free triangulation); {} frames used, {} outliers; solve median {:.3} s (min {:.3}, max {:.3}) over {runs} runs",

@@ -185,6 +185,20 @@ pub fn wand_frames(
     noise_px: f64,
     seed: u64,
 ) -> Vec<Vec<Vec<Point2<f64>>>> {
+    wand_frames_in_order(cams, offsets_m, count, noise_px, seed, true)
+}
+
+/// [`wand_frames`] with each view's blobs in the wand's marker order when `shuffle` is false
+/// (the same frames otherwise: for peers that need labelled points). A view that lost a
+/// marker off its image is shorter, as in [`wand_frames`].
+pub fn wand_frames_in_order(
+    cams: &[Camera],
+    offsets_m: &[f64],
+    count: usize,
+    noise_px: f64,
+    seed: u64,
+    shuffle: bool,
+) -> Vec<Vec<Vec<Point2<f64>>>> {
     let mut rng = SplitMix64::new(seed);
     (0..count)
         .map(|_| {
@@ -204,7 +218,7 @@ pub fn wand_frames(
                         .filter(|p| p.x >= -0.5 && p.y >= -0.5 && p.x < w - 0.5 && p.y < h - 0.5)
                         .map(|p| p + Vector2::new(rng.normal(), rng.normal()) * noise_px)
                         .collect();
-                    if rng.uniform() < 0.5 {
+                    if rng.uniform() < 0.5 && shuffle {
                         px.reverse();
                     }
                     px

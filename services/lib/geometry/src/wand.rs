@@ -110,6 +110,9 @@ impl Default for WandConfig {
 pub struct WandSolution {
     /// Each camera's pose, camera 0's frame as the world.
     pub cam_from_ref: Vec<Isometry3<f64>>,
+    /// The first estimate the adjustment started from (pairs' essential matrices chained
+    /// along the spanning tree, scaled by the wand): for comparing other adjusters from it.
+    pub initial_cam_from_ref: Vec<Isometry3<f64>>,
     /// Per camera: RMS reprojection error (pixels) and the markers' pixels used.
     pub per_camera: Vec<(f64, usize)>,
     /// Frames used, frames dropped before the adjustment (a camera pair too few, the wand
@@ -500,6 +503,7 @@ pub fn calibrate_wand(
         )));
     }
     let poses: Vec<Isometry3<f64>> = placed.into_iter().flatten().collect();
+    let initial_cam_from_ref = poses.clone();
     let mut global: Vec<f64> = poses[1..]
         .iter()
         .flat_map(|p| {
@@ -612,6 +616,7 @@ pub fn calibrate_wand(
         .sqrt();
     Ok(WandSolution {
         cam_from_ref,
+        initial_cam_from_ref,
         per_camera,
         frames_used: chosen.len(),
         frames_unusable: unusable,
