@@ -974,6 +974,53 @@ fn a_recording_replays_to_the_same_poses_and_survives_sigkill() {
     let frames = v["frames"].as_u64().unwrap();
     assert!(frames as usize >= n - 2, "{v}");
     assert_eq!(v["identical"], v["frames"], "{v}");
+    // Fused again with a rig file of the same cameras (a new calibration; here the same
+    // rig, so the same poses): the pose frames written as the recorder writes them.
+    let refused = dir.0.join("refused.jsonl");
+    let refused_s = refused.to_str().unwrap();
+    let out = run_with_limit(
+        &["replay", &session_s, "--rig", &path, "--out", refused_s],
+        Duration::from_secs(60),
+    );
+    assert!(out.status.success(), "{}", stderr(&out));
+    let again: Vec<PoseFrame> = std::fs::read_to_string(&refused)
+        .unwrap()
+        .lines()
+        .map(|l| PoseFrame::from_json(l.as_bytes()).unwrap())
+        .collect();
+    assert_eq!(again.len() as u64, frames);
+    let recorded: Vec<PoseFrame> = poses
+        .lines()
+        .map(|l| PoseFrame::from_json(l.as_bytes()).unwrap())
+        .collect();
+    let last = again.last().unwrap();
+    let same = recorded
+        .iter()
+        .find(|f| f.timestamp_ns == last.timestamp_ns)
+        .unwrap();
+    // The same positions (the ids may be numbered afresh: the recording began mid-run).
+    let sorted = |f: &PoseFrame| {
+        let mut v: Vec<[f64; 3]> = f.poses.iter().map(|p| p.position_m).collect();
+        v.sort_by(|a, b| a[0].total_cmp(&b[0]));
+        v
+    };
+    assert_eq!(sorted(last), sorted(same));
+    // A rig without one of the recorded cameras is refused, naming it.
+    let one_cam = dir.file(
+        "one-camera.toml",
+        &std::fs::read_to_string(&path)
+            .unwrap()
+            .replacen("id = \"cam1\"", "id = \"camX\"", 1),
+    );
+    let out = run_with_limit(
+        &["replay", &session_s, "--rig", &one_cam, "--out", refused_s],
+        Duration::from_secs(60),
+    );
+    assert!(
+        !out.status.success() && stderr(&out).contains("\"cam1\""),
+        "{}",
+        stderr(&out)
+    );
     // CSV export: a header and a row per object per pose frame.
     let out = run_with_limit(
         &["export", &session_s, "--format", "csv"],

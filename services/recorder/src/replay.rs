@@ -143,9 +143,23 @@ fn differs(
 /// as it goes.
 pub fn refuse(
     session: &Session,
-    mut progress: impl FnMut(usize, usize),
+    progress: impl FnMut(usize, usize),
 ) -> Result<Refused, ReplayError> {
     let rig = Rig::from_recording(&session.info.rig_file)?;
+    refuse_with(session, &rig, progress, |_| {})
+}
+
+/// [`refuse`] with `rig` instead of the session's own (its cameras by the same ids: a new
+/// calibration of the same cameras, `stereoscope replay --rig`), handing each re-fused pose
+/// frame to `frame` (the recorded frame's sequence, times and cameras, the new poses and
+/// bodies) as it goes.
+pub fn refuse_with(
+    session: &Session,
+    rig: &Rig,
+    mut progress: impl FnMut(usize, usize),
+    mut frame: impl FnMut(PoseFrame),
+) -> Result<Refused, ReplayError> {
+    let rig = rig.clone();
     let (_, fuser_cfg, _) = stereoscope_fusion::settings(&rig.spec);
     let mut fuser = Fuser::new(&rig, fuser_cfg);
     let mut bodies = stereoscope_fusion::bodies::Bodies::of_rig(&rig.spec);
@@ -195,6 +209,11 @@ pub fn refuse(
         let mut poses = fuser.fuse(&set, pf.timestamp_ns);
         let found = bodies.update_refined(&mut poses, pf.timestamp_ns, &mut fuser);
         out.frames += 1;
+        frame(PoseFrame {
+            poses: poses.clone(),
+            bodies: found.clone(),
+            ..pf.clone()
+        });
         let body_difference = (found != pf.bodies).then(|| {
             format!(
                 "pose frame {} (t = {} ns): bodies {:?} recorded, {:?} re-fused",

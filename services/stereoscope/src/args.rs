@@ -496,6 +496,14 @@ pub struct ReplayArgs {
     /// The comparison as one JSON object.
     #[arg(long)]
     pub json: bool,
+    /// Re-fuse the recorded observations with this rig instead of the session's own (a new
+    /// calibration of the same cameras), writing the pose frames to --out.
+    #[arg(long, requires = "out", conflicts_with_all = ["frames", "publish"])]
+    pub rig: Option<PathBuf>,
+    /// With --rig: where the re-fused pose frames go (JSON lines, as the recorder's
+    /// poses.jsonl).
+    #[arg(long, requires = "rig")]
+    pub out: Option<PathBuf>,
 }
 
 /// `stereoscope export`: its options.

@@ -49,7 +49,8 @@ fn steady_markers(frames: &[PoseFrame]) -> Vec<(u32, Point3<f64>)> {
     let mut seen: BTreeMap<u32, Vec<[f64; 3]>> = BTreeMap::new();
     for f in frames {
         for p in &f.poses {
-            if p.method == PoseMethod::Triangulated && p.body.is_none() {
+            // Body markers too: an L-frame defined as a [[body]] is labelled as one.
+            if p.method == PoseMethod::Triangulated {
                 seen.entry(p.object_id).or_default().push(p.position_m);
             }
         }

@@ -312,6 +312,62 @@ pub fn replay(
     Ok(if r.identical == r.frames { 0 } else { 1 })
 }
 
+/// `stereoscope replay SESSION --rig RIG --out FILE`: the recorded observations fused again
+/// with another rig file of the same cameras (a new calibration), the pose frames written as
+/// JSON lines (the recorder's `poses.jsonl` form, so `calibrate floor --poses` and `export`
+/// read them).
+pub fn refuse_with_rig(session: PathBuf, rig: PathBuf, out: PathBuf) -> anyhow::Result<usize> {
+    use std::io::Write as _;
+    use stereoscope_proto::messages::Message;
+    let s = stereoscope_recorder::session::Session::read(&session)?;
+    for w in &s.warnings {
+        eprintln!("warning: {w}");
+    }
+    let new_rig = stereoscope_rig::Rig::load(&rig)?;
+    let recorded = stereoscope_rig::Rig::from_recording(&s.info.rig_file)?;
+    for c in &recorded.cameras {
+        if new_rig.camera_index(&c.id).is_none() {
+            anyhow::bail!(
+                "{}: no camera {:?}, which {} recorded (its cameras: {:?})",
+                rig.display(),
+                c.id,
+                session.display(),
+                new_rig.cameras.iter().map(|c| &c.id).collect::<Vec<_>>()
+            );
+        }
+    }
+    let mut text = Vec::new();
+    let mut progress = Progress::new();
+    let r = stereoscope_recorder::replay::refuse_with(
+        &s,
+        &new_rig,
+        |done, total| {
+            progress.update(
+                &format!("re-fusing pose frames {done}/{total}"),
+                done == total,
+            );
+        },
+        |f| {
+            text.extend_from_slice(&f.to_json());
+            text.push(b'\n');
+        },
+    )
+    .with_context(|| session.display().to_string())?;
+    progress.finish();
+    let mut file =
+        std::fs::File::create(&out).with_context(|| format!("writing {}", out.display()))?;
+    file.write_all(&text)
+        .with_context(|| format!("writing {}", out.display()))?;
+    println!(
+        "{} pose frames re-fused with {} into {} ({} lacked recorded observations)",
+        r.frames,
+        rig.display(),
+        out.display(),
+        r.incomplete
+    );
+    Ok(0)
+}
+
 /// `stereoscope replay SESSION --frames`: the recorded frames through the real services (a
 /// launcher with capture from the Y4M files, moment workers and fusion, on a router of its
 /// own), then the poses compared with the recorded ones.

@@ -260,6 +260,12 @@ fn main() -> ExitCode {
         },
         Command::Replay(args::ReplayArgs {
             session,
+            rig: Some(rig),
+            out: Some(out),
+            ..
+        }) => finish(stereoscope::live::refuse_with_rig(session, rig, out)),
+        Command::Replay(args::ReplayArgs {
+            session,
             publish,
             frames: true,
             speed,
