@@ -1815,6 +1815,13 @@ fn a_masked_lamp_and_reflection_are_ignored_and_a_marker_still_tracked() {
             text.contains("cam0: sees nothing") && text.contains("cam1: sees nothing"),
             "{text}"
         );
+        // The workers count what they ignored (the first full search finds the lamps).
+        let out = run_with_limit(&["status", masked_s, "--json"], Duration::from_secs(30));
+        let status = String::from_utf8_lossy(&out.stdout).to_string();
+        assert!(
+            status.contains("\"masked\":\"") && !status.contains("\"masked\":\"0\""),
+            "{status}"
+        );
         launcher.stop();
     }
     // A marker circling beside the lamp and the reflection is still tracked, and is all.

@@ -100,6 +100,8 @@ pub struct Worker {
     /// Dark polarity: the frame with its levels inverted, reused from frame to frame.
     inverted8: Vec<u8>,
     inverted16: Vec<u16>,
+    /// Blobs ignored in masked places (`moments.mask`), all frames.
+    masked: u64,
 }
 
 impl Worker {
@@ -115,7 +117,13 @@ impl Worker {
             camera: camera.into(),
             inverted8: Vec::new(),
             inverted16: Vec::new(),
+            masked: 0,
         })
+    }
+
+    /// Blobs ignored so far because they were in a masked place.
+    pub fn masked(&self) -> u64 {
+        self.masked
     }
 
     pub fn threshold(&self) -> Option<u32> {
@@ -190,6 +198,7 @@ impl Worker {
     ) -> Result<Observation, VisionError> {
         let threshold = self.refresh_threshold(&img, header.sequence)?;
         let step = self.tracker.step_frame(img, threshold, header.sequence)?;
+        self.masked += step.masked as u64;
         let par = self.settings.tracker.par;
         let mut blobs = Vec::new();
         for t in self.tracker.tracks().iter().take(MAX_REPORTED_BLOBS) {
@@ -544,6 +553,7 @@ impl Service for MomentsService {
             let detail = &mut self.node.counters.detail;
             detail.insert("threshold".into(), threshold);
             detail.insert("tracked".into(), self.worker.tracked().to_string());
+            detail.insert("masked".into(), self.worker.masked().to_string());
         }
         Ok(Flow::Continue)
     }
