@@ -390,6 +390,72 @@ fn wand_rig() -> String {
     rig
 }
 
+/// `stereoscope calibrate wand` of the 500 mm wand's CSV, JSON report, the rig written to `out`.
+fn calibrate_wand_cli(
+    rig: &str,
+    csv: &str,
+    out: &std::path::Path,
+    extra: &[&str],
+) -> std::process::Output {
+    let mut a = vec![
+        "calibrate",
+        "wand",
+        "--rig",
+        rig,
+        "--observations",
+        csv,
+        "--wand",
+        "500",
+        "--json",
+        "--out",
+        out.to_str().unwrap(),
+    ];
+    a.extend_from_slice(extra);
+    run(&a)
+}
+
+/// Focal lengths 3 % off: `--refine-intrinsics` writes them found again (fx, fy and the
+/// principal point in place of what the file said), and the cameras placed.
+#[test]
+fn calibrate_wand_refines_intrinsics_a_few_percent_off() {
+    let dir = TempDir::new("cal-wand-k");
+    let truth = wand_rig_cameras();
+    let csv = dir.file("wand.csv", &wand_csv(&truth, 800));
+    let rig = dir.file(
+        "rig.toml",
+        &wand_rig().replace("fx = 600.0\nfy = 600.0", "fx = 618.0\nfy = 618.0"),
+    );
+    let out = dir.0.join("calibrated.toml");
+    let args = |refine: bool| {
+        let extra: &[&str] = if refine {
+            &["--refine-intrinsics"]
+        } else {
+            &[]
+        };
+        calibrate_wand_cli(&rig, &csv, &out, extra)
+    };
+    let o = args(true);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let got = Rig::load(&out).unwrap();
+    for c in &got.cameras {
+        let k = &c.camera.intrinsics;
+        assert!(
+            (k.fx / 600.0 - 1.0).abs() < 2e-3 && (k.fy / 600.0 - 1.0).abs() < 2e-3,
+            "{k:?}"
+        );
+        assert!(
+            (k.cx - 319.5).abs() < 1.5 && (k.cy - 239.5).abs() < 1.5,
+            "{k:?}"
+        );
+    }
+    let text = std::fs::read_to_string(&out).unwrap();
+    assert!(!text.contains("fx = 618"), "{text}");
+    // Without, the written rig keeps the focal lengths it was given.
+    let o = args(false);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(std::fs::read_to_string(&out).unwrap().contains("fx = 618"));
+}
+
 #[test]
 fn calibrate_wand_places_a_ring_of_cameras_and_writes_the_rig() {
     let dir = TempDir::new("cal-wand");
@@ -398,21 +464,7 @@ fn calibrate_wand_places_a_ring_of_cameras_and_writes_the_rig() {
     let rig = dir.file("rig.toml", &wand_rig());
     let out = dir.0.join("calibrated.toml");
     let report = dir.0.join("report");
-    let o = run(&[
-        "calibrate",
-        "wand",
-        "--rig",
-        &rig,
-        "--observations",
-        &csv,
-        "--wand",
-        "500",
-        "--out",
-        out.to_str().unwrap(),
-        "--report",
-        report.to_str().unwrap(),
-        "--json",
-    ]);
+    let o = calibrate_wand_cli(&rig, &csv, &out, &["--report", report.to_str().unwrap()]);
     assert!(o.status.success(), "{}", stderr(&o));
     let r: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
     assert_eq!(r["cameras"].as_array().unwrap().len(), 4, "{r}");

@@ -191,6 +191,10 @@ pub struct WandArgs {
     /// (a bar per camera fills; the viewer shows the coverage), then solve.
     #[arg(long)]
     pub live: bool,
+    /// Adjust each camera's focal lengths and principal point with the poses (lens distortion
+    /// kept), and write them: for intrinsics a few percent off.
+    #[arg(long)]
+    pub refine_intrinsics: bool,
     /// With --live: the longest collection, seconds.
     #[arg(long, default_value_t = 300.0)]
     pub seconds: f64,
@@ -238,6 +242,7 @@ impl WandArgs {
         let opts = stereoscope::wand::WandOptions {
             rig: self.rig,
             input,
+            refine_intrinsics: self.refine_intrinsics,
             wand: self.wand,
             units: self.units,
             out: self.out,

@@ -61,6 +61,8 @@ pub struct WandOptions {
     /// two (three markers).
     pub wand: Vec<f64>,
     pub units: Units,
+    /// Adjust each camera's focal lengths and principal point too.
+    pub refine_intrinsics: bool,
     /// Write the rig with the poses here.
     pub out: Option<PathBuf>,
     /// Write `wand-report.md` and `wand-report.json` into this folder.
@@ -635,6 +637,17 @@ pub(crate) fn with_poses(
     rig: &Rig,
     poses: &[Isometry3<f64>],
 ) -> anyhow::Result<String> {
+    with_poses_and_intrinsics(text, rig, poses, None)
+}
+
+/// [`with_poses`], and with `intrinsics` each camera's `fx`, `fy` and `principal_point` (its
+/// `focal_length_mm` and `pixel_pitch_um` removed: the pixels say it all).
+pub(crate) fn with_poses_and_intrinsics(
+    text: &str,
+    rig: &Rig,
+    poses: &[Isometry3<f64>],
+    intrinsics: Option<&[stereoscope_geometry::Intrinsics]>,
+) -> anyhow::Result<String> {
     let mut doc: toml_edit::DocumentMut = text.parse()?;
     let scale = rig.spec.units.metres();
     let cams = doc
@@ -659,6 +672,18 @@ pub(crate) fn with_poses(
         table.insert("cam_from_world_rotation", rows.into());
         table.insert("cam_from_world_translation", t.into());
         cam.insert("pose", toml_edit::value(table));
+    }
+    if let Some(ks) = intrinsics {
+        for (cam, k) in cams.iter_mut().zip(ks) {
+            cam.remove("focal_length_mm");
+            cam.remove("pixel_pitch_um");
+            cam.insert("fx", toml_edit::value(round(k.fx, 1e6)));
+            cam.insert("fy", toml_edit::value(round(k.fy, 1e6)));
+            let mut pp = toml_edit::Array::new();
+            pp.push(round(k.cx, 1e6));
+            pp.push(round(k.cy, 1e6));
+            cam.insert("principal_point", toml_edit::value(pp));
+        }
     }
     Ok(doc.to_string())
 }
@@ -722,8 +747,11 @@ pub fn run(
     if frames.is_empty() {
         bail!("{source}: no frames");
     }
-    let sol = calibrate_wand(&cams, &frames, &wand, &WandConfig::default())
-        .map_err(|e| anyhow!("{source}: {e}"))?;
+    let cfg = WandConfig {
+        refine_intrinsics: opts.refine_intrinsics,
+        ..WandConfig::default()
+    };
+    let sol = calibrate_wand(&cams, &frames, &wand, &cfg).map_err(|e| anyhow!("{source}: {e}"))?;
     let report = card(&rig, &sol, &frames, &wand, &cams);
     // A solve that did not converge (too few frames, or all of them in one plane) is refused,
     // not written.
@@ -757,7 +785,12 @@ pub fn run(
             .with_context(|| format!("{}: cannot write", png.display()))?;
     }
     if let Some(path) = &opts.out {
-        let written = with_poses(&text, &rig, &sol.cam_from_ref)?;
+        let written = with_poses_and_intrinsics(
+            &text,
+            &rig,
+            &sol.cam_from_ref,
+            opts.refine_intrinsics.then_some(sol.intrinsics.as_slice()),
+        )?;
         // What is written must load as a rig.
         Rig::from_toml(&written).map_err(|e| anyhow!("the calibrated rig does not load: {e}"))?;
         std::fs::write(path, written)
