@@ -1,0 +1,345 @@
+//! The whole calibration chain through the real services, shared by the system test
+//! (`tests/calibration.rs`) and the benchmark (`benches/wand_layouts.rs`): rigs of synthetic
+//! cameras at true poses, scenes to record (a wand, an L-frame, markers at known places),
+//! `stereoscope run` recording them, and the command line solving (`docs/calibration.md`).
+#![allow(dead_code)]
+
+use std::process::{Command, Stdio};
+use std::time::Duration;
+use stereoscope_geometry::transform::camera_pose_error;
+use stereoscope_rig::Rig;
+
+pub const BIN: &str = env!("CARGO_BIN_EXE_stereoscope");
+
+/// A camera at `at` (cm) looking at `look` with `up`.
+pub struct Place {
+    pub at: [f64; 3],
+    pub look: [f64; 3],
+    pub up: [f64; 3],
+}
+
+pub fn ring(n: usize, radius: f64, heights: &[f64], rolled: Option<usize>) -> Vec<Place> {
+    (0..n)
+        .map(|i| {
+            let a = i as f64 * std::f64::consts::TAU / n as f64;
+            let (x, y) = (radius * a.cos(), radius * a.sin());
+            // A camera rolled 90° about its axis: its image's up is the ring's tangent.
+            let up = if rolled == Some(i) {
+                [-a.sin(), a.cos(), 0.0]
+            } else {
+                [0.0, 0.0, 1.0]
+            };
+            Place {
+                at: [x, y, heights[i % heights.len()]],
+                look: [0.0, 0.0, 70.0],
+                up,
+            }
+        })
+        .collect()
+}
+
+/// The wand: two markers 250 mm apart, turning and nodding round a circle.
+pub const WAND_SCENE: &str = "[[body]]\nname = \"wand\"\nmarkers = [[0.0, 0.0, 0.0], [25.0, 0.0, 0.0]]\n\n[synthetic]\nseed = 5\nnoise_sigma = 2.0\nblur_sigma_px = 0.6\nlight = \"ring\"\n\n[[synthetic.target]]\nshape = \"body\"\nbody = \"wand\"\nradius = 1.0\nmotion = { kind = \"head\", centre = [0.0, 0.0, 70.0], radius = 35.0, period_s = 7.0, turn_period_s = 3.0, nod_deg = 40.0 }\n";
+
+/// An L-frame on the floor at the origin: arms of 800 mm along +x and 500 mm along +y,
+/// markers of 20 mm radius.
+pub const L_FRAME_SCENE: &str = "[[body]]\nname = \"lframe\"\nmarkers = [[0.0, 0.0, 0.0], [80.0, 0.0, 0.0], [0.0, 50.0, 0.0]]\n\n[synthetic]\nseed = 6\nnoise_sigma = 2.0\nblur_sigma_px = 0.6\nlight = \"ring\"\n\n[[synthetic.target]]\nshape = \"body\"\nbody = \"lframe\"\nradius = 2.0\nmotion = { kind = \"static\", position = [0.0, 0.0, 0.0] }\n";
+
+/// Markers standing at known places (metres), 0.3–1.35 m up.
+pub const KNOWN_M: [[f64; 3]; 6] = [
+    [0.40, 0.30, 0.40],
+    [-0.35, 0.25, 0.65],
+    [-0.25, -0.40, 0.30],
+    [0.30, -0.20, 0.85],
+    [0.05, 0.10, 1.05],
+    [0.15, -0.05, 1.35],
+];
+
+pub fn known_scene() -> String {
+    let mut t =
+        "[synthetic]\nseed = 7\nnoise_sigma = 2.0\nblur_sigma_px = 0.6\nlight = \"ring\"\n\n"
+            .to_string();
+    for p in KNOWN_M {
+        t += &format!(
+            "[[synthetic.target]]\nshape = \"sphere\"\nradius = 1.0\nmotion = {{ kind = \"static\", position = [{}, {}, {}] }}\n\n",
+            p[0] * 100.0,
+            p[1] * 100.0,
+            p[2] * 100.0
+        );
+    }
+    t
+}
+
+pub fn rig_text(
+    name: &str,
+    places: &[Place],
+    fps: f64,
+    dir: &std::path::Path,
+    port: u16,
+) -> String {
+    scene_rig(name, places, fps, dir, port, WAND_SCENE)
+}
+
+pub fn scene_rig(
+    name: &str,
+    places: &[Place],
+    fps: f64,
+    dir: &std::path::Path,
+    port: u16,
+    scene: &str,
+) -> String {
+    let mut t = format!("name = \"{name}\"\nunits = \"cm\"\n\n");
+    for (i, p) in places.iter().enumerate() {
+        t += &format!(
+            "[[camera]]\nid = \"cam{i}\"\nimage_size = [320, 240]\nfocal_length_mm = 6.0\npixel_pitch_um = [15.0, 15.0]\npose = {{ position = {:?}, look_at = {:?}, up = {:?} }}\nsource = {{ kind = \"synthetic\", fps = {fps} }}\nmoments = {{ threshold = \"auto\", max_objects = 8 }}\n\n",
+            p.at, p.look, p.up
+        );
+    }
+    t += &format!(
+        "[fusion]\nmax_skew_ms = 5.0\n\n[recorder]\nfolder = \"{}\"\n\n{scene}\n[[host]]\nname = \"pc\"\nzenoh_listen = [\"tcp/127.0.0.1:{port}\"]\niceoryx2_prefix = \"stsc_wb{}_\"\n",
+        dir.join("rec").display(),
+        std::process::id()
+    );
+    t
+}
+
+/// Runs `rig_path` for `seconds` and returns the session folder it recorded.
+pub fn record(rig_path: &std::path::Path, seconds: f64) -> std::path::PathBuf {
+    let dir = rig_path.parent().unwrap();
+    let mut run = Command::new(BIN)
+        .args(["run", rig_path.to_str().unwrap()])
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap();
+    std::thread::sleep(Duration::from_secs_f64(seconds + 3.0));
+    // SAFETY: signalling our own child.
+    unsafe {
+        libc::kill(run.id() as libc::pid_t, libc::SIGTERM);
+    }
+    let _ = run.wait();
+    std::fs::read_dir(dir.join("rec"))
+        .unwrap()
+        .flatten()
+        .map(|e| e.path())
+        .find(|p| p.join("observations.jsonl").exists())
+        .expect("a recorded session")
+}
+
+/// `stereoscope ARGS`, which must succeed.
+pub fn cli(args: &[&str]) -> String {
+    let o = Command::new(BIN).args(args).output().unwrap();
+    assert!(
+        o.status.success(),
+        "stereoscope {args:?}: {}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    String::from_utf8_lossy(&o.stdout).to_string()
+}
+
+/// Each known place's measured positions (within 5 cm of it) in a poses file.
+pub fn near_known(poses_jsonl: &std::path::Path) -> Vec<Vec<[f64; 3]>> {
+    let text = std::fs::read_to_string(poses_jsonl).unwrap();
+    let mut out = vec![Vec::new(); KNOWN_M.len()];
+    for line in text.lines().filter(|l| !l.trim().is_empty()) {
+        let f: serde_json::Value = serde_json::from_str(line).unwrap();
+        for p in f["poses"].as_array().unwrap() {
+            let x: Vec<f64> = p["position_m"]
+                .as_array()
+                .unwrap()
+                .iter()
+                .map(|v| v.as_f64().unwrap())
+                .collect();
+            let d = |k: &[f64; 3]| {
+                ((x[0] - k[0]).powi(2) + (x[1] - k[1]).powi(2) + (x[2] - k[2]).powi(2)).sqrt()
+            };
+            if let Some(i) = (0..KNOWN_M.len()).find(|&i| d(&KNOWN_M[i]) < 0.05) {
+                out[i].push([x[0], x[1], x[2]]);
+            }
+        }
+    }
+    out
+}
+
+/// RMS (mm) of the markers' positions from their known places after the rigid motion that
+/// fits them best (the error of the rig's geometry, its world's placement left out).
+pub fn rms_after_fit(poses_jsonl: &std::path::Path) -> f64 {
+    use nalgebra::Point3;
+    let seen = near_known(poses_jsonl);
+    let mean: Vec<Point3<f64>> = seen
+        .iter()
+        .map(|v| {
+            let n = v.len().max(1) as f64;
+            Point3::new(
+                v.iter().map(|p| p[0]).sum::<f64>() / n,
+                v.iter().map(|p| p[1]).sum::<f64>() / n,
+                v.iter().map(|p| p[2]).sum::<f64>() / n,
+            )
+        })
+        .collect();
+    let known: Vec<Point3<f64>> = KNOWN_M
+        .iter()
+        .map(|k| Point3::new(k[0], k[1], k[2]))
+        .collect();
+    // Places never measured weigh nothing.
+    let weights: Vec<f64> = seen.iter().map(|v| (!v.is_empty()) as u8 as f64).collect();
+    let (known_from_measured, _) = stereoscope_bodies::kabsch(&mean, &known, &weights).unwrap();
+    let (mut sq, mut n) = (0.0, 0usize);
+    for (i, v) in seen.iter().enumerate() {
+        for p in v {
+            let q = known_from_measured * Point3::new(p[0], p[1], p[2]);
+            sq += (q - known[i]).norm_squared();
+            n += 1;
+        }
+    }
+    (sq / n.max(1) as f64).sqrt() * 1e3
+}
+
+/// RMS distance (mm) of each pose frame's markers from their known place, and the number of
+/// positions counted.
+pub fn rms_from_known(poses_jsonl: &std::path::Path) -> (f64, usize) {
+    let (mut sq, mut n) = (0.0, 0usize);
+    for (v, k) in near_known(poses_jsonl).iter().zip(KNOWN_M) {
+        for p in v {
+            sq += (0..3).map(|i| (p[i] - k[i]).powi(2)).sum::<f64>();
+            n += 1;
+        }
+    }
+    ((sq / n.max(1) as f64).sqrt() * 1e3, n)
+}
+
+/// The four ceiling cameras: corners of a 2.6 × 2.6 m square, 2.6 m up, looking at the
+/// volume's middle.
+pub fn ceiling() -> Vec<Place> {
+    [
+        [-130.0, -130.0],
+        [130.0, -130.0],
+        [130.0, 130.0],
+        [-130.0, 130.0],
+    ]
+    .iter()
+    .map(|&[x, y]| Place {
+        at: [x, y, 260.0],
+        look: [0.0, 0.0, 70.0],
+        up: [0.0, 0.0, 1.0],
+    })
+    .collect()
+}
+
+/// What the whole calibration achieved.
+#[derive(Debug, Clone)]
+pub struct ChainResult {
+    /// The calibrated cameras in the floor's world against the truth: worst position (m) and
+    /// rotation (degrees).
+    pub worst_position_m: f64,
+    pub worst_rotation_deg: f64,
+    /// The known markers' RMS error (mm) fused with the true rig and with the calibrated one,
+    /// and the positions counted.
+    pub rms_true_mm: f64,
+    pub rms_calibrated_mm: f64,
+    pub positions: usize,
+    /// The same after each set's best rigid fit to the known places.
+    pub fit_true_mm: f64,
+    pub fit_calibrated_mm: f64,
+    /// Known places measured at least once (of six).
+    pub places_seen: usize,
+}
+
+/// The whole calibration, as a user does it: the wand recorded for `wand_s` and solved; an
+/// L-frame on the floor recorded for `still_s`, fused again with the wand's rig (`replay
+/// --rig`) and `calibrate floor`; six markers at known places recorded for `still_s` with the
+/// true rig and fused again with the calibrated one.
+pub fn end_to_end(places: &[Place], wand_s: f64, still_s: f64, fps: f64) -> ChainResult {
+    let root = std::env::temp_dir().join(format!(
+        "stereoscope-chain-{}-{}",
+        std::process::id(),
+        places.len()
+    ));
+    let _ = std::fs::remove_dir_all(&root);
+    let session = |tag: &str, scene: &str, secs: f64| {
+        let dir = root.join(tag);
+        std::fs::create_dir_all(&dir).unwrap();
+        let port = stereoscope_transport::net::free_loopback_port().unwrap();
+        let path = dir.join("rig.toml");
+        std::fs::write(&path, scene_rig("chain", places, fps, &dir, port, scene)).unwrap();
+        (path.clone(), record(&path, secs))
+    };
+    let (wand_rig, wand_session) = session("wand", WAND_SCENE, wand_s);
+    let (_, floor_session) = session("floor", L_FRAME_SCENE, still_s);
+    let (_, known_session) = session("known", &known_scene(), still_s);
+    let s = |p: &std::path::Path| p.to_str().unwrap().to_string();
+    let cal = root.join("wand-calibrated.toml");
+    cli(&[
+        "calibrate",
+        "wand",
+        "--rig",
+        &s(&wand_rig),
+        "--observations",
+        &s(&wand_session.join("observations.jsonl")),
+        "--wand",
+        "250",
+        "--units",
+        "mm",
+        "--out",
+        &s(&cal),
+    ]);
+    let floor_poses = root.join("floor-poses.jsonl");
+    cli(&[
+        "replay",
+        &s(&floor_session),
+        "--rig",
+        &s(&cal),
+        "--out",
+        &s(&floor_poses),
+    ]);
+    let fin = root.join("calibrated.toml");
+    cli(&[
+        "calibrate",
+        "floor",
+        "--rig",
+        &s(&cal),
+        "--poses",
+        &s(&floor_poses),
+        "--l-frame",
+        "800,500",
+        "--units",
+        "mm",
+        "--out",
+        &s(&fin),
+    ]);
+    let truth = Rig::load(&wand_rig).unwrap();
+    let got = Rig::load(&fin).unwrap();
+    let (mut worst_d, mut worst_a) = (0.0f64, 0.0f64);
+    for (g, t) in got.cameras.iter().zip(&truth.cameras) {
+        let (d, a) = camera_pose_error(&g.camera.cam_from_world, &t.camera.cam_from_world);
+        worst_d = worst_d.max(d);
+        worst_a = worst_a.max(a);
+    }
+    let refused = root.join("known-calibrated.jsonl");
+    cli(&[
+        "replay",
+        &s(&known_session),
+        "--rig",
+        &s(&fin),
+        "--out",
+        &s(&refused),
+    ]);
+    let recorded = known_session.join("poses.jsonl");
+    let (rms_true_mm, positions) = rms_from_known(&recorded);
+    let (rms_calibrated_mm, _) = rms_from_known(&refused);
+    let result = ChainResult {
+        worst_position_m: worst_d,
+        worst_rotation_deg: worst_a,
+        rms_true_mm,
+        rms_calibrated_mm,
+        positions,
+        fit_true_mm: rms_after_fit(&recorded),
+        fit_calibrated_mm: rms_after_fit(&refused),
+        places_seen: near_known(&refused)
+            .iter()
+            .filter(|v| !v.is_empty())
+            .count(),
+    };
+    let _ = std::fs::remove_dir_all(&root);
+    result
+}
