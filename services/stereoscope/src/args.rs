@@ -228,7 +228,8 @@ pub struct WandArgs {
 
 impl WandArgs {
     pub fn run(self) -> ExitCode {
-        use stereoscope::wand::{LiveWand, WandInput};
+        use stereoscope::wand::WandInput;
+        use stereoscope::wand_live::LiveWand;
         let input = match self.observations {
             Some(path) => WandInput::File(path),
             None => WandInput::Live(LiveWand {

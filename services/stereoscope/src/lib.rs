@@ -16,3 +16,4 @@ pub mod target;
 
 pub mod triangulate;
 pub mod wand;
+pub mod wand_live;

@@ -13,9 +13,7 @@ use std::io::Write;
 use std::path::{Path, PathBuf};
 use stereoscope_geometry::Camera;
 use stereoscope_geometry::wand::{Wand, WandConfig, WandFrame, WandSolution, calibrate_wand};
-use stereoscope_proto::messages::{
-    CameraCoverage, Message, Observation, SCHEMA_VERSION, TrackState, WandCoverage, now_ns,
-};
+use stereoscope_proto::messages::{Observation, TrackState};
 use stereoscope_rig::{Rig, Units};
 
 /// More rows or frames than this in an input is refused (a day of 8 cameras at 120 fps is
@@ -24,7 +22,7 @@ pub const MAX_ROWS: usize = 20_000_000;
 /// A camera's view with more blobs than this in one frame is not the wand (left out).
 pub const MAX_BLOBS_PER_VIEW: usize = 16;
 /// Image coverage is counted on a grid of this many cells across and down each image.
-const COVERAGE_CELLS: (usize, usize) = (8, 6);
+pub(crate) const COVERAGE_CELLS: (usize, usize) = (8, 6);
 /// A solution with a camera reprojecting worse than this did not converge, and is refused.
 pub const MAX_SOLVED_RMS_PX: f64 = 5.0;
 /// A camera whose wand samples cover less of its image than this is warned about.
@@ -36,21 +34,7 @@ pub enum WandInput {
     /// A recorder's `observations.jsonl` or a CSV `frame,camera,u,v`.
     File(PathBuf),
     /// The running rig's observations, until covered.
-    Live(LiveWand),
-}
-
-/// `--live`: how long to collect and what is enough.
-#[derive(Debug, Clone)]
-pub struct LiveWand {
-    /// A Zenoh router to ask (default: the rig's first host's).
-    pub connect: Option<String>,
-    pub tls: stereoscope_rig::context::TlsArgs,
-    /// Longest collection, seconds.
-    pub max_seconds: f64,
-    /// Share of each camera's image cells to cover before solving.
-    pub target: f64,
-    /// Fewest wand samples per camera before solving.
-    pub min_samples: u64,
+    Live(crate::wand_live::LiveWand),
 }
 
 #[derive(Debug, Clone)]
@@ -185,7 +169,7 @@ fn rig_without_poses(path: &Path) -> anyhow::Result<(String, Rig)> {
 }
 
 /// Usable blobs of an observation: seen this frame, whole, not merged.
-fn blob_pixels(o: &Observation) -> Vec<Point2<f64>> {
+pub(crate) fn blob_pixels(o: &Observation) -> Vec<Point2<f64>> {
     o.blobs
         .iter()
         .filter(|b| b.status != TrackState::Lost && !b.merged && !b.clipped)
@@ -301,7 +285,7 @@ fn frames_from_csv(path: &Path, ids: &[String]) -> anyhow::Result<Vec<WandFrame>
 }
 
 /// The coverage cell (row by row) of pixel `p` in camera `cam`'s image.
-fn cell_of(cam: &Camera, p: &Point2<f64>) -> usize {
+pub(crate) fn cell_of(cam: &Camera, p: &Point2<f64>) -> usize {
     let (cx, cy) = COVERAGE_CELLS;
     let (w, h) = (cam.intrinsics.width as f64, cam.intrinsics.height as f64);
     let i = ((p.x / w * cx as f64).floor() as isize).clamp(0, cx as isize - 1);
@@ -310,7 +294,7 @@ fn cell_of(cam: &Camera, p: &Point2<f64>) -> usize {
 }
 
 /// Share of cells with a sample.
-fn share(counts: &[u32]) -> f64 {
+pub(crate) fn share(counts: &[u32]) -> f64 {
     counts.iter().filter(|&&n| n > 0).count() as f64 / counts.len().max(1) as f64
 }
 
@@ -392,122 +376,6 @@ fn heat_map(cams: &[Camera], frames: &[WandFrame], wand: &Wand) -> anyhow::Resul
         width as u32,
         th as u32,
     )?)
-}
-
-/// Collects the running rig's observations until every camera's image is covered (or
-/// `max_seconds` pass): a bar per camera on `err`, and the coverage published on Zenoh
-/// (`stereoscope/<rig>/calibration/coverage`) for the viewer, twice a second.
-fn collect_live(
-    rig: &Rig,
-    cams: &[Camera],
-    wand: &Wand,
-    live: &LiveWand,
-    err: &mut impl Write,
-) -> anyhow::Result<Vec<Observation>> {
-    use stereoscope_proto::names::zenoh as keys;
-    use stereoscope_transport::net;
-    let ids: Vec<String> = rig.cameras.iter().map(|c| c.id.clone()).collect();
-    let (session, endpoint) = crate::mask::client_session(rig, live.connect.clone(), &live.tls)?;
-    let (tx, rx) = std::sync::mpsc::sync_channel::<Observation>(100_000);
-    let (rig_name, known) = (rig.name.clone(), ids.clone());
-    let _sub = net::subscribe(&session, &keys::all_observations(&rig.name), move |_, b| {
-        if let Ok(o) = Observation::from_json(b)
-            && o.rig == rig_name
-            && known.contains(&o.camera)
-        {
-            let _ = tx.try_send(o);
-        }
-    })?;
-    let publisher = net::JsonPublisher::new(&session, &keys::wand_coverage(&rig.name))?;
-    let (cx, cy) = COVERAGE_CELLS;
-    let mut counts = vec![vec![0u32; cx * cy]; ids.len()];
-    let mut samples = vec![0u64; ids.len()];
-    let mut all = Vec::new();
-    let start = std::time::Instant::now();
-    let every = std::time::Duration::from_millis(500);
-    let mut next_report = start;
-    writeln!(
-        err,
-        "wave the wand through the volume ({endpoint}); each camera's bar fills as the wand covers its image (goal {:.0} %, {} samples) …",
-        100.0 * live.target,
-        live.min_samples
-    )?;
-    loop {
-        if let Ok(o) = rx.recv_timeout(std::time::Duration::from_millis(50)) {
-            for o in std::iter::once(o).chain(rx.try_iter()) {
-                if all.len() >= MAX_ROWS {
-                    bail!("more than {MAX_ROWS} observations collected");
-                }
-                if let Some(c) = ids.iter().position(|id| *id == o.camera) {
-                    let px = blob_pixels(&o);
-                    if px.len() == wand.markers() {
-                        samples[c] += 1;
-                        for p in &px {
-                            counts[c][cell_of(&cams[c], p)] += 1;
-                        }
-                    }
-                }
-                all.push(o);
-            }
-        }
-        let cov: Vec<f64> = counts.iter().map(|c| share(c)).collect();
-        let covered = cov
-            .iter()
-            .zip(&samples)
-            .all(|(&f, &n)| f >= live.target && n >= live.min_samples);
-        let out_of_time = start.elapsed().as_secs_f64() >= live.max_seconds;
-        let done = covered || out_of_time;
-        if std::time::Instant::now() >= next_report || done {
-            next_report += every;
-            let bars: Vec<String> = ids
-                .iter()
-                .zip(&cov)
-                .zip(&samples)
-                .map(|((id, f), n)| {
-                    let full = (f * 10.0).round() as usize;
-                    format!(
-                        "{id} [{}{}] {:3.0} % {n}",
-                        "#".repeat(full),
-                        "-".repeat(10 - full.min(10)),
-                        f * 100.0
-                    )
-                })
-                .collect();
-            write!(err, "\r{}", bars.join("  "))?;
-            let msg = WandCoverage {
-                schema: SCHEMA_VERSION,
-                rig: rig.name.clone(),
-                published_ns: now_ns(),
-                target: live.target,
-                done,
-                cameras: ids
-                    .iter()
-                    .enumerate()
-                    .map(|(c, id)| CameraCoverage {
-                        camera: id.clone(),
-                        cols: cx as u32,
-                        rows: cy as u32,
-                        counts: counts[c].clone(),
-                        coverage: cov[c],
-                        samples: samples[c],
-                    })
-                    .collect(),
-            };
-            // The viewer's picture only: a failed put loses nothing of the calibration.
-            let _ = publisher.put(&msg);
-        }
-        if done {
-            writeln!(err)?;
-            if !covered {
-                writeln!(
-                    err,
-                    "warning: out of time ({} s) before every camera was covered; solving with what there is",
-                    live.max_seconds
-                )?;
-            }
-            return Ok(all);
-        }
-    }
 }
 
 /// The report card of a solution.
@@ -739,7 +607,7 @@ pub fn run(
             if !(0.0..=1.0).contains(&live.target) {
                 bail!("--coverage {} is not between 0 and 1", live.target);
             }
-            let obs = collect_live(&rig, &cams, &wand, live, err)?;
+            let obs = crate::wand_live::collect_live(&rig, &cams, &wand, live, err)?;
             let frames = frames_from_observations(&obs, &ids, skew_ns)?;
             ("the live observations".to_string(), frames)
         }
