@@ -542,34 +542,52 @@ fn error_text(message: &str) -> WsMessage {
     ))
 }
 
-/// What a browser asked for: which cameras' previews to receive.
-fn request(s: &Shared, text: &str) -> Result<Option<Vec<String>>, String> {
-    let v: serde_json::Value = serde_json::from_str(text).map_err(|e| {
-        format!("not a JSON request ({e}); send {{\"type\":\"monitor\",\"cameras\":[…]}}")
-    })?;
+/// Why a browser's message is not a request (answered to it, and counted).
+#[derive(Debug, thiserror::Error)]
+pub enum BadRequest {
+    #[error("not a JSON request ({0}); send {{\"type\":\"monitor\",\"cameras\":[…]}}")]
+    NotJson(#[source] serde_json::Error),
+    #[error("\"cameras\" must be a list of camera names")]
+    CamerasNotAList,
+    #[error("no camera {shown} in rig {rig:?} (cameras: {cameras:?})")]
+    UnknownCamera {
+        /// The value sent, cut to 64 characters.
+        shown: String,
+        rig: String,
+        cameras: Vec<String>,
+    },
+    #[error("unknown request type; known: \"monitor\", \"ping\"")]
+    UnknownType,
+    #[error("binary messages are not requests; send JSON text")]
+    Binary,
+}
+
+/// What a browser asked for: which cameras' previews to receive (`None`: a ping).
+fn request(s: &Shared, text: &str) -> Result<Option<Vec<String>>, BadRequest> {
+    let v: serde_json::Value = serde_json::from_str(text).map_err(BadRequest::NotJson)?;
     match v.get("type").and_then(|t| t.as_str()) {
         Some("monitor") => {
             let list = v
                 .get("cameras")
                 .and_then(|c| c.as_array())
-                .ok_or("\"cameras\" must be a list of camera names")?;
+                .ok_or(BadRequest::CamerasNotAList)?;
             let mut out = Vec::new();
             for c in list {
                 match c.as_str() {
                     Some(id) if s.cameras.iter().any(|x| x == id) => out.push(id.to_string()),
                     _ => {
-                        let shown: String = c.to_string().chars().take(64).collect();
-                        return Err(format!(
-                            "no camera {shown} in rig {:?} (cameras: {:?})",
-                            s.rig, s.cameras
-                        ));
+                        return Err(BadRequest::UnknownCamera {
+                            shown: c.to_string().chars().take(64).collect(),
+                            rig: s.rig.clone(),
+                            cameras: s.cameras.clone(),
+                        });
                     }
                 }
             }
             Ok(Some(out))
         }
         Some("ping") => Ok(None),
-        _ => Err("unknown request type; known: \"monitor\", \"ping\"".into()),
+        _ => Err(BadRequest::UnknownType),
     }
 }
 
@@ -612,12 +630,11 @@ async fn client(mut socket: WebSocket, seat: Seat) {
                             WsMessage::Text(Utf8Bytes::from_static("{\"type\":\"pong\"}")),
                             false,
                         )),
-                        Err(e) => Some((error_text(&e), true)),
+                        Err(e) => Some((error_text(&e.to_string()), true)),
                     },
-                    Some(Ok(WsMessage::Binary(_))) => Some((
-                        error_text("binary messages are not requests; send JSON text"),
-                        true,
-                    )),
+                    Some(Ok(WsMessage::Binary(_))) => {
+                        Some((error_text(&BadRequest::Binary.to_string()), true))
+                    }
                     Some(Ok(WsMessage::Close(_))) => break,
                     Some(Ok(_)) => None,
                 };
@@ -690,31 +707,24 @@ mod tests {
     #[test]
     fn requests_are_checked_and_answered() {
         let s = shared();
+        let said = |text: &str| request(&s, text).unwrap_err().to_string();
         assert_eq!(
-            request(&s, r#"{"type":"monitor","cameras":["cam1"]}"#),
-            Ok(Some(vec!["cam1".to_string()]))
+            request(&s, r#"{"type":"monitor","cameras":["cam1"]}"#).unwrap(),
+            Some(vec!["cam1".to_string()])
         );
-        assert_eq!(request(&s, r#"{"type":"ping"}"#), Ok(None));
-        let e = request(&s, r#"{"type":"monitor","cameras":["cam1","cam7"]}"#).unwrap_err();
+        assert_eq!(request(&s, r#"{"type":"ping"}"#).unwrap(), None);
+        let e = said(r#"{"type":"monitor","cameras":["cam1","cam7"]}"#);
         assert!(e.contains("\"cam7\"") && e.contains("cam0"), "{e}");
-        let e = request(&s, r#"{"type":"monitor","cameras":"cam1"}"#).unwrap_err();
+        let e = said(r#"{"type":"monitor","cameras":"cam1"}"#);
         assert!(e.contains("cameras"), "{e}");
-        assert!(
-            request(&s, "{{{")
-                .unwrap_err()
-                .contains("not a JSON request")
-        );
-        assert!(
-            request(&s, r#"{"type":"reboot"}"#)
-                .unwrap_err()
-                .contains("unknown")
-        );
+        assert!(said("{{{").contains("not a JSON request"));
+        assert!(said(r#"{"type":"reboot"}"#).contains("unknown"));
         // A long name is shown cut, not echoed whole.
         let long = format!(
             r#"{{"type":"monitor","cameras":["{}"]}}"#,
             "x".repeat(10_000)
         );
-        assert!(request(&s, &long).unwrap_err().len() < 300);
+        assert!(said(&long).len() < 300);
     }
 
     /// The preview's binary form: the length, the JSON head (no pixels), the pixels.
