@@ -561,7 +561,7 @@ fn calibrate_wand_bad_input_is_named() {
         "--observations",
         "x.csv",
         "--wand",
-        "0",
+        "0,0",
     ]);
     assert!(stderr(&o).contains("--wand"), "{}", stderr(&o));
 }
@@ -569,13 +569,18 @@ fn calibrate_wand_bad_input_is_named() {
 /// The rig of `synthetic::wand_rig_cameras` as `calibrate wand` leaves it: poses in the first
 /// camera's frame (millimetres).
 fn rig_in_first_camera_frame(truth: &[Camera]) -> String {
+    rig_in_first_camera_frame_scaled(truth, 1.0)
+}
+
+/// [`rig_in_first_camera_frame`] with every length times `scale` (a one-marker wand's rig).
+fn rig_in_first_camera_frame_scaled(truth: &[Camera], scale: f64) -> String {
     let mut rig = String::from("name = \"floor-test\"\nunits = \"mm\"\n");
     let world_from_ref = truth[0].cam_from_world.inverse();
     for (c, cam) in truth.iter().enumerate() {
         let pose = cam.cam_from_world * world_from_ref;
         let r = pose.rotation.to_rotation_matrix();
         let row = |i: usize| format!("[{}, {}, {}]", r[(i, 0)], r[(i, 1)], r[(i, 2)]);
-        let t = pose.translation.vector * 1e3;
+        let t = pose.translation.vector * 1e3 * scale;
         write!(
             rig,
             "\n[[camera]]\nid = \"cam{c}\"\nimage_size = [640, 480]\nfx = 600.0\nfy = 600.0\nprincipal_point = [319.5, 239.5]\npose = {{ cam_from_world_rotation = [{}, {}, {}], cam_from_world_translation = [{}, {}, {}] }}\n",
@@ -594,6 +599,12 @@ fn rig_in_first_camera_frame(truth: &[Camera]) -> String {
 /// A recording's poses.jsonl: the markers (true-world positions) seen from the first camera's
 /// frame, with 0.3 mm of noise, over 40 frames.
 fn still_markers_jsonl(truth: &[Camera], markers: &[Point3<f64>]) -> String {
+    still_markers_jsonl_scaled(truth, markers, 1.0)
+}
+
+/// [`still_markers_jsonl`] triangulated by a rig whose lengths are `scale` times the truth's
+/// (its noise scaled with it).
+fn still_markers_jsonl_scaled(truth: &[Camera], markers: &[Point3<f64>], scale: f64) -> String {
     use stereoscope_proto::messages::{Pose, PoseFrame, PoseMethod, SCHEMA_VERSION};
     let mut rng = SplitMix64::new(3);
     let ref_from_world = truth[0].cam_from_world;
@@ -603,8 +614,11 @@ fn still_markers_jsonl(truth: &[Camera], markers: &[Point3<f64>]) -> String {
             .iter()
             .enumerate()
             .map(|(i, m)| {
-                let p = ref_from_world * m
-                    + Vector3::new(rng.normal(), rng.normal(), rng.normal()) * 3e-4;
+                let p = Point3::from(
+                    ((ref_from_world * m).coords
+                        + Vector3::new(rng.normal(), rng.normal(), rng.normal()) * 3e-4)
+                        * scale,
+                );
                 Pose {
                     object_id: i as u32 + 1,
                     position_m: [p.x, p.y, p.z],
@@ -669,9 +683,9 @@ fn calibrate_floor_puts_the_world_on_an_l_frame() {
     let r: serde_json::Value = serde_json::from_slice(&o_run.stdout).unwrap();
     assert_eq!(
         (
-            r["corner"].as_u64(),
-            r["x_arm"].as_u64(),
-            r["y_arm"].as_u64()
+            r["l_frame"]["corner"].as_u64(),
+            r["l_frame"]["x_arm"].as_u64(),
+            r["l_frame"]["y_arm"].as_u64()
         ),
         (Some(3), Some(4), Some(1)),
         "{r}"
@@ -725,7 +739,7 @@ fn calibrate_floor_puts_the_world_on_an_l_frame() {
     ]);
     assert!(!o_run.status.success());
     assert!(
-        stderr(&o_run).contains("no three steady markers make an L of 800.0 × 300.0 mm"),
+        stderr(&o_run).contains("no 3 steady markers make an L of 800.0 × 300.0 mm"),
         "{}",
         stderr(&o_run)
     );
@@ -740,6 +754,217 @@ fn calibrate_floor_puts_the_world_on_an_l_frame() {
         "400,600",
     ]);
     assert!(stderr(&o_run).contains("--l-frame"), "{}", stderr(&o_run));
+}
+
+/// The rig's poses against the truth in the world `world_from_l` (an L's or the floor's frame).
+fn assert_rig_in(got: &Rig, truth: &[Camera], world_from_l: &Isometry3<f64>, tol_mm: f64) {
+    for (c, cam) in truth.iter().enumerate() {
+        let want = cam.cam_from_world * world_from_l;
+        let pose = got.cameras[c].camera.cam_from_world;
+        let (d, ang) = camera_pose_error(&pose, &want);
+        assert!(d < tol_mm * 1e-3, "camera {c}: {:.3} mm off", d * 1e3);
+        assert!(ang < 0.05, "camera {c}: {ang:.4}° off");
+    }
+}
+
+/// A four-marker L-frame (a fourth marker 250 mm along the long arm) raised 12 mm off the floor
+/// by its markers, seen by a rig of unknown scale (a one-marker wand's: 0.37 of the truth):
+/// `--scale` finds the factor, `--marker-height` puts z = 0 on the floor, and the markers'
+/// order in the file says nothing.
+#[test]
+fn calibrate_floor_scales_the_rig_to_a_four_marker_l_frame() {
+    let dir = TempDir::new("cal-floor-scale");
+    let truth = wand_rig_cameras();
+    let scale = 0.37;
+    let rig = dir.file("rig.toml", &rig_in_first_camera_frame_scaled(&truth, scale));
+    let (o, a) = (Point3::new(-0.15, 0.25, 0.012), -1.1f64);
+    let ex = Vector3::new(a.cos(), a.sin(), 0.0);
+    let ey = Vector3::new(-a.sin(), a.cos(), 0.0);
+    let extra = Point3::new(0.3, 0.1, 1.1);
+    let poses = dir.file(
+        "poses.jsonl",
+        &still_markers_jsonl_scaled(
+            &truth,
+            &[o + ex * 0.25, o + ey * 0.4, extra, o + ex * 0.6, o],
+            scale,
+        ),
+    );
+    let out = dir.0.join("floor.toml");
+    let floor = |extra_args: &[&str]| {
+        let mut args = vec![
+            "calibrate",
+            "floor",
+            "--rig",
+            &rig,
+            "--poses",
+            &poses,
+            "--l-frame",
+            "600,400,250",
+            "--marker-height",
+            "12",
+            "--json",
+        ];
+        args.extend_from_slice(extra_args);
+        run(&args)
+    };
+    let o_run = floor(&["--scale", "--out", out.to_str().unwrap()]);
+    assert!(o_run.status.success(), "{}", stderr(&o_run));
+    let r: serde_json::Value = serde_json::from_slice(&o_run.stdout).unwrap();
+    assert_eq!(
+        (
+            r["l_frame"]["corner"].as_u64(),
+            r["l_frame"]["x_arm"].as_u64(),
+            r["l_frame"]["y_arm"].as_u64(),
+            r["l_frame"]["x_middle"].as_u64()
+        ),
+        (Some(5), Some(4), Some(2), Some(1)),
+        "{r}"
+    );
+    let got_scale = r["scale"].as_f64().unwrap();
+    assert!((got_scale * scale - 1.0).abs() < 2e-3, "{r}");
+    let world_from_l = Isometry3::from_parts(
+        nalgebra::Translation3::new(o.x, o.y, 0.0),
+        nalgebra::UnitQuaternion::from_axis_angle(&Vector3::z_axis(), a),
+    );
+    // 0.3 mm of noise on each marker in each frame: the L's tilt is known to about 0.03°, so
+    // cameras 3 m away within 3 mm.
+    assert_rig_in(&Rig::load(&out).unwrap(), &truth, &world_from_l, 3.0);
+    // Without --scale the L does not fit: its shape does, its size is 0.37 of it.
+    let o_run = floor(&[]);
+    assert!(!o_run.status.success());
+    assert!(
+        stderr(&o_run).contains(
+            "no 4 steady markers make an L of 600.0 × 400.0 mm with a marker 250.0 mm along x"
+        ),
+        "{}",
+        stderr(&o_run)
+    );
+}
+
+/// Markers lying on the floor (five, tilted 2° against the first camera's world), one at the
+/// origin and one on +x each recorded on its own; and the errors of a line of markers, an
+/// origin recording with two markers and `--scale` with --points.
+#[test]
+fn calibrate_floor_from_markers_on_it_and_one_at_the_origin() {
+    let dir = TempDir::new("cal-floor-points");
+    let truth = wand_rig_cameras();
+    let rig = dir.file("rig.toml", &rig_in_first_camera_frame(&truth));
+    // The floor's world in the truth's: turned 0.4 rad about z and tilted 2° about x, its
+    // origin at (0.2, 0.1, 0.05); markers 10 mm above it.
+    let floor_in_truth = Isometry3::from_parts(
+        nalgebra::Translation3::new(0.2, 0.1, 0.05),
+        nalgebra::UnitQuaternion::from_axis_angle(&Vector3::x_axis(), 2f64.to_radians())
+            * nalgebra::UnitQuaternion::from_axis_angle(&Vector3::z_axis(), 0.4),
+    );
+    let on_floor = |x: f64, y: f64| floor_in_truth * Point3::new(x, y, 0.01);
+    let floor_markers = [
+        on_floor(-0.5, -0.4),
+        on_floor(0.6, -0.3),
+        on_floor(0.4, 0.5),
+        on_floor(-0.3, 0.6),
+        on_floor(0.0, -0.6),
+    ];
+    let poses = dir.file("floor.jsonl", &still_markers_jsonl(&truth, &floor_markers));
+    let origin = dir.file(
+        "origin.jsonl",
+        &still_markers_jsonl(&truth, &[on_floor(0.0, 0.0)]),
+    );
+    let x_axis = dir.file(
+        "x.jsonl",
+        &still_markers_jsonl(&truth, &[on_floor(0.7, 0.0)]),
+    );
+    let out = dir.0.join("floor.toml");
+    let o_run = run(&[
+        "calibrate",
+        "floor",
+        "--rig",
+        &rig,
+        "--poses",
+        &poses,
+        "--points",
+        "--origin",
+        &origin,
+        "--x-axis",
+        &x_axis,
+        "--marker-height",
+        "10",
+        "--out",
+        out.to_str().unwrap(),
+        "--json",
+    ]);
+    assert!(o_run.status.success(), "{}", stderr(&o_run));
+    let r: serde_json::Value = serde_json::from_slice(&o_run.stdout).unwrap();
+    assert_eq!(
+        r["points"]["floor_markers"].as_array().map(Vec::len),
+        Some(5),
+        "{r}"
+    );
+    assert!(r["fit_error_mm"].as_f64().unwrap() < 0.5, "{r}");
+    assert!(
+        r["points"]["origin_above_plane_mm"].as_f64().unwrap().abs() < 1.0,
+        "{r}"
+    );
+    assert_rig_in(&Rig::load(&out).unwrap(), &truth, &floor_in_truth, 1.5);
+    // Without --x-axis: the same floor and origin, x along camera 0's right.
+    let o_run = run(&[
+        "calibrate",
+        "floor",
+        "--rig",
+        &rig,
+        "--poses",
+        &poses,
+        "--points",
+        "--origin",
+        &origin,
+        "--marker-height",
+        "10",
+        "--json",
+    ]);
+    assert!(o_run.status.success(), "{}", stderr(&o_run));
+    let r: serde_json::Value = serde_json::from_slice(&o_run.stdout).unwrap();
+    assert_eq!(r["points"]["x_axis_from"], "camera 0's right", "{r}");
+    // Errors: markers in a line; two markers in the origin's recording; --scale with --points.
+    let line = dir.file(
+        "line.jsonl",
+        &still_markers_jsonl(
+            &truth,
+            &[
+                on_floor(-0.5, 0.0),
+                on_floor(0.0, 0.001),
+                on_floor(0.5, 0.0),
+            ],
+        ),
+    );
+    let two = dir.file(
+        "two.jsonl",
+        &still_markers_jsonl(&truth, &[on_floor(0.0, 0.0), on_floor(0.3, 0.3)]),
+    );
+    for (poses, origin, extra, want) in [
+        (&line, &origin, None, "lie (nearly) in a line"),
+        (
+            &poses,
+            &two,
+            None,
+            "2 steady markers; the origin recording must hold exactly one",
+        ),
+        (&poses, &origin, Some("--scale"), "cannot be used with"),
+    ] {
+        let mut args = vec![
+            "calibrate",
+            "floor",
+            "--rig",
+            &rig,
+            "--poses",
+            poses,
+            "--points",
+            "--origin",
+            origin,
+        ];
+        args.extend(extra);
+        let o_run = run(&args);
+        assert!(!o_run.status.success());
+        assert!(stderr(&o_run).contains(want), "{want}: {}", stderr(&o_run));
+    }
 }
 
 /// The printable dot grid, SVG and PDF, rasterised by MuPDF (PyMuPDF) at 60 dpi as a camera

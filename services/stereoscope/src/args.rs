@@ -135,13 +135,38 @@ pub struct FloorArgs {
     /// The rig file with its cameras' poses (from `calibrate wand`).
     #[arg(long)]
     pub rig: PathBuf,
-    /// A recorder's poses.jsonl taken while the L-frame lay still in view.
+    /// A recorder's poses.jsonl taken while the L-frame (or the floor markers) lay still.
     #[arg(long)]
     pub poses: PathBuf,
-    /// The L-frame's arms, corner marker to end marker: LONG,SHORT (long is +x, short +y).
-    #[arg(long, value_delimiter = ',', required = true)]
+    /// The L-frame's arms, corner marker to end marker: LONG,SHORT (long is +x, short +y), or
+    /// LONG,SHORT,MIDDLE for a fourth marker on the long arm MIDDLE from the corner.
+    #[arg(
+        long,
+        value_delimiter = ',',
+        required_unless_present = "points",
+        conflicts_with = "points"
+    )]
     pub l_frame: Vec<f64>,
-    /// Unit of --l-frame: m, cm or mm.
+    /// Instead of an L-frame: the markers in --poses lie on the floor (3 or more, not in a
+    /// line); --origin gives the origin, --x-axis the +x direction.
+    #[arg(long, requires = "origin")]
+    pub points: bool,
+    /// With --points: a poses.jsonl of one marker lying at the origin.
+    #[arg(long)]
+    pub origin: Option<PathBuf>,
+    /// With --points: a poses.jsonl of one marker lying on the +x axis (default: +x is camera
+    /// 0's right, laid on the floor).
+    #[arg(long, requires = "points")]
+    pub x_axis: Option<PathBuf>,
+    /// How far the markers' centres are above the floor (their radius, plus the L-frame's
+    /// thickness), in --units: z = 0 is put that far below them.
+    #[arg(long, default_value_t = 0.0)]
+    pub marker_height: f64,
+    /// Scale the rig so that the L-frame's markers are their known distances apart: after a
+    /// one-marker wand, which gives no scale.
+    #[arg(long, conflicts_with = "points")]
+    pub scale: bool,
+    /// Unit of --l-frame and --marker-height: m, cm or mm.
     #[arg(long, default_value = "mm")]
     pub units: stereoscope_rig::Units,
     /// Write the rig file with the poses in the floor's world here.
@@ -154,17 +179,36 @@ pub struct FloorArgs {
 
 impl FloorArgs {
     pub fn run(self) -> ExitCode {
-        let [long, short] = self.l_frame[..] else {
-            eprintln!(
-                "error: --l-frame takes LONG,SHORT (two lengths), not {:?}",
-                self.l_frame
-            );
-            return ExitCode::from(2);
+        use stereoscope::floor::FloorMethod;
+        let method = match (self.points, self.origin, &self.l_frame[..]) {
+            (true, Some(origin), _) => FloorMethod::Points {
+                origin,
+                x_axis: self.x_axis,
+            },
+            (false, _, &[long, short]) => FloorMethod::LFrame {
+                long,
+                short,
+                middle: None,
+            },
+            (false, _, &[long, short, middle]) => FloorMethod::LFrame {
+                long,
+                short,
+                middle: Some(middle),
+            },
+            _ => {
+                eprintln!(
+                    "error: --l-frame takes LONG,SHORT or LONG,SHORT,MIDDLE (two or three lengths), not {:?}; or give --points with --origin",
+                    self.l_frame
+                );
+                return ExitCode::from(2);
+            }
         };
         let opts = stereoscope::floor::FloorOptions {
             rig: self.rig,
             poses: self.poses,
-            l_frame: [long, short],
+            method,
+            marker_height: self.marker_height,
+            scale: self.scale,
             units: self.units,
             out: self.out,
             json: self.json,
@@ -209,7 +253,8 @@ pub struct WandArgs {
     pub connect: Option<String>,
     #[command(flatten)]
     pub tls: stereoscope_rig::context::TlsArgs,
-    /// The wand: D (two markers D apart) or D1,D2 (three in a line, D1 and D2 from one end).
+    /// The wand: 0 (one marker: no scale, set it later with `calibrate floor --scale`), D (two
+    /// markers D apart) or D1,D2 (three in a line, D1 and D2 from one end).
     #[arg(long, value_delimiter = ',', required = true)]
     pub wand: Vec<f64>,
     /// Unit of --wand: m, cm or mm.

@@ -1,7 +1,10 @@
 //! `stereoscope calibrate floor`: the world's frame from an L-frame lying on the floor — its
-//! corner marker the origin, its long arm +x, its short arm +y, z up — read from a recorder's
-//! `poses.jsonl` taken while it lay still; the rig's camera poses rewritten in that world
-//! (`docs/calibration.md`, step 3).
+//! corner marker the origin, its long arm +x, its short arm +y, z up (3 markers, or 4 with one
+//! more on the long arm), fitted to the markers by least squares (Kabsch) — or from markers
+//! lying on the floor (their plane), one at the origin and optionally one on +x; read from a
+//! recorder's `poses.jsonl` taken while they lay still; the rig's camera poses rewritten in
+//! that world, and with `--scale` the rig scaled to the L-frame's lengths (after a one-marker
+//! wand) (`docs/calibration.md`, step 3).
 
 use anyhow::{Context, anyhow, bail};
 use nalgebra::{Isometry3, Matrix3, Point3, Rotation3, Translation3, UnitQuaternion};
@@ -12,16 +15,62 @@ use std::path::PathBuf;
 use stereoscope_proto::messages::{PoseFrame, PoseMethod};
 use stereoscope_rig::{Rig, Units};
 
+/// How the floor is given.
+#[derive(Debug, Clone, PartialEq)]
+pub enum FloorMethod {
+    /// An L-frame lying on the floor: its arms, corner marker to end marker, long (+x) and short
+    /// (+y), and optionally a fourth marker on the long arm this far from the corner; in `units`.
+    LFrame {
+        long: f64,
+        short: f64,
+        middle: Option<f64>,
+    },
+    /// At least three markers lying on the floor (the steady markers of `poses`), a recording
+    /// of one marker at the origin, and optionally one of a marker on the +x axis (without it,
+    /// +x is camera 0's right, laid on the floor).
+    Points {
+        origin: PathBuf,
+        x_axis: Option<PathBuf>,
+    },
+}
+
 #[derive(Debug, Clone)]
 pub struct FloorOptions {
     pub rig: PathBuf,
-    /// A recorder's poses.jsonl taken while the L-frame lay still in view.
+    /// A recorder's poses.jsonl taken while the L-frame (or the floor markers) lay still.
     pub poses: PathBuf,
-    /// The L-frame's arms, corner marker to end marker: long (+x), short (+y), in `units`.
-    pub l_frame: [f64; 2],
+    pub method: FloorMethod,
+    /// How far the markers' centres are above the floor, in `units` (their radius, plus the
+    /// frame's thickness for an L-frame): the world's z = 0 is put that far below them.
+    pub marker_height: f64,
+    /// Scale the rig so that the L-frame's markers are their known distances apart (after a
+    /// one-marker wand, which gives no scale).
+    pub scale: bool,
     pub units: Units,
     pub out: Option<PathBuf>,
     pub json: bool,
+}
+
+/// The L-frame's markers (object ids) as found.
+#[derive(Debug, Clone, Serialize)]
+pub struct LFrameFit {
+    pub corner: u32,
+    pub x_arm: u32,
+    pub y_arm: u32,
+    pub x_middle: Option<u32>,
+    /// How far the y arm was from square to the x arm, degrees.
+    pub squareness_error_deg: f64,
+}
+
+/// The floor markers' plane as found.
+#[derive(Debug, Clone, Serialize)]
+pub struct PointsFit {
+    pub floor_markers: Vec<u32>,
+    /// The origin marker's distance above the floor markers' plane, mm (its centre was put on
+    /// the plane).
+    pub origin_above_plane_mm: f64,
+    /// "marker" (from `--x-axis`) or "camera 0's right".
+    pub x_axis_from: String,
 }
 
 #[derive(Debug, Clone, Serialize)]
@@ -31,21 +80,24 @@ pub struct FloorReport {
     /// Pose frames read, and markers seen in at least half of them.
     pub frames: usize,
     pub steady_markers: usize,
-    /// The L-frame's markers (object ids) and how far their distances are from the arms'.
-    pub corner: u32,
-    pub x_arm: u32,
-    pub y_arm: u32,
+    /// L-frame: the RMS distance of its markers from the fitted L; points: the floor markers'
+    /// RMS distance from their plane; mm (after scaling).
     pub fit_error_mm: f64,
-    /// The floor's tilt from the arms' plane: how far the y arm was from square, degrees.
-    pub squareness_error_deg: f64,
+    pub l_frame: Option<LFrameFit>,
+    pub points: Option<PointsFit>,
+    /// What the rig's lengths were multiplied by (1 without `--scale`).
+    pub scale: f64,
     /// Each camera's height above the floor in the new world, the rig's unit.
     pub camera_heights: Vec<(String, f64)>,
     pub warnings: Vec<String>,
 }
 
+/// A marker's object id and its median position (the rig's world, metres).
+type Steady = (u32, Point3<f64>);
+
 /// Each object's median position over the frames it was triangulated in, for the objects seen
 /// in at least half of the frames.
-fn steady_markers(frames: &[PoseFrame]) -> Vec<(u32, Point3<f64>)> {
+fn steady_markers(frames: &[PoseFrame]) -> Vec<Steady> {
     let mut seen: BTreeMap<u32, Vec<[f64; 3]>> = BTreeMap::new();
     for f in frames {
         for p in &f.poses {
@@ -68,33 +120,291 @@ fn steady_markers(frames: &[PoseFrame]) -> Vec<(u32, Point3<f64>)> {
         .collect()
 }
 
-/// The markers that make the L: corner, x-arm end, y-arm end, and the worst of the three
-/// distances' errors (metres).
-fn find_l(
-    markers: &[(u32, Point3<f64>)],
-    long_m: f64,
-    short_m: f64,
-) -> Option<(usize, usize, usize, f64)> {
-    let diag = (long_m * long_m + short_m * short_m).sqrt();
-    let mut best: Option<(usize, usize, usize, f64)> = None;
-    for o in 0..markers.len() {
-        for x in 0..markers.len() {
-            for y in 0..markers.len() {
-                if o == x || o == y || x == y {
-                    continue;
+/// The assignment of `markers` to the model's points whose pairwise distances fit the model's
+/// best, and the worst distance error (model units). With `scaled`, distances are compared
+/// after scaling the candidate's to the model's total (the rig's scale is unknown).
+fn find_model(
+    markers: &[Steady],
+    model: &[Point3<f64>],
+    scaled: bool,
+) -> Option<(Vec<usize>, f64)> {
+    fn search(
+        markers: &[Steady],
+        model: &[Point3<f64>],
+        scaled: bool,
+        chosen: &mut Vec<usize>,
+        best: &mut Option<(Vec<usize>, f64)>,
+    ) {
+        if chosen.len() == model.len() {
+            let mut got = Vec::new();
+            let mut want = Vec::new();
+            for i in 0..model.len() {
+                for j in i + 1..model.len() {
+                    got.push((markers[chosen[i]].1 - markers[chosen[j]].1).norm());
+                    want.push((model[i] - model[j]).norm());
                 }
-                let d = |a: usize, b: usize| (markers[a].1 - markers[b].1).norm();
-                let err = (d(o, x) - long_m)
-                    .abs()
-                    .max((d(o, y) - short_m).abs())
-                    .max((d(x, y) - diag).abs());
-                if best.is_none_or(|b| err < b.3) {
-                    best = Some((o, x, y, err));
+            }
+            let k = if scaled {
+                let sum: f64 = got.iter().sum();
+                if sum <= 0.0 {
+                    return;
                 }
+                want.iter().sum::<f64>() / sum
+            } else {
+                1.0
+            };
+            let err = got
+                .iter()
+                .zip(&want)
+                .map(|(g, w)| (g * k - w).abs())
+                .fold(0.0, f64::max);
+            if best.as_ref().is_none_or(|b| err < b.1) {
+                *best = Some((chosen.clone(), err));
+            }
+            return;
+        }
+        for m in 0..markers.len() {
+            if !chosen.contains(&m) {
+                chosen.push(m);
+                search(markers, model, scaled, chosen, best);
+                chosen.pop();
             }
         }
     }
+    let mut best = None;
+    search(markers, model, scaled, &mut Vec::new(), &mut best);
     best
+}
+
+/// The steady markers of a poses file, with its frame count and its read warnings printed.
+fn steady_in(path: &std::path::Path, err: &mut impl Write) -> anyhow::Result<(usize, Vec<Steady>)> {
+    let (frames, warnings) = stereoscope_recorder::session::read_messages::<PoseFrame>(path)?;
+    for w in warnings {
+        writeln!(err, "warning: {w}")?;
+    }
+    if frames.is_empty() {
+        bail!("{}: no pose frames", path.display());
+    }
+    Ok((frames.len(), steady_markers(&frames)))
+}
+
+/// The one steady marker of a recording (the origin's or the x axis's).
+fn single_marker(
+    path: &std::path::Path,
+    what: &str,
+    err: &mut impl Write,
+) -> anyhow::Result<Point3<f64>> {
+    let (_, markers) = steady_in(path, err)?;
+    match markers.as_slice() {
+        [(_, p)] => Ok(*p),
+        _ => bail!(
+            "{}: {} steady markers; the {what} recording must hold exactly one (the marker at the {what})",
+            path.display(),
+            markers.len()
+        ),
+    }
+}
+
+/// The markers' distances, for a message when no L was found.
+fn distances(markers: &[Steady]) -> String {
+    let mut pairs = Vec::new();
+    for i in 0..markers.len() {
+        for j in i + 1..markers.len() {
+            pairs.push(format!(
+                "{}–{} {:.1} mm",
+                markers[i].0,
+                markers[j].0,
+                (markers[i].1 - markers[j].1).norm() * 1e3
+            ));
+        }
+    }
+    if pairs.is_empty() {
+        "none".to_string()
+    } else {
+        pairs.join(", ")
+    }
+}
+
+/// The L-frame's fit: `new_from_old` (old: the rig's world, scaled by the returned factor),
+/// the fit's RMS and what was found.
+fn fit_l_frame(
+    opts: &FloorOptions,
+    markers: &[Steady],
+    [long, short]: [f64; 2],
+    middle: Option<f64>,
+    height: f64,
+) -> anyhow::Result<(Isometry3<f64>, f64, f64, LFrameFit)> {
+    if !(long.is_finite() && short.is_finite() && long > 0.0 && short > 0.0) || long <= short {
+        bail!(
+            "--l-frame: the long arm (x) then the short arm (y), both above 0 and different (got {:?})",
+            opts.method
+        );
+    }
+    if middle.is_some_and(|m| !(m.is_finite() && m > 0.0 && m < long)) {
+        bail!(
+            "--l-frame: the fourth marker's distance from the corner must be between 0 and the long arm (got {:?})",
+            opts.method
+        );
+    }
+    let mut model = vec![
+        Point3::new(0.0, 0.0, height),
+        Point3::new(long, 0.0, height),
+        Point3::new(0.0, short, height),
+    ];
+    if let Some(m) = middle {
+        model.push(Point3::new(m, 0.0, height));
+    }
+    let tolerance = (0.003f64).max(0.01 * long);
+    if markers.len() > 16 {
+        bail!(
+            "{}: {} steady markers: clear the volume of all but the L-frame",
+            opts.poses.display(),
+            markers.len()
+        );
+    }
+    let found = (markers.len() >= model.len())
+        .then(|| find_model(markers, &model, opts.scale))
+        .flatten()
+        .filter(|l| l.1 <= tolerance);
+    let Some((ids, _)) = found else {
+        bail!(
+            "{}: no {} steady markers make an L of {:.1} × {:.1} mm{} within {:.1} mm{} ({} markers seen in half the frames; their distances: {})",
+            opts.poses.display(),
+            model.len(),
+            long * 1e3,
+            short * 1e3,
+            middle.map_or(String::new(), |m| format!(
+                " with a marker {:.1} mm along x",
+                m * 1e3
+            )),
+            tolerance * 1e3,
+            if opts.scale {
+                " (in shape: --scale)"
+            } else {
+                ""
+            },
+            markers.len(),
+            distances(markers)
+        );
+    };
+    let measured: Vec<Point3<f64>> = ids.iter().map(|&i| markers[i].1).collect();
+    let centroid = |p: &[Point3<f64>]| {
+        p.iter().map(|q| q.coords).sum::<nalgebra::Vector3<f64>>() / p.len() as f64
+    };
+    let scale = if opts.scale {
+        let (cm, cw) = (centroid(&measured), centroid(&model));
+        let spread = |p: &[Point3<f64>], c: nalgebra::Vector3<f64>| {
+            p.iter().map(|q| (q.coords - c).norm_squared()).sum::<f64>()
+        };
+        (spread(&model, cw) / spread(&measured, cm)).sqrt()
+    } else {
+        1.0
+    };
+    let scaled: Vec<Point3<f64>> = measured
+        .iter()
+        .map(|p| Point3::from(p.coords * scale))
+        .collect();
+    let weights = vec![1.0; model.len()];
+    let (new_from_old, rms) =
+        stereoscope_bodies::kabsch(&scaled, &model, &weights).ok_or_else(|| {
+            anyhow!(
+                "{}: the L-frame's markers are in a line",
+                opts.poses.display()
+            )
+        })?;
+    let (po, px, py) = (measured[0], measured[1], measured[2]);
+    let squareness = (90.0 - (px - po).angle(&(py - po)).to_degrees()).abs();
+    let fit = LFrameFit {
+        corner: markers[ids[0]].0,
+        x_arm: markers[ids[1]].0,
+        y_arm: markers[ids[2]].0,
+        x_middle: ids.get(3).map(|&i| markers[i].0),
+        squareness_error_deg: squareness,
+    };
+    Ok((new_from_old, rms, scale, fit))
+}
+
+/// The floor from markers on it: their plane (least squares), z towards the cameras, the origin
+/// marker's foot on it, x towards the x-axis marker's foot (or camera 0's right).
+fn fit_points(
+    rig: &Rig,
+    markers: &[Steady],
+    origin: Point3<f64>,
+    x_axis: Option<Point3<f64>>,
+    height: f64,
+) -> anyhow::Result<(Isometry3<f64>, f64, PointsFit)> {
+    let n = markers.len() as f64;
+    let c = markers
+        .iter()
+        .map(|(_, p)| p.coords)
+        .sum::<nalgebra::Vector3<f64>>()
+        / n;
+    let mut cov = Matrix3::zeros();
+    for (_, p) in markers {
+        let d = p.coords - c;
+        cov += d * d.transpose();
+    }
+    let eig = cov.symmetric_eigen();
+    let mut order = [0usize, 1, 2];
+    order.sort_by(|&a, &b| eig.eigenvalues[a].total_cmp(&eig.eigenvalues[b]));
+    let (small, middle) = (
+        eig.eigenvalues[order[0]].max(0.0),
+        eig.eigenvalues[order[1]],
+    );
+    // Spread along the second axis under 5 cm RMS: the markers are (nearly) in a line.
+    if middle / n < 0.05f64.powi(2) {
+        bail!(
+            "the {} floor markers lie (nearly) in a line: spread them over the floor, at least 3 not in a line and apart",
+            markers.len()
+        );
+    }
+    let mut ez = eig.eigenvectors.column(order[0]).into_owned().normalize();
+    // z up: towards most cameras.
+    let above = rig
+        .cameras
+        .iter()
+        .filter(|cam| (cam.camera.position_world().coords - c).dot(&ez) > 0.0)
+        .count();
+    if above * 2 < rig.cameras.len() {
+        ez = -ez;
+    }
+    let plane_rms = (small / n).sqrt();
+    let origin_above = (origin.coords - c).dot(&ez);
+    let foot = |p: Point3<f64>| p - ez * (p.coords - c).dot(&ez);
+    let o = foot(origin);
+    let (dir, from) = match x_axis {
+        Some(p) => (foot(p) - o, "marker"),
+        None => {
+            let right =
+                rig.cameras[0].camera.cam_from_world.rotation.inverse() * nalgebra::Vector3::x();
+            (right - ez * right.dot(&ez), "camera 0's right")
+        }
+    };
+    if dir.norm() < 0.05 {
+        bail!(
+            "the x axis cannot be set: {}",
+            if x_axis.is_some() {
+                "the x-axis marker is within 5 cm of the origin (over the floor): put it farther along +x"
+            } else {
+                "camera 0 looks straight down; record a marker on +x and give it with --x-axis"
+            }
+        );
+    }
+    let ex = dir.normalize();
+    let ey = ez.cross(&ex);
+    // Columns: the new world's axes in the old world's frame; the origin `height` under the
+    // markers' centres.
+    let r = Matrix3::from_columns(&[ex, ey, ez]);
+    let old_from_new = Isometry3::from_parts(
+        Translation3::from(o.coords - ez * height),
+        UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix_unchecked(r)),
+    );
+    let fit = PointsFit {
+        floor_markers: markers.iter().map(|(id, _)| *id).collect(),
+        origin_above_plane_mm: origin_above * 1e3,
+        x_axis_from: from.to_string(),
+    };
+    Ok((old_from_new.inverse(), plane_rms, fit))
 }
 
 pub fn run(
@@ -102,79 +412,69 @@ pub fn run(
     out: &mut impl Write,
     err: &mut impl Write,
 ) -> anyhow::Result<usize> {
-    let [long, short] = opts.l_frame.map(|v| v * opts.units.metres());
-    if !(long.is_finite() && short.is_finite() && long > 0.0 && short > 0.0) || long <= short {
+    let unit = opts.units.metres();
+    let height = opts.marker_height * unit;
+    if !(height.is_finite() && (0.0..1.0).contains(&height)) {
         bail!(
-            "--l-frame {:?}: the long arm (x) then the short arm (y), both above 0 and different",
-            opts.l_frame
+            "--marker-height {}: the markers' centres above the floor, 0 up to 1 m",
+            opts.marker_height
         );
     }
     let text = std::fs::read_to_string(&opts.rig)
         .with_context(|| format!("{}: cannot read", opts.rig.display()))?;
     let rig = Rig::from_toml(&text).map_err(|e| anyhow!("{}: {e}", opts.rig.display()))?;
-    let (frames, warnings) =
-        stereoscope_recorder::session::read_messages::<PoseFrame>(&opts.poses)?;
-    for w in warnings {
-        writeln!(err, "warning: {w}")?;
-    }
-    if frames.is_empty() {
-        bail!("{}: no pose frames", opts.poses.display());
-    }
-    let markers = steady_markers(&frames);
-    let tolerance = (0.003f64).max(0.01 * long);
-    let found = (markers.len() >= 3)
-        .then(|| find_l(&markers, long, short))
-        .flatten()
-        .filter(|l| l.3 <= tolerance);
-    let Some((o, x, y, fit)) = found else {
-        let mut pairs = Vec::new();
-        for i in 0..markers.len() {
-            for j in i + 1..markers.len() {
-                pairs.push(format!(
-                    "{}–{} {:.1} mm",
-                    markers[i].0,
-                    markers[j].0,
-                    (markers[i].1 - markers[j].1).norm() * 1e3
-                ));
-            }
+    let (frames, markers) = steady_in(&opts.poses, err)?;
+    let (new_from_old, fit, scale, l_frame, points) = match &opts.method {
+        FloorMethod::LFrame {
+            long,
+            short,
+            middle,
+        } => {
+            let (pose, fit, scale, l) = fit_l_frame(
+                opts,
+                &markers,
+                [long * unit, short * unit],
+                middle.map(|m| m * unit),
+                height,
+            )?;
+            (pose, fit, scale, Some(l), None)
         }
-        bail!(
-            "{}: no three steady markers make an L of {:.1} × {:.1} mm within {:.1} mm ({} markers seen in half the frames; their distances: {})",
-            opts.poses.display(),
-            long * 1e3,
-            short * 1e3,
-            tolerance * 1e3,
-            markers.len(),
-            if pairs.is_empty() {
-                "none".to_string()
-            } else {
-                pairs.join(", ")
+        FloorMethod::Points { origin, x_axis } => {
+            if opts.scale {
+                bail!("--scale needs the L-frame's known lengths (--l-frame), not --points");
             }
-        );
+            if markers.len() < 3 {
+                bail!(
+                    "{}: {} steady markers; --points needs at least 3 lying on the floor",
+                    opts.poses.display(),
+                    markers.len()
+                );
+            }
+            let o = single_marker(origin, "origin", err)?;
+            let x = x_axis
+                .as_deref()
+                .map(|p| single_marker(p, "x-axis", err))
+                .transpose()?;
+            let (pose, fit, p) = fit_points(&rig, &markers, o, x, height)?;
+            (pose, fit, 1.0, None, Some(p))
+        }
     };
-    let (po, px, py) = (markers[o].1, markers[x].1, markers[y].1);
-    let ex = (px - po).normalize();
-    let ry = py - po;
-    let ey = (ry - ex * ry.dot(&ex)).normalize();
-    let ez = ex.cross(&ey);
-    let squareness = (90.0 - ex.angle(&ry).to_degrees()).abs();
-    // Columns: the new world's axes in the old world's frame.
-    let r = Matrix3::from_columns(&[ex, ey, ez]);
-    let old_from_new = Isometry3::from_parts(
-        Translation3::from(po.coords),
-        UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix_unchecked(r)),
-    );
+    // Each camera: its pose in the old world scaled, then in the new.
     let poses: Vec<Isometry3<f64>> = rig
         .cameras
         .iter()
-        .map(|c| c.camera.cam_from_world * old_from_new)
+        .map(|c| {
+            let mut p = c.camera.cam_from_world;
+            p.translation.vector *= scale;
+            p * new_from_old.inverse()
+        })
         .collect();
-    let scale = rig.spec.units.metres();
+    let rig_unit = rig.spec.units.metres();
     let heights: Vec<(String, f64)> = rig
         .cameras
         .iter()
         .zip(&poses)
-        .map(|(c, p)| (c.id.clone(), (p.inverse() * Point3::origin()).z / scale))
+        .map(|(c, p)| (c.id.clone(), (p.inverse() * Point3::origin()).z / rig_unit))
         .collect();
     let below: Vec<&str> = heights
         .iter()
@@ -189,40 +489,74 @@ pub fn run(
     let mut report_warnings = Vec::new();
     if !below.is_empty() {
         report_warnings.push(format!(
-            "cameras {below:?} are below the floor: check where they are, or the L-frame"
+            "cameras {below:?} are below the floor: check where they are, or the floor's markers"
         ));
     }
-    if squareness > 1.0 {
+    if let Some(l) = &l_frame
+        && l.squareness_error_deg > 1.0
+    {
         report_warnings.push(format!(
-            "the L-frame's arms are {squareness:.2}° from square"
+            "the L-frame's arms are {:.2}° from square",
+            l.squareness_error_deg
+        ));
+    }
+    if points.is_some() && fit > 0.005 {
+        report_warnings.push(format!(
+            "the floor markers are {:.1} mm RMS from one plane: is the floor flat, and are they all on it?",
+            fit * 1e3
+        ));
+    }
+    if let Some(p) = &points
+        && (p.origin_above_plane_mm.abs() > 20.0)
+    {
+        report_warnings.push(format!(
+            "the origin marker is {:.1} mm off the floor markers' plane: was it on the floor?",
+            p.origin_above_plane_mm
         ));
     }
     let report = FloorReport {
         rig: rig.name.clone(),
         units: rig.spec.units.to_string(),
-        frames: frames.len(),
+        frames,
         steady_markers: markers.len(),
-        corner: markers[o].0,
-        x_arm: markers[x].0,
-        y_arm: markers[y].0,
         fit_error_mm: fit * 1e3,
-        squareness_error_deg: squareness,
+        l_frame,
+        points,
+        scale,
         camera_heights: heights,
         warnings: report_warnings,
     };
     if opts.json {
         writeln!(out, "{}", serde_json::to_string(&report)?)?;
     } else {
-        writeln!(
-            out,
-            "Floor from the L-frame: corner object {}, x arm {}, y arm {} (distances within {:.2} mm, {:.2}° from square), over {} pose frames.",
-            report.corner,
-            report.x_arm,
-            report.y_arm,
-            report.fit_error_mm,
-            report.squareness_error_deg,
-            report.frames
-        )?;
+        if let Some(l) = &report.l_frame {
+            writeln!(
+                out,
+                "Floor from the L-frame: corner object {}, x arm {}, y arm {}{} (fit {:.2} mm RMS, {:.2}° from square), over {} pose frames.",
+                l.corner,
+                l.x_arm,
+                l.y_arm,
+                l.x_middle
+                    .map_or(String::new(), |m| format!(", middle {m}")),
+                report.fit_error_mm,
+                l.squareness_error_deg,
+                report.frames
+            )?;
+        }
+        if let Some(p) = &report.points {
+            writeln!(
+                out,
+                "Floor from {} markers on it ({:.2} mm RMS from their plane), the origin marker {:.1} mm above it, x towards the {}, over {} pose frames.",
+                p.floor_markers.len(),
+                report.fit_error_mm,
+                p.origin_above_plane_mm,
+                p.x_axis_from,
+                report.frames
+            )?;
+        }
+        if opts.scale {
+            writeln!(out, "Scaled the rig by {:.6}.", report.scale)?;
+        }
         for (id, z) in &report.camera_heights {
             writeln!(out, "  {id}: {z:.1} {} above the floor", report.units)?;
         }

@@ -41,8 +41,8 @@ pub enum WandInput {
 pub struct WandOptions {
     pub rig: PathBuf,
     pub input: WandInput,
-    /// The wand's markers' distances from its end marker, in `units`: one (two markers) or
-    /// two (three markers).
+    /// The wand's markers' distances from its end marker, in `units`: `[0]` for one marker (no
+    /// scale), one distance (two markers) or two (three markers).
     pub wand: Vec<f64>,
     pub units: Units,
     /// Adjust each camera's focal lengths and principal point too.
@@ -117,9 +117,13 @@ pub struct WandReport {
     pub frames_used: usize,
     pub frames_unusable: usize,
     pub frames_outliers: usize,
-    pub wand_length_mm: f64,
-    pub wand_length_mean_error_mm: f64,
-    pub wand_length_sd_mm: f64,
+    /// The wand's length; `None` (and the two below too) for a one-marker wand.
+    pub wand_length_mm: Option<f64>,
+    pub wand_length_mean_error_mm: Option<f64>,
+    pub wand_length_sd_mm: Option<f64>,
+    /// False for a one-marker wand: the poses' scale is arbitrary until `calibrate floor
+    /// --scale` sets it from the L-frame.
+    pub scale_known: bool,
     pub cameras: Vec<CameraCard>,
     /// The wand's length error by region of the volume: the volume the wand swept cut at its
     /// median along each of camera 0's axes into eight octants.
@@ -426,13 +430,22 @@ fn card(
             }
         })
         .collect();
-    let err_mm = (sol.length_mean_m - wand.length_m()) * 1e3;
-    if err_mm.abs() > 1.0 || sol.length_sd_m * 1e3 > 2.0 {
+    let length = sol.length_mean_m.zip(sol.length_sd_m);
+    if let Some((mean, sd)) = length {
+        let err_mm = (mean - wand.length_m()) * 1e3;
+        if err_mm.abs() > 1.0 || sd * 1e3 > 2.0 {
+            warnings.push(format!(
+                "the wand measures {:.2} ± {:.2} mm against {:.2} mm: check its length and the cameras' intrinsics",
+                mean * 1e3,
+                sd * 1e3,
+                wand.length_m() * 1e3
+            ));
+        }
+    }
+    if !sol.scale_known {
         warnings.push(format!(
-            "the wand measures {:.2} ± {:.2} mm against {:.2} mm: check its length and the cameras' intrinsics",
-            sol.length_mean_m * 1e3,
-            sol.length_sd_m * 1e3,
-            wand.length_m() * 1e3
+            "a one-marker wand gives no scale: camera {} is put 1 m from camera {}; set the scale with `stereoscope calibrate floor --l-frame LONG,SHORT --scale` before using the rig",
+            rig.cameras[sol.scale_anchor].id, rig.cameras[0].id
         ));
     }
     WandReport {
@@ -442,9 +455,10 @@ fn card(
         frames_used: sol.frames_used,
         frames_unusable: sol.frames_unusable,
         frames_outliers: sol.frames_outliers,
-        wand_length_mm: wand.length_m() * 1e3,
-        wand_length_mean_error_mm: err_mm,
-        wand_length_sd_mm: sol.length_sd_m * 1e3,
+        wand_length_mm: wand.has_length().then(|| wand.length_m() * 1e3),
+        wand_length_mean_error_mm: length.map(|(mean, _)| (mean - wand.length_m()) * 1e3),
+        wand_length_sd_mm: length.map(|(_, sd)| sd * 1e3),
+        scale_known: sol.scale_known,
         cameras,
         regions: regions(sol, wand.length_m()),
         warnings,
@@ -456,17 +470,19 @@ fn card(
 }
 
 fn markdown(r: &WandReport) -> String {
-    let mut s = format!(
-        "# Wand calibration of rig {}\n\nFrames: {} read, {} used, {} unusable (the wand whole in fewer than two cameras), {} outliers.\n\nWand: {:.2} mm; measured {:+.3} mm off on average, SD {:.3} mm.\n\n| camera | reprojection RMS px | samples | image coverage | masked | position ({}) |\n|---|---|---|---|---|---|\n",
-        r.rig,
-        r.frames_read,
-        r.frames_used,
-        r.frames_unusable,
-        r.frames_outliers,
+    let wand = match (
         r.wand_length_mm,
         r.wand_length_mean_error_mm,
         r.wand_length_sd_mm,
-        r.units
+    ) {
+        (Some(length), Some(err), Some(sd)) => {
+            format!("Wand: {length:.2} mm; measured {err:+.3} mm off on average, SD {sd:.3} mm.")
+        }
+        _ => "Wand: one marker; the scale is not known yet.".to_string(),
+    };
+    let mut s = format!(
+        "# Wand calibration of rig {}\n\nFrames: {} read, {} used, {} unusable (the wand whole in fewer than two cameras), {} outliers.\n\n{wand}\n\n| camera | reprojection RMS px | samples | image coverage | masked | position ({}) |\n|---|---|---|---|---|---|\n",
+        r.rig, r.frames_read, r.frames_used, r.frames_unusable, r.frames_outliers, r.units
     );
     for c in &r.cameras {
         s.push_str(&format!(
@@ -481,7 +497,9 @@ fn markdown(r: &WandReport) -> String {
             c.position[2]
         ));
     }
-    s.push_str("\nThe wand's length error by region (octants of the swept volume about its median, camera 0's axes):\n\n| octant | samples | mean error mm | SD mm |\n|---|---|---|---|\n");
+    if !r.regions.is_empty() {
+        s.push_str("\nThe wand's length error by region (octants of the swept volume about its median, camera 0's axes):\n\n| octant | samples | mean error mm | SD mm |\n|---|---|---|---|\n");
+    }
     for g in &r.regions {
         s.push_str(&format!(
             "| {} | {} | {:+.3} | {:.3} |\n",
@@ -567,9 +585,18 @@ pub fn run(
     err: &mut impl Write,
 ) -> anyhow::Result<usize> {
     let metres = opts.units.metres();
-    let mut offsets = vec![0.0];
-    offsets.extend(opts.wand.iter().map(|d| d * metres));
-    let wand = Wand::new(offsets).map_err(|e| anyhow!("--wand {:?}: {e}", opts.wand))?;
+    let wand = if opts.wand == [0.0] {
+        Wand::one()
+    } else {
+        let mut offsets = vec![0.0];
+        offsets.extend(opts.wand.iter().map(|d| d * metres));
+        Wand::new(offsets).map_err(|e| {
+            anyhow!(
+                "--wand {:?}: {e} (0 for one marker, D for two, D1,D2 for three)",
+                opts.wand
+            )
+        })?
+    };
     let (text, rig) = rig_without_poses(&opts.rig)?;
     let ids: Vec<String> = rig.cameras.iter().map(|c| c.id.clone()).collect();
     let cams: Vec<Camera> = rig.cameras.iter().map(|c| c.camera).collect();

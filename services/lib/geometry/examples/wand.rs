@@ -110,8 +110,8 @@ fn main() {
     }
     println!(
         "{count} frames, {noise} px: worst camera {worst_mm:.3} mm and {worst_deg:.4}°; wand {:.3} ± {:.3} mm (free triangulation); {} frames used, {} outliers; solve median {:.3} s (min {:.3}, max {:.3}) over {runs} runs",
-        sol.length_mean_m * 1e3,
-        sol.length_sd_m * 1e3,
+        sol.length_mean_m.unwrap_or(f64::NAN) * 1e3,
+        sol.length_sd_m.unwrap_or(f64::NAN) * 1e3,
         sol.frames_used,
         sol.frames_outliers,
         times[times.len() / 2],

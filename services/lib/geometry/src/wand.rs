@@ -31,8 +31,9 @@ use nalgebra::{
 };
 use stereoscope_numeric::SplitMix64;
 
-/// The wand: its markers' distances from one end marker, along a straight line (metres). Two
-/// markers: `[0, D]`; three collinear: `[0, D1, D2]`.
+/// The wand: its markers' distances from one end marker, along a straight line (metres). One
+/// marker: `[0]` (no length: the solution's scale is arbitrary until a later step, the floor's
+/// L-frame, sets it); two markers: `[0, D]`; three collinear: `[0, D1, D2]`.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Wand {
     pub offsets_m: Vec<f64>,
@@ -44,11 +45,18 @@ impl Wand {
         Wand::new(vec![0.0, length_m])
     }
 
+    /// A wand of one marker (a single LED or ball): no scale.
+    pub fn one() -> Self {
+        Wand {
+            offsets_m: vec![0.0],
+        }
+    }
+
     /// Markers at these distances from the first (which is at 0), all different, at most 3.
     pub fn new(offsets_m: Vec<f64>) -> Result<Self, GeometryError> {
-        if offsets_m.len() < 2 || offsets_m.len() > 3 {
+        if offsets_m.is_empty() || offsets_m.len() > 3 {
             return Err(GeometryError::Degenerate(format!(
-                "a wand has 2 or 3 markers, not {}",
+                "a wand has 1, 2 or 3 markers, not {}",
                 offsets_m.len()
             )));
         }
@@ -67,9 +75,14 @@ impl Wand {
         self.offsets_m.len()
     }
 
-    /// The full length, first marker to last.
+    /// The full length, first marker to last (0 for one marker).
     pub fn length_m(&self) -> f64 {
         self.offsets_m[self.offsets_m.len() - 1]
+    }
+
+    /// Whether the wand has a length to set the scale (two or three markers).
+    pub fn has_length(&self) -> bool {
+        self.markers() > 1
     }
 }
 
@@ -127,9 +140,14 @@ pub struct WandSolution {
     pub frames_unusable: usize,
     pub frames_outliers: usize,
     /// The wand's length measured by triangulating its end markers freely from the solved
-    /// cameras: mean and standard deviation, metres.
-    pub length_mean_m: f64,
-    pub length_sd_m: f64,
+    /// cameras: mean and standard deviation, metres (`None` for a one-marker wand).
+    pub length_mean_m: Option<f64>,
+    pub length_sd_m: Option<f64>,
+    /// Whether the solution has the true scale. A one-marker wand leaves it arbitrary: the
+    /// camera `scale_anchor` is then 1 unit from camera 0, and a later step (the floor's
+    /// L-frame) must scale the rig.
+    pub scale_known: bool,
+    pub scale_anchor: usize,
     /// Each used frame's wand: where it was (its markers' mean, camera 0's frame) and its
     /// freely triangulated length, metres.
     pub lengths: Vec<(Point3<f64>, f64)>,
@@ -321,6 +339,13 @@ fn pair_pose(
     let pts: Vec<_> = inliers.iter().map(|&k| centres[k]).collect();
     let e = essential_8pt(&pts)?;
     let mut pose = decompose(&e, &pts)?;
+    if !wand.has_length() {
+        // One marker: the translation stays a unit vector; the placement scales it.
+        return Some(PairPose {
+            inliers: inliers.len(),
+            cam2_from_cam1: pose,
+        });
+    }
     // Scale: the end markers triangulated (each view's pair of ends taken in the order that
     // fits the epipolar geometry better) should be the wand's length apart.
     let mut ratios: Vec<f64> = inliers
@@ -353,6 +378,47 @@ fn pair_pose(
     })
 }
 
+/// For a one-marker wand: the length of the unit translation of `rel` (`to_from_from`, the
+/// pair's relative pose) that agrees with the cameras placed already. The marker triangulated
+/// from `from` and another placed camera (true relative scale) against the same marker
+/// triangulated from the pair at a unit baseline, as distances from `from`; the median over
+/// the frames the three cameras saw, `None` under 8 such frames.
+fn pair_scale(
+    frames: &[Normalised],
+    placed: &[Option<Isometry3<f64>>],
+    from: usize,
+    to: usize,
+    rel: &Isometry3<f64>,
+) -> Option<f64> {
+    let from_pose = placed[from]?;
+    let mut ratios = Vec::new();
+    for f in frames {
+        let (Some(vf), Some(vt)) = (f.views[from].as_deref(), f.views[to].as_deref()) else {
+            continue;
+        };
+        let Some(unit) = triangulate_pair(rel, &vf[0], &vt[0]) else {
+            continue;
+        };
+        let known = (0..placed.len())
+            .filter(|&c| c != from && c != to)
+            .find_map(|c| {
+                let other_from_from = placed[c]? * from_pose.inverse();
+                let vc = f.views[c].as_deref()?;
+                triangulate_pair(&other_from_from, &vf[0], &vc[0])
+            });
+        let Some(known) = known else { continue };
+        let d = unit.coords.norm();
+        if d > 1e-12 && unit.z > 0.0 && known.z > 0.0 {
+            ratios.push(known.coords.norm() / d);
+        }
+    }
+    if ratios.len() < 8 {
+        return None;
+    }
+    ratios.sort_by(f64::total_cmp);
+    Some(ratios[ratios.len() / 2])
+}
+
 /// The bundle adjustment: cameras 1.. as global parameters (rotation vector, translation),
 /// one wand per frame (first marker's position, direction as two angles).
 struct Adjustment<'a> {
@@ -361,6 +427,9 @@ struct Adjustment<'a> {
     wand: &'a Wand,
     /// Each camera's fx, fy, cx, cy follow the poses in the global parameters.
     refine: bool,
+    /// One marker: this camera's distance from camera 0 is held at 1 (a residual in the first
+    /// view), as nothing else fixes the scale.
+    gauge: Option<usize>,
 }
 
 /// Camera `c` of the global parameters `g`: its pose, and with `refine` its fx, fy, cx, cy
@@ -412,6 +481,9 @@ fn view_residuals(
 }
 
 fn wand_markers(wand: &Wand, v: &[f64]) -> Vec<Point3<f64>> {
+    if !wand.has_length() {
+        return vec![Point3::new(v[0], v[1], v[2])];
+    }
     let (th, ph) = (v[3], v[4]);
     let dir = Vector3::new(th.sin() * ph.cos(), th.sin() * ph.sin(), th.cos());
     let a = Point3::new(v[0], v[1], v[2]);
@@ -426,9 +498,12 @@ impl BlockProblem for Adjustment<'_> {
         self.frames.len()
     }
     fn view_len(&self) -> usize {
-        5
+        if self.wand.has_length() { 5 } else { 3 }
     }
     fn residuals(&self, g: &[f64], view: usize, v: &[f64], out: &mut Vec<f64>) -> Option<()> {
+        if let (Some(anchor), 0) = (self.gauge, view) {
+            out.push(1e3 * (pose_of(g, anchor).translation.vector.norm() - 1.0));
+        }
         let markers = wand_markers(self.wand, v);
         for (c, blobs) in self.frames[view].pixels.iter().enumerate() {
             if blobs.len() != markers.len() {
@@ -512,24 +587,60 @@ pub fn calibrate_wand(
     let mut placed: Vec<Option<Isometry3<f64>>> = vec![None; n];
     placed[0] = Some(Isometry3::identity());
     loop {
-        let next = pairs
+        let mut candidates: Vec<&(usize, usize, PairPose)> = pairs
             .iter()
             .filter(|(a, b, _)| placed[*a].is_some() != placed[*b].is_some())
-            .max_by_key(|(_, _, p)| p.inliers);
-        let Some((a, b, p)) = next else { break };
-        if let Some(pa) = placed[*a] {
-            placed[*b] = Some(p.cam2_from_cam1 * pa);
-        } else if let Some(pb) = placed[*b] {
-            placed[*a] = Some(p.cam2_from_cam1.inverse() * pb);
-        }
+            .collect();
+        candidates.sort_by_key(|(_, _, p)| std::cmp::Reverse(p.inliers));
+        let only_reference = placed.iter().filter(|p| p.is_some()).count() == 1;
+        let next = candidates.into_iter().find_map(|(a, b, p)| {
+            // (the placed camera, the new one, new_from_placed)
+            let (from, to, mut rel) = if placed[*a].is_some() {
+                (*a, *b, p.cam2_from_cam1)
+            } else {
+                (*b, *a, p.cam2_from_cam1.inverse())
+            };
+            if !wand.has_length() && !only_reference {
+                rel.translation.vector *= pair_scale(&norm, &placed, from, to, &rel)?;
+            }
+            Some((to, rel * placed[from]?))
+        });
+        let Some((to, pose)) = next else { break };
+        placed[to] = Some(pose);
     }
     let missing: Vec<usize> = (0..n).filter(|&c| placed[c].is_none()).collect();
     if !missing.is_empty() {
         return Err(GeometryError::Degenerate(format!(
-            "cameras {missing:?} share too few wand frames (8 at least) with the others to be placed"
+            "cameras {missing:?} share too few wand frames (8 at least) with the others to be placed{}",
+            if wand.has_length() {
+                ""
+            } else {
+                " (with a one-marker wand: 8 frames each seen by the camera and two placed cameras)"
+            }
         )));
     }
-    let poses: Vec<Isometry3<f64>> = placed.into_iter().flatten().collect();
+    let mut poses: Vec<Isometry3<f64>> = placed.into_iter().flatten().collect();
+    // One marker: the farthest camera from camera 0 is 1 unit away, and held there.
+    let scale_anchor = if wand.has_length() {
+        0
+    } else {
+        let anchor = (1..n)
+            .max_by(|&a, &b| {
+                poses[a]
+                    .translation
+                    .vector
+                    .norm()
+                    .total_cmp(&poses[b].translation.vector.norm())
+            })
+            .unwrap_or(1);
+        let d = poses[anchor].translation.vector.norm();
+        if d > 1e-12 {
+            for p in &mut poses {
+                p.translation.vector /= d;
+            }
+        }
+        anchor
+    };
     let initial_cam_from_ref = poses.clone();
     let mut global: Vec<f64> = poses[1..]
         .iter()
@@ -566,6 +677,7 @@ pub fn calibrate_wand(
             frames: &chosen,
             wand,
             refine: cfg.refine_intrinsics,
+            gauge: (!wand.has_length()).then_some(scale_anchor),
         };
         lm::solve(&problem, &mut global, &mut views, cfg.max_iterations);
         // Per frame RMS; drop the outliers and go again, or stop.
@@ -638,10 +750,15 @@ pub fn calibrate_wand(
         })
         .collect();
     let lengths: Vec<f64> = sampled.iter().map(|s| s.1).collect();
-    let mean = lengths.iter().sum::<f64>() / lengths.len().max(1) as f64;
-    let sd = (lengths.iter().map(|l| (l - mean).powi(2)).sum::<f64>()
-        / (lengths.len().max(2) - 1) as f64)
-        .sqrt();
+    let (mean, sd) = if lengths.is_empty() {
+        (None, None)
+    } else {
+        let mean = lengths.iter().sum::<f64>() / lengths.len() as f64;
+        let sd = (lengths.iter().map(|l| (l - mean).powi(2)).sum::<f64>()
+            / (lengths.len().max(2) - 1) as f64)
+            .sqrt();
+        (Some(mean), Some(sd))
+    };
     Ok(WandSolution {
         cam_from_ref,
         intrinsics: solved.iter().map(|c| c.intrinsics).collect(),
@@ -652,6 +769,8 @@ pub fn calibrate_wand(
         frames_outliers: outliers,
         length_mean_m: mean,
         length_sd_m: sd,
+        scale_known: wand.has_length(),
+        scale_anchor,
         lengths: sampled,
     })
 }
@@ -661,6 +780,20 @@ pub fn calibrate_wand(
 /// epipolar fit), then the first marker and the direction.
 fn initial_wand(cams: &[Camera], f: &WandFrame, wand: &Wand) -> Option<Vec<f64>> {
     use crate::triangulate::{Observation, triangulate_dlt};
+    if !wand.has_length() {
+        let obs: Vec<Observation> = f
+            .pixels
+            .iter()
+            .enumerate()
+            .filter(|(_, px)| px.len() == 1)
+            .map(|(c, px)| Observation {
+                camera: c,
+                pixel: px[0],
+            })
+            .collect();
+        let p = triangulate_dlt(cams, &obs).ok()?;
+        return Some(vec![p.x, p.y, p.z]);
+    }
     let views: Vec<Ends> = f
         .pixels
         .iter()
@@ -727,6 +860,9 @@ fn initial_wand(cams: &[Camera], f: &WandFrame, wand: &Wand) -> Option<Vec<f64>>
 /// taken by the nearer adjusted marker), and their distance.
 fn free_length(cams: &[Camera], f: &WandFrame, wand: &Wand, v: &[f64]) -> Option<f64> {
     use crate::triangulate::{Observation, triangulate};
+    if !wand.has_length() {
+        return None;
+    }
     let markers = wand_markers(wand, v);
     let ends = [markers[0], markers[markers.len() - 1]];
     let mut pts = Vec::new();
@@ -801,8 +937,8 @@ mod tests {
         assert_placed(&truth, &sol);
         // Each end triangulated on its own: with 0.2 px at 3 m and f = 600 px, about 0.6 mm
         // a point, so the length's spread is of that order; its mean is the wand's.
-        assert!((sol.length_mean_m - 0.5).abs() < 2e-4, "{sol:?}");
-        assert!(sol.length_sd_m < 1.2e-3, "{sol:?}");
+        assert!((sol.length_mean_m.unwrap() - 0.5).abs() < 2e-4, "{sol:?}");
+        assert!(sol.length_sd_m.unwrap() < 1.2e-3, "{sol:?}");
         assert!(sol.frames_outliers >= 10, "{sol:?}");
         for (rms, k) in &sol.per_camera {
             assert!(*rms < 0.3 && *k > 100, "{sol:?}");
@@ -877,7 +1013,7 @@ mod tests {
         }
         let sol = calibrate_wand(&truth, &fs, &wand, &WandConfig::default()).unwrap();
         assert_placed(&truth, &sol);
-        assert!((sol.length_mean_m - 0.5).abs() < 2e-4, "{sol:?}");
+        assert!((sol.length_mean_m.unwrap() - 0.5).abs() < 2e-4, "{sol:?}");
     }
 
     #[test]
@@ -892,6 +1028,45 @@ mod tests {
         assert!(err.to_string().contains("cameras [3]"), "{err}");
         assert!(Wand::new(vec![0.0, 0.5, 0.25]).is_err());
         assert!(Wand::new(vec![0.5]).is_err());
+        assert!(Wand::new(vec![]).is_err());
+        assert_eq!(Wand::new(vec![0.0]).unwrap(), Wand::one());
         assert!(Wand::two(f64::NAN).is_err());
+    }
+
+    /// One marker: the cameras placed as with a longer wand but for the scale, which is
+    /// arbitrary (the anchor camera 1 unit from camera 0); scaled by the true distance of the
+    /// anchor, every camera within 1 mm and 0.05°.
+    #[test]
+    fn a_one_marker_wand_places_the_cameras_up_to_scale() {
+        let truth = ring();
+        let wand = Wand::one();
+        let mut fs = frames(&truth, &wand, 800, 0.2);
+        // A reflection in place of the marker in some views: outliers.
+        for f in fs.iter_mut().step_by(60) {
+            if let Some(p) = f.pixels[2].first_mut() {
+                *p += Vector2::new(-30.0, 35.0);
+            }
+        }
+        let sol = calibrate_wand(&truth, &fs, &wand, &WandConfig::default()).unwrap();
+        assert!(!sol.scale_known && sol.length_mean_m.is_none(), "{sol:?}");
+        assert!(sol.frames_outliers >= 5, "{sol:?}");
+        let ref_from_world = truth[0].cam_from_world;
+        let want: Vec<Isometry3<f64>> = truth
+            .iter()
+            .map(|c| c.cam_from_world * ref_from_world.inverse())
+            .collect();
+        let got_anchor = sol.cam_from_ref[sol.scale_anchor].translation.vector.norm();
+        assert!((got_anchor - 1.0).abs() < 1e-6, "{got_anchor}");
+        let scale = want[sol.scale_anchor].translation.vector.norm();
+        for (c, w) in want.iter().enumerate() {
+            let mut got = sol.cam_from_ref[c];
+            got.translation.vector *= scale;
+            let (dpos, drot) = camera_pose_error(&got, w);
+            assert!(dpos < 1e-3, "camera {c}: {:.3} mm off", dpos * 1e3);
+            assert!(drot < 0.05, "camera {c}: {drot:.4}° off");
+        }
+        for (rms, k) in &sol.per_camera {
+            assert!(*rms < 0.3 && *k > 100, "{sol:?}");
+        }
     }
 }
