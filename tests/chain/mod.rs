@@ -41,6 +41,19 @@ pub fn ring(n: usize, radius: f64, heights: &[f64], rolled: Option<usize>) -> Ve
 /// The wand: two markers 250 mm apart, turning and nodding round a circle.
 pub const WAND_SCENE: &str = "[[body]]\nname = \"wand\"\nmarkers = [[0.0, 0.0, 0.0], [25.0, 0.0, 0.0]]\n\n[synthetic]\nseed = 5\nnoise_sigma = 2.0\nblur_sigma_px = 0.6\nlight = \"ring\"\n\n[[synthetic.target]]\nshape = \"body\"\nbody = \"wand\"\nradius = 1.0\nmotion = { kind = \"head\", centre = [0.0, 0.0, 70.0], radius = 35.0, period_s = 7.0, turn_period_s = 3.0, nod_deg = 40.0 }\n";
 
+/// A one-marker wand: a single 10 mm ball wandering through a 0.9 × 0.9 × 0.7 m volume about
+/// (0, 0, 0.7) m.
+pub const ONE_MARKER_WAND_SCENE: &str = "[synthetic]\nseed = 5\nnoise_sigma = 2.0\nblur_sigma_px = 0.6\nlight = \"ring\"\n\n[[synthetic.target]]\nshape = \"sphere\"\nradius = 1.0\nmotion = { kind = \"wander\", centre = [0.0, 0.0, 70.0], extent = [45.0, 45.0, 35.0], seed = 3 }\n";
+
+/// Which wand the chain waves.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum ChainWand {
+    /// Two markers 250 mm apart: the scale from the wand.
+    Two,
+    /// One marker: the scale from the floor's L-frame (`calibrate floor --scale`).
+    One,
+}
+
 /// An L-frame on the floor at the origin: arms of 800 mm along +x and 500 mm along +y,
 /// markers of 20 mm radius.
 pub const L_FRAME_SCENE: &str = "[[body]]\nname = \"lframe\"\nmarkers = [[0.0, 0.0, 0.0], [80.0, 0.0, 0.0], [0.0, 50.0, 0.0]]\n\n[synthetic]\nseed = 6\nnoise_sigma = 2.0\nblur_sigma_px = 0.6\nlight = \"ring\"\n\n[[synthetic.target]]\nshape = \"body\"\nbody = \"lframe\"\nradius = 2.0\nmotion = { kind = \"static\", position = [0.0, 0.0, 0.0] }\n";
@@ -233,6 +246,8 @@ pub struct ChainResult {
     /// rotation (degrees).
     pub worst_position_m: f64,
     pub worst_rotation_deg: f64,
+    /// The calibrated rig's size against the truth's (its cameras' distances), minus 1.
+    pub scale_error: f64,
     /// The known markers' RMS error (mm) fused with the true rig and with the calibrated one,
     /// and the positions counted.
     pub rms_true_mm: f64,
@@ -249,9 +264,15 @@ pub struct ChainResult {
 /// L-frame on the floor recorded for `still_s`, fused again with the wand's rig (`replay
 /// --rig`) and `calibrate floor`; six markers at known places recorded for `still_s` with the
 /// true rig and fused again with the calibrated one.
-pub fn end_to_end(places: &[Place], wand_s: f64, still_s: f64, fps: f64) -> ChainResult {
+pub fn end_to_end(
+    places: &[Place],
+    wand: ChainWand,
+    wand_s: f64,
+    still_s: f64,
+    fps: f64,
+) -> ChainResult {
     let root = std::env::temp_dir().join(format!(
-        "stereoscope-chain-{}-{}",
+        "stereoscope-chain-{}-{}-{wand:?}",
         std::process::id(),
         places.len()
     ));
@@ -264,7 +285,11 @@ pub fn end_to_end(places: &[Place], wand_s: f64, still_s: f64, fps: f64) -> Chai
         std::fs::write(&path, scene_rig("chain", places, fps, &dir, port, scene)).unwrap();
         (path.clone(), record(&path, secs))
     };
-    let (wand_rig, wand_session) = session("wand", WAND_SCENE, wand_s);
+    let (scene, wand_arg) = match wand {
+        ChainWand::Two => (WAND_SCENE, "250"),
+        ChainWand::One => (ONE_MARKER_WAND_SCENE, "0"),
+    };
+    let (wand_rig, wand_session) = session("wand", scene, wand_s);
     let (_, floor_session) = session("floor", L_FRAME_SCENE, still_s);
     let (_, known_session) = session("known", &known_scene(), still_s);
     let s = |p: &std::path::Path| p.to_str().unwrap().to_string();
@@ -277,7 +302,7 @@ pub fn end_to_end(places: &[Place], wand_s: f64, still_s: f64, fps: f64) -> Chai
         "--observations",
         &s(&wand_session.join("observations.jsonl")),
         "--wand",
-        "250",
+        wand_arg,
         "--units",
         "mm",
         "--out",
@@ -293,20 +318,25 @@ pub fn end_to_end(places: &[Place], wand_s: f64, still_s: f64, fps: f64) -> Chai
         &s(&floor_poses),
     ]);
     let fin = root.join("calibrated.toml");
-    cli(&[
+    let (cal_s, floor_s, fin_s) = (s(&cal), s(&floor_poses), s(&fin));
+    let mut floor = vec![
         "calibrate",
         "floor",
         "--rig",
-        &s(&cal),
+        &cal_s,
         "--poses",
-        &s(&floor_poses),
+        &floor_s,
         "--l-frame",
         "800,500",
         "--units",
         "mm",
         "--out",
-        &s(&fin),
-    ]);
+        &fin_s,
+    ];
+    if wand == ChainWand::One {
+        floor.push("--scale");
+    }
+    cli(&floor);
     let truth = Rig::load(&wand_rig).unwrap();
     let got = Rig::load(&fin).unwrap();
     let (mut worst_d, mut worst_a) = (0.0f64, 0.0f64);
@@ -315,6 +345,18 @@ pub fn end_to_end(places: &[Place], wand_s: f64, still_s: f64, fps: f64) -> Chai
         worst_d = worst_d.max(d);
         worst_a = worst_a.max(a);
     }
+    // The rig's scale: the cameras' distances from each other against the truth's.
+    let spread = |r: &Rig| {
+        let at: Vec<_> = r.cameras.iter().map(|c| c.camera.position_world()).collect();
+        let mut sum = 0.0;
+        for i in 0..at.len() {
+            for j in i + 1..at.len() {
+                sum += (at[i] - at[j]).norm();
+            }
+        }
+        sum
+    };
+    let scale_error = spread(&got) / spread(&truth) - 1.0;
     let refused = root.join("known-calibrated.jsonl");
     cli(&[
         "replay",
@@ -328,6 +370,7 @@ pub fn end_to_end(places: &[Place], wand_s: f64, still_s: f64, fps: f64) -> Chai
     let (rms_true_mm, positions) = rms_from_known(&recorded);
     let (rms_calibrated_mm, _) = rms_from_known(&refused);
     let result = ChainResult {
+        scale_error,
         worst_position_m: worst_d,
         worst_rotation_deg: worst_a,
         rms_true_mm,

@@ -18,7 +18,7 @@
 #[path = "../../../tests/chain/mod.rs"]
 mod chain;
 
-use chain::{BIN, Place, ceiling, end_to_end, record, rig_text, ring};
+use chain::{BIN, ChainWand, Place, ceiling, end_to_end, record, rig_text, ring};
 use std::process::Command;
 use std::time::Instant;
 use stereoscope_geometry::transform::camera_pose_error;
@@ -129,7 +129,7 @@ fn main() {
 
 /// The whole calibration of the four ceiling cameras, as a table.
 fn print_chain(places: &[Place], seconds: f64) {
-    let r = end_to_end(places, seconds, 8.0, 60.0);
+    let r = end_to_end(places, ChainWand::Two, seconds, 8.0, 60.0);
     println!(
         "\nWhole calibration, four ceiling cameras (wand {seconds} s, L-frame 8 s, six known markers 8 s):\n"
     );
