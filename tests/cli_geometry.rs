@@ -361,11 +361,13 @@ fn triangulate_with_the_thesis_rig() {
 /// A CSV frame,camera,u,v of a two-marker wand (500 mm) waved through the volume of
 /// `synthetic::wand_rig_cameras`, 0.2 px of noise.
 fn wand_csv(cams: &[Camera], frames: usize) -> String {
+    csv_of(&wand_frames(cams, &[0.0, 0.5], frames, 0.2, 11))
+}
+
+/// Each frame's views as CSV rows frame,camera,u,v.
+fn csv_of(frames: &[Vec<Vec<nalgebra::Point2<f64>>>]) -> String {
     let mut csv = String::from("frame,camera,u,v\n");
-    for (f, views) in wand_frames(cams, &[0.0, 0.5], frames, 0.2, 11)
-        .iter()
-        .enumerate()
-    {
+    for (f, views) in frames.iter().enumerate() {
         for (c, px) in views.iter().enumerate() {
             for p in px {
                 writeln!(csv, "{f},cam{c},{:.4},{:.4}", p.x, p.y).unwrap();
@@ -553,6 +555,106 @@ fn calibrate_wand_bad_input_is_named() {
         assert!(!o.status.success());
         assert!(stderr(&o).contains(want), "{want}: {}", stderr(&o));
     }
+    // A pixel outside the rig's image (frames of another mode than the rig's).
+    let csv = dir.file(
+        "wand.csv",
+        "frame,camera,u,v\n0,cam0,10,20\n0,cam1,700.5,20\n",
+    );
+    let o = run(&[
+        "calibrate",
+        "wand",
+        "--rig",
+        &rig,
+        "--observations",
+        &csv,
+        "--wand",
+        "500",
+    ]);
+    assert!(
+        stderr(&o)
+            .contains("wand.csv:3: (700.5, 20) is outside camera \"cam1\"'s image, 640 × 480"),
+        "{}",
+        stderr(&o)
+    );
+    let truth = wand_rig_cameras();
+    // A camera that never saw the wand.
+    let mut frames = wand_frames(&truth, &[0.0, 0.5], 300, 0.2, 11);
+    for f in &mut frames {
+        f[3].clear();
+    }
+    let csv = dir.file("wand.csv", &csv_of(&frames));
+    let o = run(&[
+        "calibrate",
+        "wand",
+        "--rig",
+        &rig,
+        "--observations",
+        &csv,
+        "--wand",
+        "500",
+    ]);
+    assert!(
+        stderr(&o).contains("cameras [3] share too few wand frames")
+            && stderr(&o).contains("wave the wand where each of them sees it"),
+        "{}",
+        stderr(&o)
+    );
+    // A three-marker wand with other distances than said.
+    let csv = dir.file(
+        "wand.csv",
+        &csv_of(&wand_frames(&truth, &[0.0, 0.25, 0.5], 400, 0.2, 11)),
+    );
+    let o = run(&[
+        "calibrate",
+        "wand",
+        "--rig",
+        &rig,
+        "--observations",
+        &csv,
+        "--wand",
+        "150,500",
+    ]);
+    assert!(
+        stderr(&o).contains("the wand's middle marker measures 2")
+            && stderr(&o).contains("mm from its end marker, not 150.0 mm"),
+        "{}",
+        stderr(&o)
+    );
+    // Every sample in one plane (the wand swept in a vertical plane): refused with advice.
+    let mut rng = stereoscope_numeric::SplitMix64::new(5);
+    let planar: Vec<Vec<Vec<nalgebra::Point2<f64>>>> = (0..600)
+        .map(|_| {
+            let a = Point3::new(rng.range(-0.6, 0.6), 0.05, rng.range(0.5, 1.5));
+            let t = rng.range(0.0, std::f64::consts::TAU);
+            let d = Vector3::new(t.cos(), 0.0, t.sin());
+            truth
+                .iter()
+                .map(|c| {
+                    [a, a + d * 0.5]
+                        .iter()
+                        .filter_map(|m| c.project(m))
+                        .filter(|p| p.x >= 0.0 && p.y >= 0.0 && p.x < 639.0 && p.y < 479.0)
+                        .collect()
+                })
+                .collect()
+        })
+        .collect();
+    let csv = dir.file("wand.csv", &csv_of(&planar));
+    let o = run(&[
+        "calibrate",
+        "wand",
+        "--rig",
+        &rig,
+        "--observations",
+        &csv,
+        "--wand",
+        "500",
+    ]);
+    assert!(
+        stderr(&o).contains("lie in one plane") && stderr(&o).contains("not in one plane"),
+        "{}",
+        stderr(&o)
+    );
     let o = run(&[
         "calibrate",
         "wand",

@@ -347,7 +347,11 @@ pub fn end_to_end(
     }
     // The rig's scale: the cameras' distances from each other against the truth's.
     let spread = |r: &Rig| {
-        let at: Vec<_> = r.cameras.iter().map(|c| c.camera.position_world()).collect();
+        let at: Vec<_> = r
+            .cameras
+            .iter()
+            .map(|c| c.camera.position_world())
+            .collect();
         let mut sum = 0.0;
         for i in 0..at.len() {
             for j in i + 1..at.len() {

@@ -186,6 +186,7 @@ pub(crate) fn blob_pixels(o: &Observation) -> Vec<Point2<f64>> {
 fn frames_from_observations(
     obs: &[Observation],
     ids: &[String],
+    sizes: &[[u32; 2]],
     max_skew_ns: u64,
 ) -> anyhow::Result<Vec<WandFrame>> {
     let mut order: Vec<(u64, usize, usize)> = Vec::with_capacity(obs.len());
@@ -197,6 +198,16 @@ fn frames_from_observations(
                 o.camera
             );
         };
+        let [w, h] = sizes[c];
+        if (o.width_px, o.height_px) != (w, h) {
+            bail!(
+                "observation {}: camera {:?} sent {} × {} frames, the rig says {w} × {h}: set its image_size (and calibrate its intrinsics) for the mode it runs in",
+                i + 1,
+                o.camera,
+                o.width_px,
+                o.height_px
+            );
+        }
         order.push((o.timestamp_ns, c, i));
     }
     order.sort_unstable();
@@ -230,7 +241,11 @@ fn frames_from_observations(
 }
 
 /// A CSV `frame,camera,u,v` (camera by its rig id): each row one blob.
-fn frames_from_csv(path: &Path, ids: &[String]) -> anyhow::Result<Vec<WandFrame>> {
+fn frames_from_csv(
+    path: &Path,
+    ids: &[String],
+    sizes: &[[u32; 2]],
+) -> anyhow::Result<Vec<WandFrame>> {
     let text = std::fs::read_to_string(path)
         .with_context(|| format!("{}: cannot read", path.display()))?;
     let mut lines = text.lines().enumerate();
@@ -275,6 +290,14 @@ fn frames_from_csv(path: &Path, ids: &[String]) -> anyhow::Result<Vec<WandFrame>
             }
         };
         let (u, v) = (num("u", f[2])?, num("v", f[3])?);
+        let [w, h] = sizes[c];
+        if !(-0.5..f64::from(w) - 0.5).contains(&u) || !(-0.5..f64::from(h) - 0.5).contains(&v) {
+            bail!(
+                "{}: ({u}, {v}) is outside camera {:?}'s image, {w} × {h} in the rig: is its image_size the mode it ran in?",
+                at(),
+                f[1]
+            );
+        }
         let views = by_frame
             .entry(frame)
             .or_insert_with(|| vec![Vec::new(); ids.len()]);
@@ -599,6 +622,7 @@ pub fn run(
     };
     let (text, rig) = rig_without_poses(&opts.rig)?;
     let ids: Vec<String> = rig.cameras.iter().map(|c| c.id.clone()).collect();
+    let sizes: Vec<[u32; 2]> = rig.spec.cameras.iter().map(|c| c.image_size).collect();
     let cams: Vec<Camera> = rig.cameras.iter().map(|c| c.camera).collect();
     let skew_ns = (rig
         .spec
@@ -613,7 +637,7 @@ pub fn run(
                 .extension()
                 .is_some_and(|e| e.eq_ignore_ascii_case("csv"));
             let frames = if is_csv {
-                frames_from_csv(path, &ids)?
+                frames_from_csv(path, &ids, &sizes)?
             } else {
                 let (obs, warnings) =
                     stereoscope_recorder::session::read_messages::<Observation>(path)?;
@@ -623,7 +647,7 @@ pub fn run(
                 for w in warnings {
                     writeln!(err, "warning: {w}")?;
                 }
-                frames_from_observations(&obs, &ids, skew_ns)?
+                frames_from_observations(&obs, &ids, &sizes, skew_ns)?
             };
             (path.display().to_string(), frames)
         }
@@ -635,7 +659,7 @@ pub fn run(
                 bail!("--coverage {} is not between 0 and 1", live.target);
             }
             let obs = crate::wand_live::collect_live(&rig, &cams, &wand, live, err)?;
-            let frames = frames_from_observations(&obs, &ids, skew_ns)?;
+            let frames = frames_from_observations(&obs, &ids, &sizes, skew_ns)?;
             ("the live observations".to_string(), frames)
         }
     };
@@ -647,6 +671,17 @@ pub fn run(
         ..WandConfig::default()
     };
     let sol = calibrate_wand(&cams, &frames, &wand, &cfg).map_err(|e| anyhow!("{source}: {e}"))?;
+    if let (Some(middle), 3) = (sol.middle_mean_m, wand.markers()) {
+        let said = wand.offsets_m[1];
+        if (middle - said).abs() > (0.002f64).max(0.02 * said) {
+            bail!(
+                "{source}: the wand's middle marker measures {:.1} mm from its end marker, not {:.1} mm (--wand {:?}): measure the wand's distances again, centre to centre, from the end marker nearer the middle one",
+                middle * 1e3,
+                said * 1e3,
+                opts.wand
+            );
+        }
+    }
     let report = card(&rig, &sol, &frames, &wand, &cams);
     // A solve that did not converge (too few frames, or all of them in one plane) is refused,
     // not written.
@@ -753,14 +788,23 @@ mod tests {
             obs("b", 134 * ms, &[7.0]),
             obs("b", 166 * ms, &[8.0]),
         ];
-        let frames = frames_from_observations(&list, &ids, 5 * ms).unwrap();
+        let sizes = [[640, 480]; 2];
+        let frames = frames_from_observations(&list, &ids, &sizes, 5 * ms).unwrap();
         assert_eq!(frames.len(), 3);
         assert_eq!(frames[0].pixels[0].len(), 2);
         assert_eq!(frames[0].pixels[1][0].x, 5.0);
         assert_eq!(frames[1].pixels[0].len(), 1, "the clipped blob is left out");
         assert_eq!(frames[1].pixels[1][0].x, 7.0);
         assert!(frames[2].pixels[0].is_empty());
-        let err = frames_from_observations(&[obs("c", 1, &[])], &ids, 5 * ms).unwrap_err();
+        let err = frames_from_observations(&[obs("c", 1, &[])], &ids, &sizes, 5 * ms).unwrap_err();
         assert!(err.to_string().contains("camera \"c\""), "{err}");
+        // Frames of another size than the rig's: named, with both sizes.
+        let small = [[320, 240], [640, 480]];
+        let err = frames_from_observations(&list, &ids, &small, 5 * ms).unwrap_err();
+        assert!(
+            err.to_string()
+                .contains("camera \"a\" sent 640 × 480 frames, the rig says 320 × 240"),
+            "{err}"
+        );
     }
 }

@@ -148,6 +148,9 @@ pub struct WandSolution {
     /// L-frame) must scale the rig.
     pub scale_known: bool,
     pub scale_anchor: usize,
+    /// A three-marker wand's middle marker triangulated freely: its mean distance from the
+    /// first marker, metres (the wand's `D1` when the wand is as said).
+    pub middle_mean_m: Option<f64>,
     /// Each used frame's wand: where it was (its markers' mean, camera 0's frame) and its
     /// freely triangulated length, metres.
     pub lengths: Vec<(Point3<f64>, f64)>,
@@ -265,6 +268,63 @@ type ViewPair<'a> = (&'a [Vector2<f64>], &'a [Vector2<f64>]);
 /// A camera's end markers' pixels, with the camera's index.
 type Ends = (usize, (Point2<f64>, Point2<f64>));
 
+/// What a camera pair's frames gave.
+enum Pair {
+    Posed(PairPose),
+    /// A homography explains the frames as well as the essential matrix: the wand's samples
+    /// lie in one plane (or the cameras are too close together for depth), so the pose is not
+    /// determined.
+    Planar,
+}
+
+/// Whether one homography carries the first view's wand markers onto the second's within
+/// twice `inlier` for nine in ten of them (a least-squares fit: markers in one plane fit it at
+/// the noise, markers with depth do not). The fit starts from the views' centres; each frame's
+/// end markers are then paired by the fit and it is made again from them, twice.
+fn planar(views: &[ViewPair], inlier: f64) -> bool {
+    let transfer = |h: &Matrix3<f64>, p: &Vector2<f64>| {
+        let q = h * hom(p);
+        (q.z.abs() > 1e-12).then(|| Vector2::new(q.x / q.z, q.y / q.z))
+    };
+    let fit = |pairs: &[(Vector2<f64>, Vector2<f64>)]| {
+        let a: Vec<Point2<f64>> = pairs.iter().map(|p| Point2::from(p.0)).collect();
+        let b: Vec<Point2<f64>> = pairs.iter().map(|p| Point2::from(p.1)).collect();
+        crate::calibrate::homography(&a, &b)
+    };
+    let centres: Vec<_> = views.iter().map(|(a, b)| (centre(a), centre(b))).collect();
+    let Some(mut h) = fit(&centres) else {
+        return false;
+    };
+    let mut pairs = centres;
+    for _ in 0..2 {
+        pairs = Vec::with_capacity(2 * views.len());
+        for (va, vb) in views {
+            if va.len() < 2 || vb.len() < 2 {
+                pairs.push((centre(va), centre(vb)));
+                continue;
+            }
+            let ((a0, a1), (b0, b1)) = (ends(va), ends(vb));
+            let off = |p: &Vector2<f64>, q: &Vector2<f64>| {
+                transfer(&h, p).map_or(f64::INFINITY, |t| (t - q).norm())
+            };
+            if off(&a0, &b0) + off(&a1, &b1) <= off(&a0, &b1) + off(&a1, &b0) {
+                pairs.extend([(a0, b0), (a1, b1)]);
+            } else {
+                pairs.extend([(a0, b1), (a1, b0)]);
+            }
+        }
+        match fit(&pairs) {
+            Some(next) => h = next,
+            None => return false,
+        }
+    }
+    let fits = pairs
+        .iter()
+        .filter(|(p, q)| transfer(&h, p).is_some_and(|t| (t - q).norm() <= 2.0 * inlier))
+        .count();
+    fits * 10 >= pairs.len() * 9
+}
+
 /// A camera pair's relative pose with its inlier frame count.
 struct PairPose {
     inliers: usize,
@@ -299,7 +359,7 @@ fn pair_pose(
     wand: &Wand,
     inlier: f64,
     cfg: &WandConfig,
-) -> Option<PairPose> {
+) -> Option<Pair> {
     let shared: Vec<ViewPair> = frames
         .iter()
         .filter_map(|f| Some((f.views[c1].as_deref()?, f.views[c2].as_deref()?)))
@@ -337,14 +397,19 @@ fn pair_pose(
         .filter(|&k| sampson(&e, &centres[k].0, &centres[k].1) <= inlier)
         .collect();
     let pts: Vec<_> = inliers.iter().map(|&k| centres[k]).collect();
+    let inlier_views: Vec<ViewPair> = inliers.iter().map(|&k| shared[k]).collect();
+    let swapped: Vec<ViewPair> = inlier_views.iter().map(|(a, b)| (*b, *a)).collect();
+    if planar(&inlier_views, inlier) || planar(&swapped, inlier) {
+        return Some(Pair::Planar);
+    }
     let e = essential_8pt(&pts)?;
     let mut pose = decompose(&e, &pts)?;
     if !wand.has_length() {
         // One marker: the translation stays a unit vector; the placement scales it.
-        return Some(PairPose {
+        return Some(Pair::Posed(PairPose {
             inliers: inliers.len(),
             cam2_from_cam1: pose,
-        });
+        }));
     }
     // Scale: the end markers triangulated (each view's pair of ends taken in the order that
     // fits the epipolar geometry better) should be the wand's length apart.
@@ -372,10 +437,10 @@ fn pair_pose(
     ratios.sort_by(f64::total_cmp);
     let scale = ratios[ratios.len() / 2];
     pose.translation.vector *= scale;
-    Some(PairPose {
+    Some(Pair::Posed(PairPose {
         inliers: inliers.len(),
         cam2_from_cam1: pose,
-    })
+    }))
 }
 
 /// For a one-marker wand: the length of the unit translation of `rel` (`to_from_from`, the
@@ -577,10 +642,13 @@ pub fn calibrate_wand(
         / n as f64;
     let inlier = cfg.inlier_px / f_mean;
     let mut pairs: Vec<(usize, usize, PairPose)> = Vec::new();
+    let mut planar_pairs: Vec<(usize, usize)> = Vec::new();
     for c1 in 0..n {
         for c2 in c1 + 1..n {
-            if let Some(p) = pair_pose(&norm, c1, c2, wand, inlier, cfg) {
-                pairs.push((c1, c2, p));
+            match pair_pose(&norm, c1, c2, wand, inlier, cfg) {
+                Some(Pair::Posed(p)) => pairs.push((c1, c2, p)),
+                Some(Pair::Planar) => planar_pairs.push((c1, c2)),
+                None => {}
             }
         }
     }
@@ -609,9 +677,14 @@ pub fn calibrate_wand(
         placed[to] = Some(pose);
     }
     let missing: Vec<usize> = (0..n).filter(|&c| placed[c].is_none()).collect();
+    if !missing.is_empty() && !planar_pairs.is_empty() {
+        return Err(GeometryError::Degenerate(format!(
+            "cameras {missing:?} cannot be placed: the wand's samples seen by the camera pairs {planar_pairs:?} lie in one plane (or those cameras are too close together to see depth). Wave the wand through the whole volume, towards and away from the cameras and up and down, not in one plane"
+        )));
+    }
     if !missing.is_empty() {
         return Err(GeometryError::Degenerate(format!(
-            "cameras {missing:?} share too few wand frames (8 at least) with the others to be placed{}",
+            "cameras {missing:?} share too few wand frames (8 at least) with the others to be placed{}: wave the wand where each of them sees it together with another camera",
             if wand.has_length() {
                 ""
             } else {
@@ -739,6 +812,7 @@ pub fn calibrate_wand(
         .map(|(s, k)| ((s / (2 * k).max(1) as f64).sqrt(), k))
         .collect();
     // The wand's length, triangulated freely, with where the wand was (its markers' mean).
+    let mut middles = Vec::new();
     let sampled: Vec<(Point3<f64>, f64)> = chosen
         .iter()
         .zip(&views)
@@ -746,9 +820,15 @@ pub fn calibrate_wand(
             let m = wand_markers(wand, v);
             let centre =
                 Point3::from(m.iter().map(|p| p.coords).sum::<Vector3<f64>>() / m.len() as f64);
-            Some((centre, free_length(&solved, f, wand, v)?))
+            let free = free_markers(&solved, f, wand, v)?;
+            if free.len() == 3 {
+                middles.push((free[1] - free[0]).norm());
+            }
+            Some((centre, (free[free.len() - 1] - free[0]).norm()))
         })
         .collect();
+    let middle_mean_m =
+        (!middles.is_empty()).then(|| middles.iter().sum::<f64>() / middles.len() as f64);
     let lengths: Vec<f64> = sampled.iter().map(|s| s.1).collect();
     let (mean, sd) = if lengths.is_empty() {
         (None, None)
@@ -771,6 +851,7 @@ pub fn calibrate_wand(
         length_sd_m: sd,
         scale_known: wand.has_length(),
         scale_anchor,
+        middle_mean_m,
         lengths: sampled,
     })
 }
@@ -856,17 +937,20 @@ fn initial_wand(cams: &[Camera], f: &WandFrame, wand: &Wand) -> Option<Vec<f64>>
     ])
 }
 
-/// The wand's end markers triangulated each on its own from the solved cameras (each blob
-/// taken by the nearer adjusted marker), and their distance.
-fn free_length(cams: &[Camera], f: &WandFrame, wand: &Wand, v: &[f64]) -> Option<f64> {
+/// The wand's markers triangulated each on its own from the solved cameras (each blob taken by
+/// the nearer adjusted marker), in the wand's order.
+fn free_markers(
+    cams: &[Camera],
+    f: &WandFrame,
+    wand: &Wand,
+    v: &[f64],
+) -> Option<Vec<Point3<f64>>> {
     use crate::triangulate::{Observation, triangulate};
     if !wand.has_length() {
         return None;
     }
-    let markers = wand_markers(wand, v);
-    let ends = [markers[0], markers[markers.len() - 1]];
     let mut pts = Vec::new();
-    for m in ends {
+    for m in wand_markers(wand, v) {
         let obs: Vec<Observation> = f
             .pixels
             .iter()
@@ -888,7 +972,7 @@ fn free_length(cams: &[Camera], f: &WandFrame, wand: &Wand, v: &[f64]) -> Option
         }
         pts.push(triangulate(cams, &obs).ok()?.point_world);
     }
-    Some((pts[1] - pts[0]).norm())
+    Some(pts)
 }
 
 #[cfg(test)]
@@ -1068,5 +1152,53 @@ mod tests {
         for (rms, k) in &sol.per_camera {
             assert!(*rms < 0.3 && *k > 100, "{sol:?}");
         }
+    }
+
+    /// A wand waved in one vertical plane: every pair's samples fit a homography, so no pose is
+    /// determined; the error says so and what to do instead of returning a wrong rig.
+    #[test]
+    fn a_wand_waved_in_one_plane_is_refused_with_advice() {
+        let truth = ring();
+        let wand = Wand::two(0.5).unwrap();
+        let mut rng = SplitMix64::new(11);
+        let fs: Vec<WandFrame> = (0..600)
+            .map(|k| {
+                let a = Point3::new(rng.range(-0.6, 0.6), 0.05, rng.range(0.5, 1.5));
+                let t = rng.range(0.0, std::f64::consts::TAU);
+                let d = Vector3::new(t.cos(), 0.0, t.sin());
+                let pixels = truth
+                    .iter()
+                    .map(|c| {
+                        [a, a + d * 0.5]
+                            .iter()
+                            .filter_map(|m| c.project(m))
+                            .map(|p| p + Vector2::new(rng.normal(), rng.normal()) * 0.2)
+                            .collect()
+                    })
+                    .collect();
+                WandFrame { frame: k, pixels }
+            })
+            .collect();
+        let err = calibrate_wand(&truth, &fs, &wand, &WandConfig::default()).unwrap_err();
+        assert!(err.to_string().contains("lie in one plane"), "{err}");
+    }
+
+    /// A three-marker wand whose middle marker is not where the user said: the frames do not
+    /// fit (residuals of pixels), and the middle marker triangulated freely is far from where
+    /// the wand puts it (the CLI refuses it, naming the wand).
+    #[test]
+    fn a_three_marker_wand_of_other_distances_does_not_fit() {
+        let truth = ring();
+        let fs = frames(&truth, &Wand::new(vec![0.0, 0.25, 0.5]).unwrap(), 400, 0.2);
+        let said = Wand::new(vec![0.0, 0.15, 0.5]).unwrap();
+        let sol = calibrate_wand(&truth, &fs, &said, &WandConfig::default()).unwrap();
+        let worst = sol.per_camera.iter().map(|c| c.0).fold(0.0, f64::max);
+        let middle = sol.middle_mean_m.unwrap();
+        assert!(worst > 2.0, "{worst} px");
+        assert!((middle - 0.15).abs() > 0.05, "{middle} m");
+        // As said, the middle marker is where it should be.
+        let right = Wand::new(vec![0.0, 0.25, 0.5]).unwrap();
+        let sol = calibrate_wand(&truth, &fs, &right, &WandConfig::default()).unwrap();
+        assert!((sol.middle_mean_m.unwrap() - 0.25).abs() < 5e-4, "{sol:?}");
     }
 }
