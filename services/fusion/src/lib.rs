@@ -368,15 +368,6 @@ impl FusionService {
     }
 
     fn report_detail(&mut self) {
-        // Once a second: forget the per-object publishers of objects fusion no longer follows.
-        let key0 = keys::pose(&self.cfg.ctx.rig.name, 0);
-        let prefix = key0.strip_suffix('0').unwrap_or(&key0);
-        let fuser = &self.fuser;
-        self.per_object.retain(|key| {
-            key.strip_prefix(prefix)
-                .and_then(|id| id.parse::<u32>().ok())
-                .is_some_and(|id| fuser.has_object(id))
-        });
         let rig = &self.cfg.ctx.rig;
         let counters = &mut self.node.counters;
         let now = now_ns();
@@ -388,7 +379,6 @@ impl FusionService {
         let detail = &mut counters.detail;
         detail.insert("cameras_live".into(), live.join(","));
         detail.insert("late".into(), self.pairer.late.to_string());
-        detail.insert("object_keys".into(), self.per_object.len().to_string());
         if self.pairer.before_start > 0 {
             detail.insert("before_start".into(), self.pairer.before_start.to_string());
         }

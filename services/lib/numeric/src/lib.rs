@@ -5,6 +5,7 @@
 pub mod angle;
 pub mod assign;
 pub mod heading;
+pub mod quantiles;
 pub mod random;
 
 pub use assign::{Assigner, assign_min_cost};
