@@ -187,8 +187,8 @@ impl FusionService {
         }
         let waker = Waker::new(&node.iox, &iox_names::observations_ready(&rig))?;
         let poses = node.outlet(&iox_names::poses(&rig), &[], &keys::poses(&rig))?;
-        let per_object = KeyedPublisher::new(&node.session);
-        let per_body = KeyedPublisher::new(&node.session);
+        let per_object = KeyedPublisher::new(&node.session, &keys::all_poses(&rig))?;
+        let per_body = KeyedPublisher::new(&node.session, &keys::all_bodies(&rig))?;
         let bodies = bodies::Bodies::of_rig(&ctx.rig.spec);
         tracing::info!(
             local = local.len(),
@@ -332,7 +332,10 @@ impl FusionService {
         };
         let counters = &mut self.node.counters;
         self.poses.publish(&frame, counters);
-        for p in &frame.poses {
+        // Per-object and per-body updates are made only while someone subscribes to them.
+        let objects_wanted = !frame.poses.is_empty() && self.per_object.matching();
+        let bodies_wanted = !frame.bodies.is_empty() && self.per_body.matching();
+        for p in frame.poses.iter().filter(|_| objects_wanted) {
             let u = PoseUpdate {
                 schema: SCHEMA_VERSION,
                 rig: rig.name.clone(),
@@ -347,7 +350,7 @@ impl FusionService {
                     .put_bytes(&keys::pose(&rig.name, p.object_id), u.to_json()),
             );
         }
-        for b in &frame.bodies {
+        for b in frame.bodies.iter().filter(|_| bodies_wanted) {
             let u = BodyUpdate {
                 schema: SCHEMA_VERSION,
                 rig: rig.name.clone(),
