@@ -281,7 +281,9 @@ fn main() {
     if !worker_only {
         transport_table(quick, &mut json);
     }
-    worker_table(quick, frames_dir.as_deref(), &mut json);
+    // `--only markers-1920x1080`: one scene and size of the worker's table (for a profiler).
+    let only = get("--only");
+    worker_table(quick, frames_dir.as_deref(), only.as_deref(), &mut json);
     if worker_only {
         return;
     }
@@ -314,7 +316,12 @@ fn transport_table(quick: bool, json: &mut Vec<String>) {
     }
 }
 
-fn worker_table(quick: bool, frames_dir: Option<&std::path::Path>, json: &mut Vec<String>) {
+fn worker_table(
+    quick: bool,
+    frames_dir: Option<&std::path::Path>,
+    only: Option<&str>,
+    json: &mut Vec<String>,
+) {
     println!(
         "\n## One moment worker, frames per second (4 objects, windowed tracking, one thread)"
     );
@@ -322,8 +329,11 @@ fn worker_table(quick: bool, frames_dir: Option<&std::path::Path>, json: &mut Ve
     println!("|---|---|---|---|");
     for markers in [false, true] {
         for (w, h) in [(640, 480), (1920, 1080)] {
-            let (fps, found) = worker_fps(w, h, markers, frames_dir, quick);
             let scene = if markers { "markers" } else { "targets" };
+            if only.is_some_and(|o| o != format!("{scene}-{w}x{h}")) {
+                continue;
+            }
+            let (fps, found) = worker_fps(w, h, markers, frames_dir, quick);
             println!(
                 "| {scene} {w}×{h} | {fps:.0} | {:.4} | {found} |",
                 1e3 / fps
