@@ -186,13 +186,20 @@ impl Scratch {
                 continue;
             }
             let segs = &region.segs[band.segs.0..band.segs.1];
-            // A band that is one segment of at most 64 pixels (a tracking window) is read as
-            // one 64-pixel chunk per row, its runs taken straight from the chunk's mask.
-            // With the mask of its `n` pixels in a 64-pixel chunk.
+            // A band that is one segment of at most 128 pixels (a tracking window) is read as
+            // one or two 64-pixel chunks per row — the second ending at the segment's end,
+            // overlapping the first, so the two cover the segment exactly — its runs taken
+            // straight from the chunks' mask (bit i = pixel `seg.x0 + i`).
             let narrow = match segs {
-                [seg] if seg.x1 - seg.x0 < 64 && seg.x0 + 64 <= img.width() => {
+                [seg] if seg.x1 - seg.x0 < 128 && seg.x0 + 64 <= img.width() => {
                     let n = seg.x1 - seg.x0 + 1;
-                    Some((*seg, if n == 64 { u64::MAX } else { (1u64 << n) - 1 }))
+                    let limit = if n == 128 {
+                        u128::MAX
+                    } else {
+                        (1u128 << n) - 1
+                    };
+                    let second = (n > 64).then(|| seg.x1 + 1 - 64);
+                    Some((*seg, limit, second))
                 }
                 _ => None,
             };
@@ -202,30 +209,60 @@ impl Scratch {
                 // Empty rows (most rows of a tracking window) are skipped in a tight loop: they
                 // join nothing, and an empty cut row needs no record for the band joins.
                 let skip_from = y;
-                let mut narrow_mask = 0u64;
+                let mut narrow_mask = 0u128;
                 let row = match narrow {
-                    Some((seg, limit)) => {
+                    Some((seg, limit, second)) => {
                         let x0 = seg.x0 as usize;
-                        // SAFETY: a narrow band has `seg.x0 + 64 <= width` (checked above) and
-                        // its rows are below `y1 <= height`; every call below is for a row < y1.
-                        let chunk = |y: u32| unsafe { img.chunk64_unchecked(y, x0) };
+                        // SAFETY: a narrow band has `seg.x0 + 64 <= width` (checked above), its
+                        // second chunk ends at `seg.x1 < width`, and its rows are below
+                        // `y1 <= height`; every call below is for a row < y1.
+                        let chunk = |y: u32, x: usize| unsafe { img.chunk64_unchecked(y, x) };
                         let mut mask = 0;
                         // Right after a row with runs the next row is likely busy too: test it
-                        // alone before skipping in fours.
+                        // alone before skipping four chunks at a time (four rows of one chunk,
+                        // or two rows of two).
                         let mut skip_fours =
                             prev_y != Some(y.wrapping_sub(1)) || self.prev.is_empty();
                         while y < y1 {
-                            if skip_fours
-                                && y + 4 <= y1
-                                && !any64x4::<P, AVX2>(
-                                    [chunk(y), chunk(y + 1), chunk(y + 2), chunk(y + 3)],
-                                    seg.threshold,
-                                )
-                            {
-                                y += 4;
-                                continue;
+                            match second {
+                                None if skip_fours
+                                    && y + 4 <= y1
+                                    && !any64x4::<P, AVX2>(
+                                        [
+                                            chunk(y, x0),
+                                            chunk(y + 1, x0),
+                                            chunk(y + 2, x0),
+                                            chunk(y + 3, x0),
+                                        ],
+                                        seg.threshold,
+                                    ) =>
+                                {
+                                    y += 4;
+                                    continue;
+                                }
+                                Some(b)
+                                    if skip_fours
+                                        && y + 2 <= y1
+                                        && !any64x4::<P, AVX2>(
+                                            [
+                                                chunk(y, x0),
+                                                chunk(y, b as usize),
+                                                chunk(y + 1, x0),
+                                                chunk(y + 1, b as usize),
+                                            ],
+                                            seg.threshold,
+                                        ) =>
+                                {
+                                    y += 2;
+                                    continue;
+                                }
+                                _ => {}
                             }
-                            mask = mask64::<P, AVX2>(chunk(y), seg.threshold) & limit;
+                            mask = narrow_row_mask::<P, AVX2>(
+                                chunk(y, x0),
+                                second.map(|b| (chunk(y, b as usize), b - seg.x0)),
+                                seg.threshold,
+                            ) & limit;
                             if mask != 0 {
                                 break;
                             }
@@ -236,7 +273,7 @@ impl Scratch {
                         None
                     }
                     None => {
-                        y = next_nonempty_row(img, segs, y, y1);
+                        y = next_nonempty_row::<P, AVX2>(img, segs, y, y1);
                         if y < y1 { Some(img.row(y)) } else { None }
                     }
                 };
@@ -249,7 +286,7 @@ impl Scratch {
                 }
                 // The common row of a tracked blob: one run, continuing the one run of the row
                 // above — no labels to join, so it goes straight into that blob's sums.
-                if let Some((seg, limit)) = narrow
+                if let Some((seg, limit, second)) = narrow
                     && y != ya
                     && y + 1 != yb
                     && prev_y == Some(y - 1)
@@ -259,7 +296,7 @@ impl Scratch {
                     let ones = (!(narrow_mask >> start)).trailing_zeros();
                     let (x0, x1) = (seg.x0 + start, seg.x0 + start + ones - 1);
                     let p = self.prev[0];
-                    let single = start + ones >= 64 || narrow_mask >> (start + ones) == 0;
+                    let single = start + ones >= 128 || narrow_mask >> (start + ones) == 0;
                     if single && p.x0 <= x1 + k && p.x1 + k >= x0 {
                         let n = seg.x1 - seg.x0 + 1;
                         let hclip =
@@ -284,20 +321,25 @@ impl Scratch {
                         if band.check_bottom {
                             stop = stop.min(band.y1 - 1);
                         }
-                        let edge_bits = seg.open_left as u64 | (seg.open_right as u64) << (n - 1);
+                        let edge_bits = seg.open_left as u128 | (seg.open_right as u128) << (n - 1);
                         let cx0 = seg.x0 as usize;
                         let mut yy = y + 1;
                         while yy < stop {
-                            // SAFETY: as for the skipped rows: `yy < stop <= y1` and the
-                            // narrow band's `seg.x0 + 64 <= width`.
-                            let chunk = unsafe { img.chunk64_unchecked(yy, cx0) };
-                            let mask = mask64::<P, AVX2>(chunk, seg.threshold) & limit;
+                            // SAFETY: as for the skipped rows: `yy < stop <= y1`, the narrow
+                            // band's `seg.x0 + 64 <= width` and its second chunk ends at
+                            // `seg.x1 < width`.
+                            let chunk = |x: usize| unsafe { img.chunk64_unchecked(yy, x) };
+                            let mask = narrow_row_mask::<P, AVX2>(
+                                chunk(cx0),
+                                second.map(|b| (chunk(b as usize), b - seg.x0)),
+                                seg.threshold,
+                            ) & limit;
                             if mask == 0 {
                                 break;
                             }
                             let start = mask.trailing_zeros();
                             let ones = (!(mask >> start)).trailing_zeros();
-                            let single = start + ones >= 64 || mask >> (start + ones) == 0;
+                            let single = start + ones >= 128 || mask >> (start + ones) == 0;
                             let (r0, r1) = (seg.x0 + start, seg.x0 + start + ones - 1);
                             if !(single && run.0 <= r1 + k && run.1 + k >= r0) {
                                 break;
@@ -333,7 +375,7 @@ impl Scratch {
                 }
                 match (row, narrow) {
                     (Some(row), _) => find_row_runs(row, segs, &mut row_runs),
-                    (None, Some((seg, _))) => runs_from_mask(narrow_mask, &seg, &mut row_runs),
+                    (None, Some((seg, _, _))) => runs_from_mask(narrow_mask, &seg, &mut row_runs),
                     (None, None) => row_runs.clear(),
                 }
                 if prev_y != Some(y.wrapping_sub(1)) || y == 0 {

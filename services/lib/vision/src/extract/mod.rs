@@ -577,11 +577,39 @@ fn emit_blobs(
 }
 
 /// Whether any pixel of `img` is `>= threshold` outside every rectangle of `windows`: one
-/// read of the frame, 64 pixels at a time, with nothing labelled or stored. The tracker's
-/// periodic search for new objects runs this first and labels the whole frame only when it
-/// is true; when it is false every foreground pixel is inside the windows, so their union's
-/// blobs are the frame's blobs.
+/// read of the frame, 256 pixels at a time (AVX2 where the CPU has it), with nothing labelled
+/// or stored. The tracker's periodic search for new objects runs this first and labels the
+/// whole frame only when it is true; when it is false every foreground pixel is inside the
+/// windows, so their union's blobs are the frame's blobs.
 pub fn any_foreground_outside<P: Pixel>(
+    img: &GrayView<'_, P>,
+    threshold: u32,
+    windows: &[PixelRect],
+) -> bool {
+    #[cfg(target_arch = "x86_64")]
+    if cpu_has_avx2() {
+        // SAFETY: the CPU was just found to support AVX2.
+        return unsafe { foreground_outside_avx2(img, threshold, windows) };
+    }
+    foreground_outside_with::<P, false>(img, threshold, windows)
+}
+
+/// [`foreground_outside_with`] compiled with AVX2.
+///
+/// # Safety
+/// The CPU must support AVX2.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn foreground_outside_avx2<P: Pixel>(
+    img: &GrayView<'_, P>,
+    threshold: u32,
+    windows: &[PixelRect],
+) -> bool {
+    foreground_outside_with::<P, true>(img, threshold, windows)
+}
+
+#[inline(always)]
+fn foreground_outside_with<P: Pixel, const AVX2: bool>(
     img: &GrayView<'_, P>,
     threshold: u32,
     windows: &[PixelRect],
@@ -600,26 +628,44 @@ pub fn any_foreground_outside<P: Pixel>(
         let row = img.row(y);
         let mut x = 0usize;
         for &(a, b) in &covering {
-            if a > x && any_at_least(&row[x..a.min(w)], threshold) {
+            if a > x && any_at_least::<P, AVX2>(&row[x..a.min(w)], threshold) {
                 return true;
             }
             x = x.max(b + 1);
         }
-        if x < w && any_at_least(&row[x..w], threshold) {
+        if x < w && any_at_least::<P, AVX2>(&row[x..w], threshold) {
             return true;
         }
     }
     false
 }
 
-fn any_at_least<P: Pixel>(pixels: &[P], threshold: u32) -> bool {
-    let mut chunks = pixels.chunks_exact(64);
-    for c in &mut chunks {
-        if P::any_foreground64(c, threshold) {
+/// Whether any of `pixels` is `>= threshold`: four 64-pixel chunks at a time, then single
+/// chunks, the last one ending at the end (overlapping the one before).
+#[inline(always)]
+fn any_at_least<P: Pixel, const AVX2: bool>(pixels: &[P], threshold: u32) -> bool {
+    let n = pixels.len();
+    let mut x = 0;
+    while x + 256 <= n {
+        let c = |k: usize| &pixels[x + 64 * k..x + 64 * (k + 1)];
+        if runs::any64x4::<P, AVX2>([c(0), c(1), c(2), c(3)], threshold) {
             return true;
         }
+        x += 256;
     }
-    chunks.remainder().iter().any(|p| p.value() >= threshold)
+    while x + 64 <= n {
+        if runs::mask64::<P, AVX2>(&pixels[x..x + 64], threshold) != 0 {
+            return true;
+        }
+        x += 64;
+    }
+    if x < n {
+        if n >= 64 {
+            return runs::mask64::<P, AVX2>(&pixels[n - 64..n], threshold) != 0;
+        }
+        return pixels[x..].iter().any(|p| p.value() >= threshold);
+    }
+    false
 }
 
 #[cfg(test)]
@@ -826,18 +872,69 @@ mod tests {
         }
     }
 
+    /// The search's read of what no window covers, both pixel-test widths, against a pixel by
+    /// pixel reference: frames of widths round the 64- and 256-pixel chunks with a few bright
+    /// pixels anywhere and random windows.
+    #[test]
+    fn foreground_outside_matches_a_pixel_by_pixel_reference() {
+        let mut rng = stereoscope_numeric::SplitMix64::new(17);
+        let mut seen = [0usize; 2];
+        for trial in 0..400u64 {
+            let (w, h) = (40 + (trial % 9) as u32 * 37, 12);
+            let mut img = GrayImage::filled(w, h, 20u8).unwrap();
+            for _ in 0..(trial % 4) {
+                let (x, y) = (rng.next_u64() % w as u64, rng.next_u64() % h as u64);
+                img.as_mut_slice()[(y * w as u64 + x) as usize] = 200;
+            }
+            let windows: Vec<PixelRect> = (0..(trial % 5))
+                .map(|_| {
+                    let x0 = (rng.next_u64() % w as u64) as u32;
+                    let y0 = (rng.next_u64() % h as u64) as u32;
+                    PixelRect {
+                        x0,
+                        y0,
+                        x1: x0 + (rng.next_u64() % 300) as u32,
+                        y1: y0 + (rng.next_u64() % 8) as u32,
+                    }
+                })
+                .collect();
+            let want = (0..h).any(|y| {
+                (0..w).any(|x| {
+                    img.as_slice()[(y * w + x) as usize] >= 128
+                        && !windows
+                            .iter()
+                            .any(|r| r.x0 <= x && x <= r.x1 && r.y0 <= y && y <= r.y1)
+                })
+            });
+            seen[usize::from(want)] += 1;
+            let v = img.view();
+            assert_eq!(
+                any_foreground_outside(&v, 128, &windows),
+                want,
+                "trial {trial}"
+            );
+            assert_eq!(
+                foreground_outside_with::<u8, false>(&v, 128, &windows),
+                want,
+                "trial {trial}"
+            );
+        }
+        assert!(seen[0] > 50 && seen[1] > 50, "{seen:?}");
+    }
+
     #[test]
     fn matches_flood_fill_in_random_narrow_and_wide_windows() {
-        // Widths around the 64-pixel chunk (the narrow-window path), windows at the right
-        // edge (where a 64-pixel read would leave the row), overlapping and apart.
+        // Widths around the 64- and 128-pixel chunks (the narrow-window paths of one and of
+        // two chunks), windows at the right edge (where a 64-pixel read would leave the row),
+        // overlapping and apart.
         let mut rng = stereoscope_numeric::SplitMix64::new(99);
-        for trial in 0..60u64 {
-            let (w, h) = (100 + (trial % 7) as u32 * 13, 70);
+        for trial in 0..120u64 {
+            let (w, h) = (100 + (trial % 7) as u32 * 25, 70);
             let img = random_image(w, h, 500 + trial, 40);
             let count = 1 + (trial % 4) as usize;
             let windows: Vec<Window> = (0..count)
                 .map(|_| {
-                    let ww = 1 + (rng.next_u64() % 80) as u32;
+                    let ww = 1 + (rng.next_u64() % 150) as u32;
                     let hh = 1 + (rng.next_u64() % 40) as u32;
                     let x0 = (rng.next_u64() % w as u64) as u32;
                     let y0 = (rng.next_u64() % h as u64) as u32;
@@ -874,7 +971,7 @@ mod tests {
     }
 
     /// The tracking windows' inner loop (a blob's rows summed as a block) and both pixel-test
-    /// widths against the flood fill: ellipses of radius 2–14 px in windows up to 64 px wide,
+    /// widths against the flood fill: ellipses of radius 2–14 px in windows up to 150 px wide,
     /// some cutting them, some overlapping, at the frame's edges too; and a blob the window
     /// holds whole gets the very moments (binary and grey-level) of the full-frame pass.
     #[test]
@@ -882,7 +979,7 @@ mod tests {
         use crate::raster::{Ellipse, draw_ellipse};
         let mut rng = stereoscope_numeric::SplitMix64::new(5);
         let mut whole = 0;
-        for trial in 0..80u64 {
+        for trial in 0..120u64 {
             let (w, h) = (160 + (trial % 5) as u32 * 17, 120);
             let mut img = GrayImage::filled(w, h, 10u8).unwrap();
             let mut windows = Vec::new();
@@ -897,7 +994,7 @@ mod tests {
                     angle_deg: 180.0 * rng.uniform(),
                 };
                 draw_ellipse(&mut img, &e, 1.0, 10.0, 210.0, 4);
-                let half = 5 + (rng.next_u64() % 27) as u32;
+                let half = 5 + (rng.next_u64() % 70) as u32;
                 let jitter = (rng.uniform() - 0.5) * r;
                 windows.push(Window::new(crate::tracker::clamp_window(
                     cx + jitter,

@@ -25,29 +25,30 @@ pub(super) fn any64x4<P: Pixel, const AVX2: bool>(chunks: [&[P]; 4], threshold: 
 }
 
 /// Whether any pixel of the row's segments is foreground: the quick test that lets empty rows
-/// (most rows of a tracking window) skip all bookkeeping.
-#[inline]
-pub(super) fn row_has_foreground<P: Pixel>(row: &[P], segs: &[Seg]) -> bool {
+/// (most rows of a tracking window) skip all bookkeeping. A segment of 64 pixels or more is
+/// read in whole 64-pixel chunks, the last one ending at the segment's end (overlapping the one
+/// before), so no chunk needs a mask.
+#[inline(always)]
+pub(super) fn row_has_foreground<P: Pixel, const AVX2: bool>(row: &[P], segs: &[Seg]) -> bool {
     for seg in segs {
         let (mut x, end) = (seg.x0 as usize, seg.x1 as usize + 1);
-        while x + 64 <= end {
-            if P::any_foreground64(&row[x..x + 64], seg.threshold) {
+        if end - x >= 64 {
+            while x + 64 <= end {
+                if mask64::<P, AVX2>(&row[x..x + 64], seg.threshold) != 0 {
+                    return true;
+                }
+                x += 64;
+            }
+            if x < end && mask64::<P, AVX2>(&row[end - 64..end], seg.threshold) != 0 {
                 return true;
             }
-            x += 64;
-        }
-        if x < end {
+        } else if x + 64 <= row.len() {
             let n = end - x;
-            let hit = if x + 64 <= row.len() {
-                let chunk = &row[x..x + 64];
-                P::any_foreground64(chunk, seg.threshold)
-                    && P::foreground_mask64(chunk, seg.threshold) & ((1u64 << n) - 1) != 0
-            } else {
-                row[x..end].iter().any(|p| p.value() >= seg.threshold)
-            };
-            if hit {
+            if mask64::<P, AVX2>(&row[x..x + 64], seg.threshold) & ((1u64 << n) - 1) != 0 {
                 return true;
             }
+        } else if row[x..end].iter().any(|p| p.value() >= seg.threshold) {
+            return true;
         }
     }
     false
@@ -55,22 +56,38 @@ pub(super) fn row_has_foreground<P: Pixel>(row: &[P], segs: &[Seg]) -> bool {
 
 /// The first row in `y..y1` with a foreground pixel in `segs`, or `y1` (bands of whole rows
 /// or several segments; a narrow window's band is skipped four rows at a time in the scan).
-#[inline]
-pub(super) fn next_nonempty_row<P: Pixel>(
+#[inline(always)]
+pub(super) fn next_nonempty_row<P: Pixel, const AVX2: bool>(
     img: &GrayView<'_, P>,
     segs: &[Seg],
     mut y: u32,
     y1: u32,
 ) -> u32 {
-    while y < y1 && !row_has_foreground(img.row(y), segs) {
+    while y < y1 && !row_has_foreground::<P, AVX2>(img.row(y), segs) {
         y += 1;
     }
     y
 }
 
-/// The runs of a segment read as one masked 64-pixel chunk (bit i = pixel `seg.x0 + i`).
+/// A narrow segment's row as one mask (bit i = pixel `seg.x0 + i`): its first 64-pixel chunk,
+/// and its second (starting `offset` pixels in, overlapping the first) when it is wider.
+#[inline(always)]
+pub(super) fn narrow_row_mask<P: Pixel, const AVX2: bool>(
+    first: &[P],
+    second: Option<(&[P], u32)>,
+    threshold: u32,
+) -> u128 {
+    let a = mask64::<P, AVX2>(first, threshold) as u128;
+    match second {
+        Some((chunk, offset)) => a | (mask64::<P, AVX2>(chunk, threshold) as u128) << offset,
+        None => a,
+    }
+}
+
+/// The runs of a segment read as one masked chunk of up to 128 pixels (bit i = pixel
+/// `seg.x0 + i`).
 #[inline]
-pub(super) fn runs_from_mask(mut mask: u64, seg: &Seg, out: &mut Vec<(u32, u32, bool)>) {
+pub(super) fn runs_from_mask(mut mask: u128, seg: &Seg, out: &mut Vec<(u32, u32, bool)>) {
     out.clear();
     let n = seg.x1 - seg.x0 + 1;
     while mask != 0 {
@@ -78,10 +95,10 @@ pub(super) fn runs_from_mask(mut mask: u64, seg: &Seg, out: &mut Vec<(u32, u32, 
         let end = start + (!(mask >> start)).trailing_zeros(); // exclusive
         let clipped = (start == 0 && seg.open_left) || (end == n && seg.open_right);
         out.push((seg.x0 + start, seg.x0 + end - 1, clipped));
-        mask = if end >= 64 {
+        mask = if end >= 128 {
             0
         } else {
-            mask & (u64::MAX << end)
+            mask & (u128::MAX << end)
         };
     }
 }
