@@ -93,6 +93,9 @@ pub fn rig_text(
     scene_rig(name, places, fps, dir, port, WAND_SCENE)
 }
 
+/// Numbers the iceoryx2 prefixes of one process's rigs.
+static NEXT_PREFIX: std::sync::atomic::AtomicUsize = std::sync::atomic::AtomicUsize::new(0);
+
 pub fn scene_rig(
     name: &str,
     places: &[Place],
@@ -109,9 +112,11 @@ pub fn scene_rig(
         );
     }
     t += &format!(
-        "[fusion]\nmax_skew_ms = 5.0\n\n[recorder]\nfolder = \"{}\"\n\n{scene}\n[[host]]\nname = \"pc\"\nzenoh_listen = [\"tcp/127.0.0.1:{port}\"]\niceoryx2_prefix = \"stsc_wb{}_\"\n",
+        "[fusion]\nmax_skew_ms = 5.0\n\n[recorder]\nfolder = \"{}\"\n\n{scene}\n[[host]]\nname = \"pc\"\nzenoh_listen = [\"tcp/127.0.0.1:{port}\"]\niceoryx2_prefix = \"stsc_wb{}_{}_\"\n",
         dir.join("rec").display(),
-        std::process::id()
+        std::process::id(),
+        // Each rig of this process its own prefix: tests run in parallel.
+        NEXT_PREFIX.fetch_add(1, std::sync::atomic::Ordering::Relaxed)
     );
     t
 }
