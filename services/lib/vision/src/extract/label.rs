@@ -57,6 +57,34 @@ pub(super) fn merge_acc(into: &mut Acc, from: &Acc) {
     into.flags.0 |= from.flags.0;
 }
 
+/// A run's weight sums `(Σw, Σw·x, Σw·x²)`, `w = min(pixel − bg, cap)` (Eq. 3.1 weights), for
+/// the pixels `px` starting at column `x0`. Summed in `u32` relative to each piece's start —
+/// pieces short enough that `Σw·i²` cannot overflow (256 pixels of 8 bits, 32 of 16) — and
+/// moved to `x` in `u64` per piece: the inner loop is plain 32-bit arithmetic that the
+/// compiler vectorises (AVX2 inside `scan_avx2`), where per-pixel 64-bit products did not.
+#[inline(always)]
+pub(super) fn weighted_row_sums<P: Pixel>(px: &[P], x0: u32, bg: u32, cap: u32) -> (u64, u64, u64) {
+    let cap = cap.min(P::MAX_VALUE);
+    let piece = if P::BITS <= 8 { 256 } else { 32 };
+    let (mut sw, mut swx, mut swxx) = (0u64, 0u64, 0u64);
+    for (c, chunk) in px.chunks(piece).enumerate() {
+        let (mut s0, mut s1, mut s2) = (0u32, 0u32, 0u32);
+        for (i, p) in chunk.iter().enumerate() {
+            let w = p.value().saturating_sub(bg).min(cap);
+            let i = i as u32;
+            s0 += w;
+            s1 += w * i;
+            s2 += w * i * i;
+        }
+        let base = x0 as u64 + (c * piece) as u64;
+        let (s0, s1, s2) = (s0 as u64, s1 as u64, s2 as u64);
+        sw += s0;
+        swx += base * s0 + s1;
+        swxx += base * base * s0 + 2 * base * s1 + s2;
+    }
+    (sw, swx, swxx)
+}
+
 // The narrow-window pixel tests (a tracking window's row is one 64-pixel chunk), in SSE2 (the
 // x86-64 baseline) or, when `AVX2` is set, with 256-bit vectors: two loads per row instead of
 // four. `AVX2 = true` is instantiated only inside `Scratch::scan_avx2`, which runs only after
@@ -104,14 +132,7 @@ impl Scratch {
         img: &GrayView<'_, P>,
     ) {
         let row = img.row(y);
-        let (mut sw, mut swx, mut swxx) = (0u64, 0u64, 0u64);
-        for (x, p) in (x0..=x1).zip(&row[x0 as usize..=x1 as usize]) {
-            let w = p.value().saturating_sub(bg).min(cap) as u64;
-            let xf = x as u64;
-            sw += w;
-            swx += w * xf;
-            swxx += w * xf * xf;
-        }
+        let (sw, swx, swxx) = weighted_row_sums(&row[x0 as usize..=x1 as usize], x0, bg, cap);
         self.wacc[label as usize].add_row_sums(sw, swx, swxx, y);
     }
 

@@ -783,6 +783,48 @@ mod tests {
         )
     }
 
+    /// The pieces' 32-bit sums moved to `x` equal plain 64-bit sums, for runs long enough to
+    /// span many pieces, at the largest weights (no overflow) and at random ones.
+    #[test]
+    fn weighted_run_sums_equal_64_bit_sums() {
+        fn reference<P: Pixel>(px: &[P], x0: u32, bg: u32, cap: u32) -> (u64, u64, u64) {
+            let mut s = (0u64, 0u64, 0u64);
+            for (i, p) in px.iter().enumerate() {
+                let w = p.value().saturating_sub(bg).min(cap) as u64;
+                let x = (x0 as usize + i) as u64;
+                s = (s.0 + w, s.1 + w * x, s.2 + w * x * x);
+            }
+            s
+        }
+        let mut rng = stereoscope_numeric::SplitMix64::new(7);
+        for n in [1usize, 31, 32, 33, 255, 256, 257, 1000, 4096] {
+            for x0 in [0u32, 1, 1919, 60_000] {
+                let max8 = vec![255u8; n];
+                let max16 = vec![65535u16; n];
+                let rand8: Vec<u8> = (0..n).map(|_| rng.next_u64() as u8).collect();
+                let rand16: Vec<u16> = (0..n).map(|_| rng.next_u64() as u16).collect();
+                for (bg, cap) in [(0, u32::MAX), (0, 255), (40, 180), (1000, 30_000)] {
+                    assert_eq!(
+                        label::weighted_row_sums(&max8, x0, bg, cap),
+                        reference(&max8, x0, bg, cap)
+                    );
+                    assert_eq!(
+                        label::weighted_row_sums(&rand8, x0, bg, cap),
+                        reference(&rand8, x0, bg, cap)
+                    );
+                    assert_eq!(
+                        label::weighted_row_sums(&max16, x0, bg, cap),
+                        reference(&max16, x0, bg, cap)
+                    );
+                    assert_eq!(
+                        label::weighted_row_sums(&rand16, x0, bg, cap),
+                        reference(&rand16, x0, bg, cap)
+                    );
+                }
+            }
+        }
+    }
+
     #[test]
     fn matches_flood_fill_on_random_images_full_frame() {
         for (seed, w, h) in [
