@@ -301,6 +301,11 @@ fn every_rig_rule_is_refused_at_start_with_its_key() {
     let with_cam0 = |s: &str| demo.replacen(cam0, s, 1);
     let cases: Vec<(&str, String, &[&str])> = vec![
         (
+            "realtime",
+            format!("{demo}\n[realtime]\npriority = 99\n"),
+            &["realtime.priority", "99"],
+        ),
+        (
             "max_objects",
             demo.replacen("max_objects = 10", "max_objects = 0", 1),
             &["camera[0].moments.max_objects", "0"],
@@ -695,6 +700,95 @@ fn serial_output_sends_fresh_poses_and_survives_an_unplugged_cable() {
         service.output()
     );
     cable.unplug();
+}
+
+/// `[realtime] priority` (docs/deploy.md, "Latency"): the services on a frame's way to a pose
+/// run under SCHED_FIFO at that priority — a restarted one too — and the launcher and the
+/// services off that way keep the ordinary policy. Where this user may not use real-time
+/// priorities the launcher refuses the rig before starting anything, naming the key, with the
+/// configuration exit status.
+#[test]
+fn realtime_priority_puts_the_frame_path_under_sched_fifo() {
+    let _serial = serial();
+    let dir = TempDir::new("realtime");
+    let (path, port) = one_pc_rig_of(
+        &dir,
+        'r',
+        &format!(
+            "{}\n[realtime]\npriority = 7\n\n[viewer]\nlisten = \"127.0.0.1:{}\"\n",
+            demo_rig(),
+            free_port()
+        ),
+    );
+    // The policy and real-time priority of a process (/proc/PID/stat fields 41 and 40).
+    let policy = |pid: i32| -> (u32, u32) {
+        let stat = std::fs::read_to_string(format!("/proc/{pid}/stat")).unwrap();
+        let f: Vec<u32> = stat
+            .rsplit_once(')')
+            .unwrap()
+            .1
+            .split_whitespace()
+            .map(|x| x.parse().unwrap_or(0))
+            .collect();
+        (f[38], f[37])
+    };
+    // May this user set it? Asked on a thread of its own that then ends.
+    let allowed = std::thread::spawn(|| {
+        let param = libc::sched_param { sched_priority: 7 };
+        // SAFETY: sets the calling (short-lived) thread's own policy.
+        unsafe { libc::sched_setscheduler(0, libc::SCHED_FIFO, &param) == 0 }
+    })
+    .join()
+    .unwrap();
+    if !allowed {
+        let out = run_with_limit(&["run", &path], Duration::from_secs(30));
+        let err = stderr(&out);
+        assert_eq!(out.status.code(), Some(78), "{err}");
+        assert!(err.contains("[realtime] priority = 7"), "{err}");
+        println!("real-time priorities not allowed here: the refusal checked instead");
+        return;
+    }
+    let mut launcher = Proc::start(&["run", &path]);
+    let watcher = PoseWatcher::new(&format!("tcp/127.0.0.1:{port}"), "demo");
+    watcher.until(Duration::from_secs(40), "three objects", both_cameras);
+    let log = launcher.output();
+    let mut checked = 0;
+    for part in log.split("started ").skip(1) {
+        let Some((name, rest)) = part.split_once(" (pid ") else {
+            continue;
+        };
+        let pid: i32 = rest.split(')').next().unwrap().parse().unwrap();
+        let on_path = ["capture/", "moments/", "fusion", "vrfeed", "serial/"]
+            .iter()
+            .any(|p| name.starts_with(p));
+        let want = if on_path {
+            (libc::SCHED_FIFO as u32, 7)
+        } else {
+            (0, 0)
+        };
+        assert_eq!(policy(pid), want, "{name} (pid {pid})\n{log}");
+        checked += 1;
+    }
+    assert!(checked >= 6, "{log}");
+    assert!(log.contains("started viewer (pid "), "{log}");
+    println!("checked {checked} services");
+    assert_eq!(policy(launcher.child.id() as i32), (0, 0), "the launcher");
+    // A restarted capture gets it again.
+    let pid = pid_of(&log, "capture/cam1");
+    // SAFETY: killing a process this test started (through the launcher).
+    assert_eq!(unsafe { libc::kill(pid, libc::SIGKILL) }, 0);
+    let log = launcher.wait_for(Duration::from_secs(20), "the restart", |o| {
+        o.contains("restarted capture/cam1 (pid ")
+    });
+    let new_pid: i32 = log
+        .split("restarted capture/cam1 (pid ")
+        .nth(1)
+        .and_then(|s| s.split(')').next())
+        .and_then(|s| s.parse().ok())
+        .unwrap();
+    assert_eq!(policy(new_pid), (libc::SCHED_FIFO as u32, 7));
+    watcher.until(Duration::from_secs(30), "both cameras again", both_cameras);
+    launcher.stop();
 }
 
 fn pid_of(log: &str, service: &str) -> i32 {

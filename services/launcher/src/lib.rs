@@ -100,6 +100,17 @@ pub enum LaunchError {
         source: std::io::Error,
     },
 
+    /// The rig asks for real-time priorities this user may not set.
+    #[error(
+        "{}: [realtime] priority = {priority}: this user may not run services under SCHED_FIFO (run as root, grant CAP_SYS_NICE, or allow the priority: ulimit -r, systemd LimitRTPRIO={priority}; or remove [realtime])",
+        .rig.display()
+    )]
+    Realtime {
+        rig: std::path::PathBuf,
+        priority: u32,
+        source: std::io::Error,
+    },
+
     /// A service refused its configuration: no restart would mend it, so the rig stopped.
     #[error(
         "{service} refused its configuration (exit status {}): {message}; stopped the rig",
@@ -247,12 +258,17 @@ fn spawn(
     for (k, v) in &cfg.env {
         cmd.env(k, v);
     }
-    // SAFETY: prctl is async-signal-safe; nothing else runs between fork and exec.
+    let realtime = realtime_priority(cfg, &spec.name);
+    // SAFETY: prctl and sched_setscheduler are system calls, async-signal-safe; nothing else
+    // runs between fork and exec.
     unsafe {
         use std::os::unix::process::CommandExt;
-        cmd.pre_exec(|| {
+        cmd.pre_exec(move || {
             if libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGTERM) != 0 {
                 return Err(std::io::Error::last_os_error());
+            }
+            if let Some(priority) = realtime {
+                set_fifo(priority)?;
             }
             Ok(())
         });
@@ -266,6 +282,40 @@ fn spawn(
         .take()
         .map(|err| pipe_lines(spec.name.clone(), err, Some(last_error_line.clone())));
     Ok((child, copier))
+}
+
+/// The rig's `[realtime] priority` for a service on a frame's way to a pose and out (captures,
+/// moment workers, fusion, the VR feed, serial outputs); `None` for the others and when the
+/// rig has no `[realtime]`.
+fn realtime_priority(cfg: &LaunchConfig, service: &str) -> Option<u32> {
+    let on_path = service.starts_with("capture/")
+        || service.starts_with("moments/")
+        || service.starts_with("serial/")
+        || service == "fusion"
+        || service == "vrfeed";
+    let r = cfg.ctx.rig.spec.realtime.as_ref()?;
+    on_path.then_some(r.priority)
+}
+
+/// Puts the calling thread under `SCHED_FIFO` at `priority`.
+fn set_fifo(priority: u32) -> std::io::Result<()> {
+    let param = libc::sched_param {
+        sched_priority: priority as libc::c_int,
+    };
+    // SAFETY: a system call on the calling thread with a valid parameter.
+    if unsafe { libc::sched_setscheduler(0, libc::SCHED_FIFO, &param) } != 0 {
+        return Err(std::io::Error::last_os_error());
+    }
+    Ok(())
+}
+
+/// Whether services may be started under `SCHED_FIFO` at `priority`: tried on a thread of
+/// the launcher's own that then ends, so the launcher keeps its ordinary policy and a rig
+/// this user may not run so is refused before anything starts.
+fn check_realtime(priority: u32) -> std::io::Result<()> {
+    std::thread::spawn(move || set_fifo(priority))
+        .join()
+        .unwrap_or_else(|_| Err(std::io::Error::other("the probe thread stopped")))
 }
 
 fn terminate(children: &mut [Running]) {
@@ -372,6 +422,13 @@ pub mod router_cli {
 /// Runs this host's services until shutdown. Returns how many restarts happened.
 pub fn run(cfg: LaunchConfig, shutdown: Shutdown) -> Result<u32, LaunchError> {
     let ctx = &cfg.ctx;
+    if let Some(r) = &ctx.rig.spec.realtime {
+        check_realtime(r.priority).map_err(|source| LaunchError::Realtime {
+            rig: ctx.rig_path.clone(),
+            priority: r.priority,
+            source,
+        })?;
+    }
     // One launcher per rig prefix and host on this PC: a second would start a second set of
     // every service (two fusions publishing interleaved poses).
     let _lock = lock_host(&ctx.iox_prefix, &ctx.host)?;

@@ -3,6 +3,7 @@
 "Load: many cameras"; docs/reliability.md).
 
 usage: soak.py STEREOSCOPE_BINARY CAMERAS SECONDS [--fps F] [--markers M] [--out DIR]
+                  [--realtime PRIORITY]   (the rig's [realtime] priority: docs/deploy.md)
 
 Writes a rig of CAMERAS synthetic 640 x 480 cameras on a ring 3 m across, 2.4 m up, looking
 at the middle of a 2 m volume where M markers (default 16) move, each camera at F frames per
@@ -121,6 +122,8 @@ def main():
     rig = os.path.join(out_dir, f"ring{cameras}.toml")
     with open(rig, "w") as f:
         f.write(ring_rig(cameras, fps, markers))
+        if "--realtime" in opt:
+            f.write(f"\n[realtime]\npriority = {int(opt['--realtime'])}\n")
     log = open(os.path.join(out_dir, "demo.log"), "w")
     demo = subprocess.Popen([binary, "demo", "--rig", rig, "--seconds", str(seconds), "--json"],
                             stdout=subprocess.PIPE, stderr=log, text=True)

@@ -210,7 +210,10 @@ fn main() -> ExitCode {
                 e.chain().any(|c| {
                     matches!(
                         c.downcast_ref::<stereoscope_launcher::LaunchError>(),
-                        Some(stereoscope_launcher::LaunchError::ServiceConfig { .. })
+                        Some(
+                            stereoscope_launcher::LaunchError::ServiceConfig { .. }
+                                | stereoscope_launcher::LaunchError::Realtime { .. }
+                        )
                     )
                 })
             });

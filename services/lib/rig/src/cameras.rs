@@ -413,6 +413,7 @@ mod tests {
             bodies: Vec::new(),
             vr: None,
             viewer: None,
+            realtime: None,
         };
         let back = Rig::from_toml(&file.to_toml().unwrap()).unwrap();
         let b = back.cameras[0].camera;

@@ -412,6 +412,14 @@ pub(crate) fn check(file: &RigFile, base: Option<&Path>, sources: bool) -> Resul
     if let Some(v) = &file.vr {
         known_host("vr.host".into(), &v.host)?;
     }
+    if let Some(r) = &file.realtime
+        && !(1..=98).contains(&r.priority)
+    {
+        return Err(err(
+            "realtime.priority",
+            format!("{} is not between 1 and 98", r.priority),
+        ));
+    }
     if let Some(v) = &file.viewer {
         known_host("viewer.host".into(), &v.host)?;
         if let Some(l) = &v.listen

@@ -203,6 +203,20 @@ pub struct RigFile {
     /// rig whose hosts listen or connect beyond loopback must use `tls/` endpoints.
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]
     pub insecure: bool,
+    /// Real-time scheduling of the services a frame and its pose pass through.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub realtime: Option<RealtimeSpec>,
+}
+
+/// The services on a frame's way to a pose and out — captures, moment workers, fusion, the VR
+/// feed and serial outputs — run under `SCHED_FIFO` at `priority` on every host, so a frame's
+/// wake-ups are not queued behind ordinary processes (`docs/deploy.md`, "Latency"). The
+/// recorder, the viewer and the router keep the ordinary policy.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RealtimeSpec {
+    /// `SCHED_FIFO` priority, 1–98 (99 is left to the kernel's own threads).
+    pub priority: u32,
 }
 
 /// The viewer service: a web page with the 3D scene, the cameras' monitors and the services'
