@@ -30,9 +30,10 @@ fn a_rig_calibrated_by_wand_and_floor_measures_as_the_true_rig() {
 
 /// A one-marker wand gives the cameras up to scale; the floor's L-frame (`calibrate floor
 /// --scale`) sets the scale. The L's 800 mm arm, measured by 320 × 240 cameras 3 m away,
-/// sets it within about 0.05 % (0.045–0.055 % in 4 runs), which adds about 0.2 mm at the known
-/// places 0.5 m from the volume's centre: the rig's geometry after a rigid fit is within 50 %
-/// of the true rig's rather than 10 % (docs/calibration.md).
+/// sets it within about 0.05 % (0.038–0.062 % in 8 runs, bounded here at 0.1 %). Apart from
+/// that scale the rig's geometry must be the true rig's: after a rigid fit the known places'
+/// error is within 20 % of the true rig's combined with what the scale error alone moves them
+/// (the error times their distance from their centroid, 0.52 m RMS; docs/calibration.md).
 #[test]
 fn a_rig_calibrated_by_a_one_marker_wand_and_a_scaling_floor_measures_as_the_true_rig() {
     let r = end_to_end(&ceiling(), ChainWand::One, 20.0, 4.0, 60.0);
@@ -41,8 +42,10 @@ fn a_rig_calibrated_by_a_one_marker_wand_and_a_scaling_floor_measures_as_the_tru
         r.worst_position_m < 0.01 && r.worst_rotation_deg < 0.15,
         "{r:?}"
     );
-    assert!(r.scale_error.abs() < 2e-3, "{r:?}");
+    assert!(r.scale_error.abs() < 1e-3, "{r:?}");
     assert!(r.places_seen >= 5 && r.positions > 500, "{r:?}");
-    assert!(r.fit_calibrated_mm < 1.5 * r.fit_true_mm, "{r:?}");
+    let scale_mm = r.scale_error.abs() * chain::known_rms_radius_m() * 1e3;
+    let bound_mm = 1.2 * r.fit_true_mm.hypot(scale_mm);
+    assert!(r.fit_calibrated_mm < bound_mm, "bound {bound_mm} mm: {r:?}");
     assert!(r.rms_calibrated_mm < 3.0, "{r:?}");
 }

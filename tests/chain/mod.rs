@@ -179,6 +179,20 @@ pub fn near_known(poses_jsonl: &std::path::Path) -> Vec<Vec<[f64; 3]>> {
     out
 }
 
+/// The known places' RMS distance from their centroid, metres: a rig wrong in scale by `s`
+/// misplaces them, after a rigid fit, by about `s` times this.
+pub fn known_rms_radius_m() -> f64 {
+    let n = KNOWN_M.len() as f64;
+    let c: Vec<f64> = (0..3)
+        .map(|k| KNOWN_M.iter().map(|p| p[k]).sum::<f64>() / n)
+        .collect();
+    let sq: f64 = KNOWN_M
+        .iter()
+        .map(|p| (0..3).map(|k| (p[k] - c[k]).powi(2)).sum::<f64>())
+        .sum();
+    (sq / n).sqrt()
+}
+
 /// RMS (mm) of the markers' positions from their known places after the rigid motion that
 /// fits them best (the error of the rig's geometry, its world's placement left out).
 pub fn rms_after_fit(poses_jsonl: &std::path::Path) -> f64 {
