@@ -33,6 +33,7 @@ fn iox_latency(w: u32, h: u32, frames: usize) -> (f64, f64) {
     let service = format!("stereoscope/bench/frames/{w}x{h}");
     let n = node(&prefix, "bench-sub").unwrap();
     let sub = FrameSubscriber::new(&n, &service).unwrap();
+    let own_prefix = prefix.clone();
     let len = (w * h) as usize;
     let (ready_tx, ready_rx) = mpsc::channel();
     let pub_service = service.clone();
@@ -67,6 +68,10 @@ fn iox_latency(w: u32, h: u32, frames: usize) -> (f64, f64) {
         }
     }
     publisher.join().unwrap();
+    // Nothing of the bench stays in /dev/shm: its nodes gone, the prefix's registry too.
+    drop(sub);
+    drop(n);
+    stereoscope_transport::iox::release_prefix(&own_prefix).unwrap();
     (pct(&mut lat, 0.5), pct(&mut lat, 0.99))
 }
 
