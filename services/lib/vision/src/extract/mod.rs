@@ -796,6 +796,14 @@ mod tests {
             }
             s
         }
+        fn check<P: Pixel>(px: &[P], x0: u32, bg: u32, cap: u32) {
+            assert_eq!(
+                label::weighted_row_sums(px, x0, bg, cap),
+                reference(px, x0, bg, cap),
+                "{} pixels from x = {x0}, background {bg}, cap {cap}",
+                px.len()
+            );
+        }
         let mut rng = stereoscope_numeric::SplitMix64::new(7);
         for n in [1usize, 31, 32, 33, 255, 256, 257, 1000, 4096] {
             for x0 in [0u32, 1, 1919, 60_000] {
@@ -804,22 +812,10 @@ mod tests {
                 let rand8: Vec<u8> = (0..n).map(|_| rng.next_u64() as u8).collect();
                 let rand16: Vec<u16> = (0..n).map(|_| rng.next_u64() as u16).collect();
                 for (bg, cap) in [(0, u32::MAX), (0, 255), (40, 180), (1000, 30_000)] {
-                    assert_eq!(
-                        label::weighted_row_sums(&max8, x0, bg, cap),
-                        reference(&max8, x0, bg, cap)
-                    );
-                    assert_eq!(
-                        label::weighted_row_sums(&rand8, x0, bg, cap),
-                        reference(&rand8, x0, bg, cap)
-                    );
-                    assert_eq!(
-                        label::weighted_row_sums(&max16, x0, bg, cap),
-                        reference(&max16, x0, bg, cap)
-                    );
-                    assert_eq!(
-                        label::weighted_row_sums(&rand16, x0, bg, cap),
-                        reference(&rand16, x0, bg, cap)
-                    );
+                    check(&max8, x0, bg, cap);
+                    check(&rand8, x0, bg, cap);
+                    check(&max16, x0, bg, cap);
+                    check(&rand16, x0, bg, cap);
                 }
             }
         }
