@@ -26,6 +26,9 @@ pub struct ServiceSpec {
     pub name: String,
     /// Arguments after the program prefix.
     pub args: Vec<String>,
+    /// On a frame's way to a pose and out (captures, moment workers, fusion, the VR feed,
+    /// serial outputs): run under the rig's `[realtime]` priority when it has one.
+    pub frame_path: bool,
 }
 
 /// What the launcher runs and how.
@@ -131,6 +134,7 @@ pub fn services_here(ctx: &Context, service_zenoh: &ZenohSpec) -> Vec<ServiceSpe
             out.push(ServiceSpec {
                 name: format!("{kind}/{cam}"),
                 args,
+                frame_path: true,
             });
         }
     }
@@ -150,6 +154,7 @@ pub fn services_here(ctx: &Context, service_zenoh: &ZenohSpec) -> Vec<ServiceSpe
         out.push(ServiceSpec {
             name: format!("serial/{}", s.port.rsplit('/').next().unwrap_or("port")),
             args,
+            frame_path: true,
         });
     }
     if ctx.fusion_here() && ctx.rig.spec.fusion.is_some() {
@@ -158,6 +163,7 @@ pub fn services_here(ctx: &Context, service_zenoh: &ZenohSpec) -> Vec<ServiceSpe
         out.push(ServiceSpec {
             name: "fusion".into(),
             args,
+            frame_path: true,
         });
     }
     if let Some(v) = &ctx.rig.spec.vr
@@ -168,6 +174,7 @@ pub fn services_here(ctx: &Context, service_zenoh: &ZenohSpec) -> Vec<ServiceSpe
         out.push(ServiceSpec {
             name: "vrfeed".into(),
             args,
+            frame_path: true,
         });
     }
     if let Some(v) = &ctx.rig.spec.viewer
@@ -178,6 +185,7 @@ pub fn services_here(ctx: &Context, service_zenoh: &ZenohSpec) -> Vec<ServiceSpe
         out.push(ServiceSpec {
             name: "viewer".into(),
             args,
+            frame_path: false,
         });
     }
     if let Some(r) = &ctx.rig.spec.recorder
@@ -199,6 +207,7 @@ pub fn services_here(ctx: &Context, service_zenoh: &ZenohSpec) -> Vec<ServiceSpe
         out.push(ServiceSpec {
             name: "recorder".into(),
             args,
+            frame_path: false,
         });
     }
     out
@@ -258,7 +267,10 @@ fn spawn(
     for (k, v) in &cfg.env {
         cmd.env(k, v);
     }
-    let realtime = realtime_priority(cfg, &spec.name);
+    let realtime = spec
+        .frame_path
+        .then(|| cfg.ctx.rig.spec.realtime.as_ref().map(|r| r.priority))
+        .flatten();
     // SAFETY: prctl and sched_setscheduler are system calls, async-signal-safe; nothing else
     // runs between fork and exec.
     unsafe {
@@ -282,19 +294,6 @@ fn spawn(
         .take()
         .map(|err| pipe_lines(spec.name.clone(), err, Some(last_error_line.clone())));
     Ok((child, copier))
-}
-
-/// The rig's `[realtime] priority` for a service on a frame's way to a pose and out (captures,
-/// moment workers, fusion, the VR feed, serial outputs); `None` for the others and when the
-/// rig has no `[realtime]`.
-fn realtime_priority(cfg: &LaunchConfig, service: &str) -> Option<u32> {
-    let on_path = service.starts_with("capture/")
-        || service.starts_with("moments/")
-        || service.starts_with("serial/")
-        || service == "fusion"
-        || service == "vrfeed";
-    let r = cfg.ctx.rig.spec.realtime.as_ref()?;
-    on_path.then_some(r.priority)
 }
 
 /// Puts the calling thread under `SCHED_FIFO` at `priority`.
