@@ -39,6 +39,16 @@ def main():
               f"{win_s} | {o['contours_ms'] / r['full_1t_ms']:.1f}× faster | "
               f"{r['full_1t_ms'] / o['threshold_ms']:.2f}× its time | "
               f"{ratio_s} |")
+    print("\nThe moment worker's threshold histogram (every k-th row, at least 270 rows), the same "
+          "counts from both (checked by opencv_bench.py):\n")
+    print("| frame | blobs | rows | ours ms | OpenCV calcHist ms | OpenCV / ours |")
+    print("|---|---|---|---|---|---|")
+    for name in sorted(rust, key=lambda n: (rust[n]["width"], rust[n]["blobs"])):
+        r, o = rust[name], ocv.get(name)
+        if o is None:
+            continue
+        print(f"| {r['width']}×{r['height']} | {r['blobs']} | every {r['histogram_step']} | "
+              f"{r['histogram_ms']:.4f} | {o['histogram_ms']:.4f} | {o['histogram_ms'] / r['histogram_ms']:.2f}× |")
     # The goal row: 1920×1080, 50 blobs, single thread; windowed tracking of 4 objects against a
     # full pass of the same frame (the bench checks both found the same 4 blobs).
     g = rust.get("1920x1080_50")

@@ -10,6 +10,7 @@
 use std::hint::black_box;
 use std::io::Write;
 use std::time::{Duration, Instant};
+use stereoscope_vision::histogram::Histogram;
 use stereoscope_vision::raster::random_scene;
 use stereoscope_vision::{ExtractConfig, Extractor, GrayImage, Tracker, TrackerConfig};
 
@@ -224,6 +225,14 @@ fn main() {
             } else {
                 None
             };
+            // The moment worker's threshold histogram: every k-th row, at least 270 rows (its
+            // rule). OpenCV's `calcHist` counts the same rows in `opencv_bench.py`, which checks
+            // that the counts are equal.
+            let step = (h / 270).max(1);
+            let counts = Histogram::of_rows(&img.view(), step).counts().to_vec();
+            let hist = time_ms(batches, min_batch, || {
+                black_box(Histogram::of_rows(&img.view(), step).total());
+            });
             let fmt = |v: Option<f64>| v.map_or("-".to_string(), |v| format!("{v:.4}"));
             println!(
                 "{:>10} {:>5} {:>7} | {:>9.4} {:>10.4} {:>10.4} {:>10} {:>12}",
@@ -237,7 +246,7 @@ fn main() {
                 window.map_or("-".to_string(), |(win, full)| format!("{:.0}×", full / win)),
             );
             rows.push(format!(
-                "{{\"frame\":\"{name}\",\"width\":{w},\"height\":{h},\"blobs\":{count},\"found\":{found},\"read_ms\":{read},\"full_1t_ms\":{full1},\"full_all_ms\":{fulln},\"window_1t_ms\":{},\"window_frame_full_1t_ms\":{},\"cores\":{cores}}}",
+                "{{\"frame\":\"{name}\",\"width\":{w},\"height\":{h},\"blobs\":{count},\"found\":{found},\"read_ms\":{read},\"full_1t_ms\":{full1},\"full_all_ms\":{fulln},\"window_1t_ms\":{},\"window_frame_full_1t_ms\":{},\"cores\":{cores},\"histogram_step\":{step},\"histogram_ms\":{hist},\"histogram_counts\":{counts:?}}}",
                 window.map_or("null".to_string(), |v| v.0.to_string()),
                 window.map_or("null".to_string(), |v| v.1.to_string())
             ));

@@ -1,13 +1,15 @@
 #!/usr/bin/env python3
 """Times OpenCV on the benchmark's frames, for the comparison in docs/performance.md.
 
-Usage: opencv_bench.py FRAMES_DIR OUT.json [--quick]
+Usage: opencv_bench.py FRAMES_DIR RUST.json OUT.json [--quick]
 
 For every FRAMES_DIR/*.pgm (written by `cargo bench --bench moments -- --frames-dir`), single
 threaded (cv2.setNumThreads(1)), median ms per frame of:
   threshold   cv2.threshold alone: one pass over the pixels, the floor;
   ccstats     threshold + cv2.connectedComponentsWithStats (area, bbox, centroid; no 2nd moments);
-  contours    threshold + cv2.findContours + cv2.moments per contour (per-blob 2nd moments).
+  contours    threshold + cv2.findContours + cv2.moments per contour (per-blob 2nd moments);
+  histogram   cv2.calcHist of every k-th row (the moment worker's threshold histogram), after
+              checking that its counts equal those the Rust bench wrote to RUST.json.
 The threshold matches the Rust side: foreground is pixel >= 128, i.e. cv2's pixel > 127.
 """
 import json
@@ -40,10 +42,11 @@ def time_ms(fn, batches, min_batch_s):
 
 
 def main():
-    if len(sys.argv) < 3:
-        sys.exit("usage: opencv_bench.py FRAMES_DIR OUT.json [--quick]")
-    frames_dir, out_path = pathlib.Path(sys.argv[1]), pathlib.Path(sys.argv[2])
-    quick = "--quick" in sys.argv[3:]
+    if len(sys.argv) < 4:
+        sys.exit("usage: opencv_bench.py FRAMES_DIR RUST.json OUT.json [--quick]")
+    frames_dir, out_path = pathlib.Path(sys.argv[1]), pathlib.Path(sys.argv[3])
+    rust_rows = {r["frame"]: r for r in json.load(open(sys.argv[2]))}
+    quick = "--quick" in sys.argv[4:]
     batches, min_batch = (3, 0.01) if quick else (11, 0.025)
     cv2.setNumThreads(1)
     rows = []
@@ -65,6 +68,20 @@ def main():
             cs, _ = cv2.findContours(binary, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
             return [cv2.moments(c) for c in cs]
 
+        # The moment worker's threshold histogram (every k-th row), counted by OpenCV; the
+        # counts must equal ours (the Rust bench wrote them) for the timing to compare.
+        rust = rust_rows.get(path.stem)
+        if rust is None:
+            sys.exit(f"error: {path.stem}: not in {sys.argv[2]}")
+        step = rust["histogram_step"]
+        rows_view = img[::step]
+
+        def histogram():
+            return cv2.calcHist([rows_view], [0], None, [256], [0, 256])
+
+        counts = [int(c) for c in histogram().ravel()]
+        if counts != rust["histogram_counts"]:
+            sys.exit(f"error: {path.stem}: OpenCV's histogram of every {step}th row differs from ours")
         n_cc = ccstats()[0] - 1
         n_contours = len(contours())
         rows.append({
@@ -75,6 +92,7 @@ def main():
             "threshold_ms": time_ms(threshold, batches, min_batch),
             "ccstats_ms": time_ms(ccstats, batches, min_batch),
             "contours_ms": time_ms(contours, batches, min_batch),
+            "histogram_ms": time_ms(histogram, batches, min_batch),
         })
         print(f"{path.stem}: done", file=sys.stderr)
     out_path.write_text(json.dumps(rows, indent=1) + "\n")
