@@ -127,6 +127,17 @@ pub fn worker_settings(
             ));
         }
     }
+    if let Some(step) = s.search_row_step
+        && !(1..=image_size[1]).contains(&step)
+    {
+        return Err(err(
+            format!("{key}.search_row_step"),
+            format!(
+                "{step} is not between 1 and the image's {} rows",
+                image_size[1]
+            ),
+        ));
+    }
     if s.mask.len() > MAX_MASK_RECTS {
         return Err(err(
             format!("{key}.mask"),
@@ -150,6 +161,7 @@ pub fn worker_settings(
         max_objects,
         min_new_area_px: min_area_px,
         search_every_frames: s.search_every_frames.unwrap_or(10),
+        search_row_step: s.search_row_step,
         min_half_width_px,
         par,
         window_threshold: s.window_threshold.map(method),
@@ -240,6 +252,22 @@ mod tests {
             ..Default::default()
         });
         assert_eq!(e.key, "camera[2].moments.min_area_px");
+        for step in [0, 241] {
+            let e = bad(MomentsSpec {
+                search_row_step: Some(step),
+                ..Default::default()
+            });
+            assert_eq!(e.key, "camera[2].moments.search_row_step");
+            assert!(e.message.contains(&format!("{step} is not")), "{e}");
+        }
+        let sampled = MomentsSpec {
+            search_row_step: Some(240),
+            ..Default::default()
+        };
+        assert_eq!(
+            at(Some(&sampled)).unwrap().tracker.search_row_step,
+            Some(240)
+        );
         // A 16-bit camera takes levels above 255.
         let deep = MomentsSpec {
             threshold: Some(ThresholdSpec::Level(300)),

@@ -25,7 +25,8 @@ pub mod tracker;
 
 pub use error::VisionError;
 pub use extract::{
-    Blob, BlobFlags, Connectivity, ExtractConfig, ExtractStats, Extractor, Weighting, Window,
+    Blob, BlobFlags, Connectivity, ExtractConfig, ExtractStats, Extractor, RowSample, Weighting,
+    Window,
 };
 pub use histogram::{Histogram, ThresholdMethod};
 pub use image::{GrayImage, GrayView, Pixel, PixelRect};

@@ -20,21 +20,26 @@
 //! window has grown to the frame, and every `search_every_frames` frames while fewer than
 //! `max_objects` are tracked. A periodic search first reads the frame for any foreground pixel
 //! outside the windows ([`crate::extract::any_foreground_outside`], about a tenth of the cost
-//! of labelling it); with none, the windows' union holds every blob of the frame, so the
-//! windowed step stands for the search (new objects are taken from it) and the frame is not
-//! labelled whole.
+//! of labelling it, and of every `search_row_step`-th row only, from a row that moves at each
+//! search); with none, the windows' union holds every blob of the frame, so the windowed step
+//! stands for the search (new objects are taken from it) and the frame is not labelled whole.
 //!
 //! Pixel conventions: `docs/conventions.md`.
 
 use crate::error::VisionError;
 use crate::extract::{
-    Blob, BlobFlags, ExtractConfig, ExtractStats, Extractor, Window, any_foreground_outside,
+    Blob, BlobFlags, ExtractConfig, ExtractStats, Extractor, RowSample, Window,
+    any_foreground_outside,
 };
 use crate::histogram::{Histogram, ThresholdMethod};
 use crate::image::{GrayView, Pixel, PixelRect};
 use crate::moments::{directed_angle_deg, validate_par};
 use stereoscope_numeric::Assigner;
 use stereoscope_numeric::heading::{HeadingConfig, HeadingTracker, HeadingUpdate};
+
+/// The periodic search's test reads at least this many rows by default
+/// ([`TrackerConfig::search_row_step`]).
+pub const SEARCH_ROWS_AT_LEAST: u32 = 540;
 
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct TrackerConfig {
@@ -47,6 +52,13 @@ pub struct TrackerConfig {
     /// While fewer than `max_objects` are tracked, search the full frame every this many frames
     /// for new ones (1 = every frame).
     pub search_every_frames: u32,
+    /// The periodic search's test for foreground outside the windows reads every this many
+    /// rows, from a row that moves by one at each search: an object at least this many rows
+    /// tall is found at the first search it is in, a shorter one `t` rows tall within
+    /// `step − t + 1` searches. `None`: one row in `height / 540` (every row below 1080 rows,
+    /// every 2nd at 1080p, every 4th at 4K). The frame is still labelled whole when the
+    /// test finds some.
+    pub search_row_step: Option<u32>,
     /// A track lost for more than this many frames is dropped.
     pub drop_after_lost_frames: u32,
     /// Smallest blob that starts a new track, pixels.
@@ -68,6 +80,7 @@ impl Default for TrackerConfig {
             min_half_width_px: 30,
             max_objects: 4,
             search_every_frames: 10,
+            search_row_step: None,
             drop_after_lost_frames: 60,
             min_new_area_px: 4,
             par: 1.0,
@@ -99,6 +112,9 @@ impl TrackerConfig {
         }
         if self.search_every_frames == 0 {
             return bad("search_every_frames", 0.0, "must be at least 1");
+        }
+        if self.search_row_step == Some(0) {
+            return bad("search_row_step", 0.0, "must be at least 1");
         }
         if !(self.heading.ambiguous_step_deg > 0.0 && self.heading.ambiguous_step_deg < 90.0) {
             return bad(
@@ -317,6 +333,20 @@ impl Tracker {
             .collect()
     }
 
+    /// The rows the search of period `period` tests, in a frame `height` rows high: the
+    /// phase follows the period number, so trackers fed the same frames read the same rows.
+    fn search_rows(&self, height: u32, period: u64) -> RowSample {
+        let step = self
+            .cfg
+            .search_row_step
+            .unwrap_or(height / SEARCH_ROWS_AT_LEAST)
+            .max(1);
+        RowSample {
+            step,
+            phase: (period % step as u64) as u32,
+        }
+    }
+
     /// [`Tracker::step`] for frame number `frame` (the camera's sequence number): the periodic
     /// search for new objects runs on the first frame of each period of
     /// `search_every_frames` numbers, so trackers fed the same frames search on the same ones
@@ -352,14 +382,20 @@ impl Tracker {
             });
         }
         let every = self.cfg.search_every_frames as u64;
-        let new_period = self.last_frame.is_none_or(|l| frame / every != l / every);
+        let period = frame / every;
+        let new_period = self.last_frame.is_none_or(|l| period != l / every);
         self.last_frame = Some(frame);
         let searching = self.tracks.len() < self.cfg.max_objects && new_period;
         // Nothing bright outside the windows: the windowed step finds every blob there is.
         let searched_in_windows = searching
             && !needs_full
             && self.cfg.window_threshold.is_none()
-            && !any_foreground_outside(&img, threshold, &self.searched_or_masked());
+            && !any_foreground_outside(
+                &img,
+                threshold,
+                &self.searched_or_masked(),
+                self.search_rows(h, period),
+            );
         let full_frame = needs_full || (searching && !searched_in_windows);
         if full_frame {
             self.windows.clear();
@@ -666,6 +702,48 @@ mod tests {
         assert_eq!((s.new, tr.tracks().len()), (1, 3));
     }
 
+    /// A search that reads every 3rd row finds an object 3 rows tall at the first search it
+    /// is in, and one a single row tall (a line of 8 pixels) at the search whose rows cross
+    /// it: the phase moves by one row a search, with the period number.
+    #[test]
+    fn a_sampled_search_finds_tall_objects_at_once_and_a_one_row_object_in_turn() {
+        let first_found = |row_step: Option<u32>, rows: std::ops::Range<usize>| {
+            let cfg = TrackerConfig {
+                search_every_frames: 10,
+                search_row_step: row_step,
+                ..Default::default()
+            };
+            let mut tr = Tracker::new(cfg, ExtractConfig::default()).unwrap();
+            (0..60u64).find(|&f| {
+                let mut img = frame(&[(60.0, 80.0, 5.0)]);
+                if f >= 5 {
+                    for y in rows.clone() {
+                        img.as_mut_slice()[y * 320 + 200..y * 320 + 208].fill(210);
+                    }
+                }
+                tr.step_frame(img.view(), 128, f).unwrap();
+                tr.tracks().len() == 2
+            })
+        };
+        // Row 101 is read in periods 2, 5, …; row 102 in 0, 3, … (period 3 is frame 30).
+        assert_eq!(first_found(Some(3), 101..102), Some(20));
+        assert_eq!(first_found(Some(3), 102..103), Some(30));
+        assert_eq!(first_found(Some(3), 100..103), Some(10));
+        assert_eq!(first_found(Some(1), 102..103), Some(10));
+        // By default every row below 1080 rows, every 2nd at 1080p, every 4th at 4K.
+        let tr = Tracker::new(TrackerConfig::default(), ExtractConfig::default()).unwrap();
+        let steps = [240, 1079, 1080, 2160].map(|h| tr.search_rows(h, 5));
+        assert_eq!(
+            steps.map(|r| (r.step, r.phase)),
+            [(1, 0), (1, 0), (2, 1), (4, 1)]
+        );
+        let zero = TrackerConfig {
+            search_row_step: Some(0),
+            ..Default::default()
+        };
+        assert!(Tracker::new(zero, ExtractConfig::default()).is_err());
+    }
+
     #[test]
     fn any_foreground_outside_sees_only_what_no_window_covers() {
         let img = frame(&[(100.0, 100.0, 4.0)]);
@@ -682,13 +760,14 @@ mod tests {
             x1: 99,
             y1: 110,
         };
-        assert!(any_foreground_outside(&v, 128, &[]));
-        assert!(!any_foreground_outside(&v, 128, &[around]));
-        assert!(any_foreground_outside(&v, 128, &[beside]));
+        let all = RowSample::ALL;
+        assert!(any_foreground_outside(&v, 128, &[], all));
+        assert!(!any_foreground_outside(&v, 128, &[around], all));
+        assert!(any_foreground_outside(&v, 128, &[beside], all));
         // Two windows that together cover it.
         let rest = PixelRect { x0: 100, ..around };
-        assert!(!any_foreground_outside(&v, 128, &[rest, beside]));
-        assert!(!any_foreground_outside(&v, 255, &[]));
+        assert!(!any_foreground_outside(&v, 128, &[rest, beside], all));
+        assert!(!any_foreground_outside(&v, 255, &[], all));
     }
 
     #[test]

@@ -420,6 +420,10 @@ pub struct MomentsSpec {
     pub full_level: Option<u32>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub search_every_frames: Option<u32>,
+    /// The periodic search's test reads every this many rows (default: one in
+    /// `height / 540`, at least 1), from a row that moves at each search.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub search_row_step: Option<u32>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub min_half_width_px: Option<u32>,
     /// Frames between fresh automatic thresholds (default 30).

@@ -576,22 +576,46 @@ fn emit_blobs(
     stats
 }
 
-/// Whether any pixel of `img` is `>= threshold` outside every rectangle of `windows`: one
-/// read of the frame, 256 pixels at a time (AVX2 where the CPU has it), with nothing labelled
-/// or stored. The tracker's periodic search for new objects runs this first and labels the
-/// whole frame only when it is true; when it is false every foreground pixel is inside the
-/// windows, so their union's blobs are the frame's blobs.
+/// Which rows a read of the frame looks at: those `y` with `y % step == phase`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct RowSample {
+    /// At least 1 (a 0 reads as 1).
+    pub step: u32,
+    /// Below `step` (taken modulo `step`).
+    pub phase: u32,
+}
+
+impl RowSample {
+    /// Every row.
+    pub const ALL: RowSample = RowSample { step: 1, phase: 0 };
+
+    /// The first sampled row at or after `y`, and the step to the next.
+    fn first_from(self, y: u32) -> (u32, u32) {
+        let step = self.step.max(1);
+        let phase = self.phase % step;
+        let ahead = (phase + step - y % step) % step;
+        (y.saturating_add(ahead), step)
+    }
+}
+
+/// Whether any pixel of `img` is `>= threshold` outside every rectangle of `windows`, in the
+/// rows `rows` samples: one read of those rows, 256 pixels at a time (AVX2 where the CPU has
+/// it), with nothing labelled or stored. The tracker's periodic search for new objects runs
+/// this first and labels the whole frame only when it is true; when it is false (and every
+/// row was read) every foreground pixel is inside the windows, so their union's blobs are the
+/// frame's blobs.
 pub fn any_foreground_outside<P: Pixel>(
     img: &GrayView<'_, P>,
     threshold: u32,
     windows: &[PixelRect],
+    rows: RowSample,
 ) -> bool {
     #[cfg(target_arch = "x86_64")]
     if cpu_has_avx2() {
         // SAFETY: the CPU was just found to support AVX2.
-        return unsafe { foreground_outside_avx2(img, threshold, windows) };
+        return unsafe { foreground_outside_avx2(img, threshold, windows, rows) };
     }
-    foreground_outside_with::<P, false>(img, threshold, windows)
+    foreground_outside_with::<P, false>(img, threshold, windows, rows)
 }
 
 /// [`foreground_outside_with`] compiled with AVX2.
@@ -604,8 +628,9 @@ unsafe fn foreground_outside_avx2<P: Pixel>(
     img: &GrayView<'_, P>,
     threshold: u32,
     windows: &[PixelRect],
+    rows: RowSample,
 ) -> bool {
-    foreground_outside_with::<P, true>(img, threshold, windows)
+    foreground_outside_with::<P, true>(img, threshold, windows, rows)
 }
 
 #[inline(always)]
@@ -613,6 +638,7 @@ fn foreground_outside_with<P: Pixel, const AVX2: bool>(
     img: &GrayView<'_, P>,
     threshold: u32,
     windows: &[PixelRect],
+    rows: RowSample,
 ) -> bool {
     let (w, h) = (img.width(), img.height());
     if w == 0 || h == 0 {
@@ -653,7 +679,8 @@ fn foreground_outside_with<P: Pixel, const AVX2: bool>(
         if gaps.is_empty() {
             continue;
         }
-        for y in ya..yb {
+        let (first, step) = rows.first_from(ya);
+        for y in (first..yb).step_by(step as usize) {
             let row = img.row(y);
             if gaps
                 .iter()
@@ -936,9 +963,9 @@ mod tests {
         }
     }
 
-    /// The search's read of what no window covers, both pixel-test widths, against a pixel by
-    /// pixel reference: frames of widths round the 64- and 256-pixel chunks with a few bright
-    /// pixels anywhere and random windows.
+    /// The search's read of what no window covers, both pixel-test widths, every row and
+    /// sampled rows, against a pixel by pixel reference: frames of widths round the 64- and
+    /// 256-pixel chunks with a few bright pixels anywhere and random windows.
     #[test]
     fn foreground_outside_matches_a_pixel_by_pixel_reference() {
         let mut rng = stereoscope_numeric::SplitMix64::new(17);
@@ -977,23 +1004,29 @@ mod tests {
                     img.as_mut_slice()[(y * w as i64 + x) as usize] = 200;
                 }
             }
+            // Every row, or every 2nd or 3rd from a phase (taken modulo the step).
+            let rows = RowSample {
+                step: 1 + ((trial / 7) % 3) as u32,
+                phase: ((trial / 2) % 4) as u32,
+            };
             let want = (0..h).any(|y| {
-                (0..w).any(|x| {
-                    img.as_slice()[(y * w + x) as usize] >= 128
-                        && !windows
-                            .iter()
-                            .any(|r| r.x0 <= x && x <= r.x1 && r.y0 <= y && y <= r.y1)
-                })
+                y % rows.step == rows.phase % rows.step
+                    && (0..w).any(|x| {
+                        img.as_slice()[(y * w + x) as usize] >= 128
+                            && !windows
+                                .iter()
+                                .any(|r| r.x0 <= x && x <= r.x1 && r.y0 <= y && y <= r.y1)
+                    })
             });
             seen[usize::from(want)] += 1;
             let v = img.view();
             assert_eq!(
-                any_foreground_outside(&v, 128, &windows),
+                any_foreground_outside(&v, 128, &windows, rows),
                 want,
                 "trial {trial}"
             );
             assert_eq!(
-                foreground_outside_with::<u8, false>(&v, 128, &windows),
+                foreground_outside_with::<u8, false>(&v, 128, &windows, rows),
                 want,
                 "trial {trial}"
             );
