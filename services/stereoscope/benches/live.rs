@@ -1,8 +1,8 @@
 //! The live system's benchmark (a bench binary, not a timed test): frame transport latency
 //! through iceoryx2 shared memory against sending the same frames over Zenoh (TCP loopback),
 //! the frame rate one moment worker sustains (on frames cold in memory, and on frames just
-//! written by another thread as a capture hands them over), and capture→pose latency of the whole chain
-//! (two 640×480 cameras at 120 fps, 4 objects) run as processes by the launcher.
+//! written by another thread as a capture hands them over), and capture→pose latency of the
+//! whole chain (two 640×480 cameras at 120 fps, 4 objects) run as processes by the launcher.
 //!
 //!   cargo bench -p stereoscope --bench live -- [--quick] [--json OUT] [--frames-dir DIR]
 //!
