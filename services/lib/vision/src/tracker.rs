@@ -187,7 +187,9 @@ pub const MERGE_KEEP_RATIO: f64 = 1.3;
 /// What one tracking step did.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub struct TrackStep {
-    /// The whole frame was searched.
+    /// The frame was searched for new objects: labelled whole, or read by the search's test
+    /// (its rows, [`TrackerConfig::search_row_step`]) and found to hold nothing outside the
+    /// windows.
     pub full_frame: bool,
     pub extract: ExtractStats,
     pub tracked: usize,
