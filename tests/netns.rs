@@ -214,6 +214,18 @@ fn three_pcs_over_mutual_tls_survive_kills_a_cut_cable_and_forgers() {
         }
     };
     let dir = TempDir::new("netns");
+    // Zenoh segments already in /dev/shm (another program's): none may be added by this run.
+    let zenoh_segments = || -> std::collections::BTreeSet<String> {
+        std::fs::read_dir("/dev/shm")
+            .map(|d| {
+                d.filter_map(|e| e.ok())
+                    .map(|e| e.file_name().to_string_lossy().into_owned())
+                    .filter(|n| n.ends_with(".zenoh"))
+                    .collect()
+            })
+            .unwrap_or_default()
+    };
+    let zenoh_before = zenoh_segments();
     let certs = dir.0.join("certs");
     let make = |out: &Path, names: &[&str]| {
         let o = Command::new(repo_root().join("deploy/make-certs.sh"))
@@ -456,4 +468,12 @@ fn three_pcs_over_mutual_tls_survive_kills_a_cut_cable_and_forgers() {
         .filter(|n| n.contains(&format!("st{pid}")))
         .collect();
     assert!(left.is_empty(), "left in /dev/shm: {left:?}");
+    let zenoh_left: Vec<String> = zenoh_segments()
+        .difference(&zenoh_before)
+        .cloned()
+        .collect();
+    assert!(
+        zenoh_left.is_empty(),
+        "Zenoh shared memory left in /dev/shm: {zenoh_left:?}"
+    );
 }

@@ -61,6 +61,9 @@ def main():
         "mode": "client",
         "connect": {"endpoints": [endpoint]},
         "scouting": {"multicast": {"enabled": False}},
+        # The services speak no shared memory; the wheel's default makes a segment
+        # (/dev/shm/NNN.zenoh) that a client stopped by the test would leave behind.
+        "transport": {"shared_memory": {"enabled": False}},
     }))
     session = zenoh.open(conf)
     frames = session.declare_subscriber(f"stereoscope/{rig}/poses")

@@ -33,12 +33,17 @@ def config(endpoint, ca, cert, key):
         "mode": "client",
         "connect": {"endpoints": [endpoint], "timeout_ms": 3000, "exit_on_failure": True},
         "scouting": {"multicast": {"enabled": False}},
-        "transport": {"link": {"tls": {
-            "root_ca_certificate": ca,
-            "connect_certificate": cert,
-            "connect_private_key": key,
-            "enable_mtls": True,
-        }}},
+        "transport": {
+            "link": {"tls": {
+                "root_ca_certificate": ca,
+                "connect_certificate": cert,
+                "connect_private_key": key,
+                "enable_mtls": True,
+            }},
+            # The services speak no shared memory; the wheel's default would leave a segment
+            # (/dev/shm/NNN.zenoh) behind each client the test stops.
+            "shared_memory": {"enabled": False},
+        },
     }))
 
 
