@@ -61,8 +61,8 @@ def main():
         "mode": "client",
         "connect": {"endpoints": [endpoint]},
         "scouting": {"multicast": {"enabled": False}},
-        # The services speak no shared memory; the wheel's default makes a segment
-        # (/dev/shm/NNN.zenoh) that a client stopped by the test would leave behind.
+        # The services speak no shared memory; with the wheel's default a client can end
+        # leaving a segment behind (/dev/shm/NNN.zenoh, docs/reliability.md).
         "transport": {"shared_memory": {"enabled": False}},
     }))
     session = zenoh.open(conf)

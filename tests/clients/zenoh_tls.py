@@ -40,8 +40,8 @@ def config(endpoint, ca, cert, key):
                 "connect_private_key": key,
                 "enable_mtls": True,
             }},
-            # The services speak no shared memory; the wheel's default would leave a segment
-            # (/dev/shm/NNN.zenoh) behind each client the test stops.
+            # The services speak no shared memory; with the wheel's default a client can end
+            # leaving a segment behind (/dev/shm/NNN.zenoh, docs/reliability.md).
             "shared_memory": {"enabled": False},
         },
     }))

@@ -212,7 +212,7 @@ fn worker_fps(
         frames.push(buf);
     }
     let s = rig.worker_settings(0).unwrap();
-    let mut worker = Worker::new(s, "bench", "cam0").unwrap();
+    let mut worker = Worker::new(s.clone(), "bench", "cam0").unwrap();
     let mut header = FrameHeader::new("cam0", PixelFormat::Gray8, w, h).unwrap();
     let total = if quick { 5 * n } else { 25 * n };
     let mut found = vec![None; frames.len()];
@@ -224,7 +224,7 @@ fn worker_fps(
         found[k] = Some(obs);
     }
     let fps = total as f64 / t.elapsed().as_secs_f64();
-    let delivered_ms = worker_delivered_ms(&rig.worker_settings(0).unwrap(), &frames, w, h, total);
+    let delivered_ms = worker_delivered_ms(&s, &frames, w, h, total);
     let found: Vec<_> = found.into_iter().flatten().collect();
     if let Some(dir) = frames_dir {
         let scene = if markers { "markers" } else { "targets" };
