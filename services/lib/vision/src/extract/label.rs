@@ -149,7 +149,9 @@ impl Scratch {
         self.runs = 0;
     }
 
-    /// Scans rows `ya..yb` of the region, with AVX2 pixel tests when `avx2` (the CPU has it).
+    /// Scans rows `ya..yb` of the region, with AVX2 pixel tests when `avx2` (the CPU has it),
+    /// adding its blobs' labels to those of the regions scanned since the last
+    /// [`Scratch::reset`] (regions that do not touch: their blobs cannot join).
     pub(super) fn scan<P: Pixel>(
         &mut self,
         img: &GrayView<'_, P>,
@@ -194,7 +196,10 @@ impl Scratch {
         yb: u32,
         cfg: &ExtractConfig,
     ) {
-        self.reset();
+        // A region scanned after another (a cluster of windows) starts with no row above it;
+        // its labels go on from the last region's (the caller resets between frames).
+        self.prev.clear();
+        self.cur.clear();
         let k = match cfg.connectivity {
             Connectivity::Eight => 1u32,
             Connectivity::Four => 0u32,

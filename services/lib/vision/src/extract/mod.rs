@@ -227,8 +227,25 @@ pub struct Extractor {
     gwacc: Vec<WeightedMoments>,
     offsets: Vec<u32>,
     ranges: Vec<(u32, u32)>,
+    // Clustering windows.
+    wparent: Vec<u32>,
+    order: Vec<(u32, u32)>,
+    clustered: Vec<Window>,
+    cluster_ends: Vec<usize>,
     /// Pixel tests with AVX2 (found at construction; see [`Extractor::use_avx2`]).
     avx2: bool,
+}
+
+/// Below this many pixels a second thread costs more than it saves.
+const PARALLEL_PIXELS: u64 = 65_536;
+
+/// Whether two windows touch: they overlap, or no pixel lies between them (side by side or
+/// corner to corner), so a blob can cross from one into the other.
+fn touch(a: &PixelRect, b: &PixelRect) -> bool {
+    a.x0 <= b.x1.saturating_add(1)
+        && b.x0 <= a.x1.saturating_add(1)
+        && a.y0 <= b.y1.saturating_add(1)
+        && b.y0 <= a.y1.saturating_add(1)
 }
 
 /// Whether this CPU runs the AVX2 pixel tests.
@@ -256,6 +273,10 @@ impl Extractor {
             gwacc: Vec::new(),
             offsets: Vec::new(),
             ranges: Vec::new(),
+            wparent: Vec::new(),
+            order: Vec::new(),
+            clustered: Vec::new(),
+            cluster_ends: Vec::new(),
             avx2: cpu_has_avx2(),
         }
     }
@@ -308,19 +329,50 @@ impl Extractor {
             }
         }
         let (w, h) = (img.width(), img.height());
-        if windows.is_empty() {
-            self.region.full(w, h, threshold);
-        } else {
-            self.region.set_windows::<P>(windows, w, h, threshold)?;
-        }
-        let (ya, yb) = self.region.rows();
-        let pixels = self.region.pixel_count();
+        check_windows::<P>(windows, w, h)?;
         let threads = match self.cfg.threads {
             0 => rayon::current_num_threads(),
             n => n,
         };
-        // Below ~64k pixels a second thread costs more than it saves.
-        let parts = if pixels < 65_536 {
+        let cfg = self.cfg;
+        let avx2 = self.avx2;
+        // Windows on one thread: each cluster of windows that touch one another is scanned as
+        // a region of its own, so a window apart from the others (a tracked marker, usually)
+        // is one narrow segment on every row, the scan's fast path, rather than one of several
+        // segments on the rows it shares with other windows. The clusters do not touch, so no
+        // blob spans two; their blobs are the union's.
+        let window_area: u64 = windows
+            .iter()
+            .map(|w| w.rect.width() as u64 * w.rect.height() as u64)
+            .sum();
+        if !windows.is_empty() && (threads == 1 || window_area < PARALLEL_PIXELS) {
+            self.cluster_windows(windows);
+            if self.scratch.is_empty() {
+                self.scratch.push(Scratch::default());
+            }
+            self.scratch[0].reset();
+            let mut pixels = 0;
+            let mut start = 0;
+            for &end in &self.cluster_ends {
+                self.region
+                    .set_windows(&self.clustered[start..end], w, h, threshold);
+                pixels += self.region.pixel_count();
+                let rows = self.region.rows();
+                self.scratch[0].scan(&img, &self.region, rows, &cfg, avx2);
+                start = end;
+            }
+            self.join_parts(1, w, h, pixels);
+            self.add_edge_rings(&img, threshold, windows);
+            return Ok(&self.blobs);
+        }
+        if windows.is_empty() {
+            self.region.full(w, h, threshold);
+        } else {
+            self.region.set_windows(windows, w, h, threshold);
+        }
+        let (ya, yb) = self.region.rows();
+        let pixels = self.region.pixel_count();
+        let parts = if pixels < PARALLEL_PIXELS {
             1
         } else {
             threads.clamp(1, ((yb - ya) / 16).max(1) as usize)
@@ -335,9 +387,10 @@ impl Extractor {
             let b = ya + rows * (i + 1) / parts as u32;
             self.ranges.push((a, b));
         }
-        let cfg = self.cfg;
-        let avx2 = self.avx2;
         let region = &self.region;
+        for s in &mut self.scratch[..parts] {
+            s.reset();
+        }
         if parts == 1 {
             self.scratch[0].scan(&img, region, (ya, yb), &cfg, avx2);
         } else {
@@ -357,6 +410,18 @@ impl Extractor {
             });
         }
         self.join_parts(parts, w, h, pixels);
+        self.add_edge_rings(&img, threshold, windows);
+        Ok(&self.blobs)
+    }
+
+    /// With coverage weights, each blob's ring of dim edge pixels ([`add_edge_ring`]), at the
+    /// threshold of the windows its first pixel is in.
+    fn add_edge_rings<P: Pixel>(
+        &mut self,
+        img: &GrayView<'_, P>,
+        threshold: u32,
+        windows: &[Window],
+    ) {
         if let Weighting::Coverage { background, full } = self.cfg.weighting {
             for b in &mut self.blobs {
                 let thr = windows
@@ -368,10 +433,46 @@ impl Extractor {
                     .map(|w| w.threshold.unwrap_or(threshold))
                     .min()
                     .unwrap_or(threshold);
-                add_edge_ring(b, &img, thr, background, full);
+                add_edge_ring(b, img, thr, background, full);
             }
         }
-        Ok(&self.blobs)
+    }
+
+    /// Groups `windows` into clusters of windows that touch (overlap, or lie side by side or
+    /// corner to corner with no pixel between them), transitively: `clustered` holds the
+    /// windows cluster after cluster, `cluster_ends` where each cluster ends in it.
+    fn cluster_windows(&mut self, windows: &[Window]) {
+        let n = windows.len();
+        self.wparent.clear();
+        self.wparent.extend(0..n as u32);
+        for i in 0..n {
+            for j in i + 1..n {
+                if touch(&windows[i].rect, &windows[j].rect) {
+                    let (a, b) = (
+                        find(&mut self.wparent, i as u32),
+                        find(&mut self.wparent, j as u32),
+                    );
+                    if a != b {
+                        self.wparent[a.max(b) as usize] = a.min(b);
+                    }
+                }
+            }
+        }
+        self.order.clear();
+        for i in 0..n as u32 {
+            let root = find(&mut self.wparent, i);
+            self.order.push((root, i));
+        }
+        self.order.sort_unstable();
+        self.clustered.clear();
+        self.cluster_ends.clear();
+        for (k, &(root, i)) in self.order.iter().enumerate() {
+            if k > 0 && self.order[k - 1].0 != root {
+                self.cluster_ends.push(k);
+            }
+            self.clustered.push(windows[i as usize]);
+        }
+        self.cluster_ends.push(n);
     }
 
     /// Joins the bands' labels into blobs and applies area filter, flags and capacity.
@@ -1080,6 +1181,88 @@ mod tests {
                 }
             }
         }
+    }
+
+    /// Windows are scanned in clusters of windows that touch: two windows side by side, one
+    /// above the other or corner to corner with no pixel between them are one region (a blob
+    /// crossing from one into the other is one blob, unclipped there); one pixel apart, two.
+    /// Against the flood fill of the windows' union, with several clusters in one frame, and
+    /// the blobs in raster order of their first pixel.
+    #[test]
+    fn touching_windows_are_one_region_and_windows_apart_are_scanned_apart() {
+        let mut rng = stereoscope_numeric::SplitMix64::new(31);
+        let mut crossing = 0;
+        for trial in 0..240u64 {
+            let (w, h) = (140, 100);
+            let img = random_image(w, h, 7000 + trial, 55);
+            let gap = (trial % 2) as u32;
+            // Beside (right), below, corner below-right, corner below-left.
+            let dir = (trial / 2) % 4;
+            let (ww, hh) = (
+                1 + (rng.next_u64() % 40) as u32,
+                1 + (rng.next_u64() % 30) as u32,
+            );
+            let (x0, y0) = (
+                45 + (rng.next_u64() % 10) as u32,
+                5 + (rng.next_u64() % 10) as u32,
+            );
+            let a = PixelRect {
+                x0,
+                y0,
+                x1: x0 + ww - 1,
+                y1: y0 + hh - 1,
+            };
+            let (bw, bh) = (
+                1 + (rng.next_u64() % 40) as u32,
+                1 + (rng.next_u64() % 30) as u32,
+            );
+            let (bx0, by0) = match dir {
+                0 => (a.x1 + 1 + gap, a.y0 + (rng.next_u64() % hh as u64) as u32),
+                1 => (a.x0 + (rng.next_u64() % ww as u64) as u32, a.y1 + 1 + gap),
+                2 => (a.x1 + 1 + gap, a.y1 + 1 + gap),
+                _ => (a.x0 - gap - bw, a.y1 + 1 + gap),
+            };
+            let b = PixelRect {
+                x0: bx0,
+                y0: by0,
+                x1: bx0 + bw - 1,
+                y1: by0 + bh - 1,
+            };
+            // A third window far from both: another cluster in the same frame.
+            let c = PixelRect {
+                x0: 2,
+                y0: 70,
+                x1: 2 + (rng.next_u64() % 30) as u32,
+                y1: 99,
+            };
+            let windows: Vec<Window> = [b, c, a].into_iter().map(Window::new).collect();
+            for conn in [Connectivity::Four, Connectivity::Eight] {
+                let want = sorted(reference_blobs(&img, 100, conn, Some(&windows)));
+                let apart = sorted(
+                    [&windows[0..1], &windows[1..2], &windows[2..3]]
+                        .into_iter()
+                        .flat_map(|one| reference_blobs(&img, 100, conn, Some(one)))
+                        .collect(),
+                );
+                if gap == 0 && want != apart {
+                    crossing += 1;
+                }
+                for avx2 in [false, true] {
+                    let mut ex = Extractor::new(ExtractConfig {
+                        connectivity: conn,
+                        max_blobs: 1 << 20,
+                        ..Default::default()
+                    });
+                    ex.use_avx2(avx2);
+                    let blobs = ex.extract(img.view(), 100, &windows).unwrap();
+                    assert!(blobs.is_sorted_by_key(|b| b.first_pixel), "trial {trial}");
+                    let got = ours(blobs);
+                    assert_eq!(got, want, "trial {trial} {conn:?} avx2 {avx2} {windows:?}");
+                }
+            }
+        }
+        // The touching cases really had blobs crossing between the windows.
+        assert!(crossing > 100, "only {crossing} cases with a blob crossing");
     }
 
     /// The tracking windows' inner loop (a blob's rows summed as a block) and both pixel-test

@@ -89,45 +89,62 @@ impl Region {
             check_bottom: false,
         });
     }
+}
 
-    /// The union of `windows`, clipped to the frame, as bands of segments.
-    pub(super) fn set_windows<P: Pixel>(
+/// Checks windows before any is used: each must be non-empty, start inside the frame and have
+/// a threshold the pixel type can hold. (Windows may reach past the frame's right and bottom
+/// edges: they are clipped.)
+pub(super) fn check_windows<P: Pixel>(
+    windows: &[Window],
+    width: u32,
+    height: u32,
+) -> Result<(), VisionError> {
+    for (index, w) in windows.iter().enumerate() {
+        let r = w.rect;
+        if r.x1 < r.x0 || r.y1 < r.y0 {
+            return Err(VisionError::EmptyWindow {
+                index,
+                x0: r.x0,
+                y0: r.y0,
+                x1: r.x1,
+                y1: r.y1,
+            });
+        }
+        if r.x0 >= width || r.y0 >= height {
+            return Err(VisionError::WindowOutsideFrame {
+                index,
+                x0: r.x0,
+                y0: r.y0,
+                x1: r.x1,
+                y1: r.y1,
+                width,
+                height,
+            });
+        }
+        if let Some(t) = w.threshold {
+            check_threshold::<P>(t)?;
+        }
+    }
+    Ok(())
+}
+
+impl Region {
+    /// The union of `windows` (checked by [`check_windows`]), clipped to the frame, as bands
+    /// of segments.
+    pub(super) fn set_windows(
         &mut self,
         windows: &[Window],
         width: u32,
         height: u32,
         threshold: u32,
-    ) -> Result<(), VisionError> {
+    ) {
         self.bands.clear();
         self.segs.clear();
         self.width = width;
         self.height = height;
         self.ys.clear();
-        for (index, w) in windows.iter().enumerate() {
+        for w in windows {
             let r = w.rect;
-            if r.x1 < r.x0 || r.y1 < r.y0 {
-                return Err(VisionError::EmptyWindow {
-                    index,
-                    x0: r.x0,
-                    y0: r.y0,
-                    x1: r.x1,
-                    y1: r.y1,
-                });
-            }
-            if r.x0 >= width || r.y0 >= height {
-                return Err(VisionError::WindowOutsideFrame {
-                    index,
-                    x0: r.x0,
-                    y0: r.y0,
-                    x1: r.x1,
-                    y1: r.y1,
-                    width,
-                    height,
-                });
-            }
-            if let Some(t) = w.threshold {
-                check_threshold::<P>(t)?;
-            }
             self.ys.push(r.y0);
             self.ys.push(r.y1.min(height - 1) + 1);
         }
@@ -213,7 +230,6 @@ impl Region {
             self.bands[b].check_top = band.y0 > 0 && !above_covers;
             self.bands[b].check_bottom = band.y1 < height && !below_covers;
         }
-        Ok(())
     }
 
     pub(super) fn rows(&self) -> (u32, u32) {
