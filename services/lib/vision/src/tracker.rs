@@ -335,17 +335,20 @@ impl Tracker {
             .collect()
     }
 
-    /// The rows the search of period `period` tests, in a frame `height` rows high: the
-    /// phase follows the period number, so trackers fed the same frames read the same rows.
-    fn search_rows(&self, height: u32, period: u64) -> RowSample {
+    /// The rows the search of frame `frame` (in period `period`) tests, in a frame `height`
+    /// rows high: the phase is `period + frame % search_every_frames`, one on from the last
+    /// search's both for the periodic searches (on each period's first frame) and for a lost
+    /// object's on consecutive frames, and the same for trackers fed the same frames.
+    fn search_rows(&self, height: u32, period: u64, frame: u64) -> RowSample {
         let step = self
             .cfg
             .search_row_step
             .unwrap_or(height / SEARCH_ROWS_AT_LEAST)
             .max(1);
+        let phase = period.wrapping_add(frame % self.cfg.search_every_frames as u64);
         RowSample {
             step,
-            phase: (period % step as u64) as u32,
+            phase: (phase % step as u64) as u32,
         }
     }
 
@@ -388,17 +391,26 @@ impl Tracker {
         let new_period = self.last_frame.is_none_or(|l| period != l / every);
         self.last_frame = Some(frame);
         let searching = self.tracks.len() < self.cfg.max_objects && new_period;
-        // Nothing bright outside the windows: the windowed step finds every blob there is.
-        let searched_in_windows = searching
-            && !needs_full
+        // A search — the periodic one, or a lost object's once its window has grown to the
+        // frame — first tests the frame outside the other windows: with nothing bright there,
+        // the windowed step over those finds every blob there is (a lost object hidden in
+        // another's blob, as two markers crossing in the image are, costs no labelling of the
+        // whole frame on every frame it stays hidden).
+        let searched_in_windows = (searching || needs_full)
+            && !self.tracks.is_empty()
             && self.cfg.window_threshold.is_none()
-            && !any_foreground_outside(
-                &img,
-                threshold,
-                &self.searched_or_masked(),
-                self.search_rows(h, period),
-            );
-        let full_frame = needs_full || (searching && !searched_in_windows);
+            && {
+                self.windows
+                    .retain(|win| win.rect.width() != w || win.rect.height() != h);
+                !self.windows.is_empty()
+                    && !any_foreground_outside(
+                        &img,
+                        threshold,
+                        &self.searched_or_masked(),
+                        self.search_rows(h, period, frame),
+                    )
+            };
+        let full_frame = (needs_full || searching) && !searched_in_windows;
         if full_frame {
             self.windows.clear();
         }
@@ -734,7 +746,7 @@ mod tests {
         assert_eq!(first_found(Some(1), 102..103), Some(10));
         // By default every row below 1080 rows, every 2nd at 1080p, every 4th at 4K.
         let tr = Tracker::new(TrackerConfig::default(), ExtractConfig::default()).unwrap();
-        let steps = [240, 1079, 1080, 2160].map(|h| tr.search_rows(h, 5));
+        let steps = [240, 1079, 1080, 2160].map(|h| tr.search_rows(h, 5, 50));
         assert_eq!(
             steps.map(|r| (r.step, r.phase)),
             [(1, 0), (1, 0), (2, 1), (4, 1)]
@@ -744,6 +756,57 @@ mod tests {
             ..Default::default()
         };
         assert!(Tracker::new(zero, ExtractConfig::default()).is_err());
+    }
+
+    /// A lost object whose window has grown to the frame is searched for by the test outside
+    /// the other windows first: while it stays hidden (nothing bright outside them) only those
+    /// windows are labelled, not the whole frame; when it shows again outside them the frame
+    /// is labelled whole and the object taken back under its id. Consecutive such searches
+    /// read rows of every phase.
+    #[test]
+    fn a_hidden_lost_object_is_searched_for_without_labelling_the_frame() {
+        let (w, h) = (320u64, 240u64);
+        let mut tr = Tracker::new(TrackerConfig::default(), ExtractConfig::default()).unwrap();
+        let a = (100.0, 120.0, 5.0);
+        for f in 0..5 {
+            tr.step_frame(frame(&[a, (220.0, 60.0, 4.0)]).view(), 100, f)
+                .unwrap();
+        }
+        assert_eq!(tr.tracks().len(), 2);
+        let b_id = tr.tracks()[1].id;
+        let mut tested = 0;
+        for f in 5..25 {
+            let step = tr.step_frame(frame(&[a]).view(), 100, f).unwrap();
+            let b = &tr.tracks()[1];
+            assert_eq!((b.id, b.status), (b_id, TrackStatus::Lost), "frame {f}");
+            if b.window.width() as u64 * b.window.height() as u64 == w * h {
+                // Searched, but only object A's window labelled.
+                assert!(step.full_frame, "frame {f}");
+                assert!(
+                    step.extract.pixels_scanned < w * h / 4,
+                    "frame {f}: {step:?}"
+                );
+                tested += 1;
+            }
+        }
+        assert!(
+            tested >= 15,
+            "only {tested} frames searched for the lost object"
+        );
+        // The lost object shows again, far from where it was lost.
+        let step = tr
+            .step_frame(frame(&[a, (40.0, 200.0, 4.0)]).view(), 100, 25)
+            .unwrap();
+        assert!(step.full_frame);
+        assert_eq!(step.extract.pixels_scanned, w * h);
+        assert_eq!(tr.tracks().len(), 2);
+        let b = &tr.tracks()[1];
+        assert_eq!((b.id, b.status), (b_id, TrackStatus::Tracked));
+        assert!((b.x_px - 40.0).abs() < 0.5 && (b.y_px - 200.0).abs() < 0.5);
+        // At 1080p (every 2nd row by default) the searches of frames 11, 12 read rows of
+        // either phase.
+        let rows = [11, 12].map(|f| tr.search_rows(1080, f / 10, f).phase);
+        assert_ne!(rows[0], rows[1]);
     }
 
     #[test]
