@@ -18,8 +18,8 @@
 //! Each object keeps its id while tracked or lost; ids are never reused. New objects are taken
 //! only from full-frame searches, which run while no object is tracked, when a lost object's
 //! window has grown to the frame, and every `search_every_frames` frames while fewer than
-//! `max_objects` are tracked. A periodic search first reads the frame for any foreground pixel
-//! outside the windows ([`crate::extract::any_foreground_outside`], about a tenth of the cost
+//! `max_objects` are tracked. A search (periodic, or a lost object's) first reads the frame for
+//! any foreground pixel outside the other windows ([`crate::extract::any_foreground_outside`], about a tenth of the cost
 //! of labelling it, and of every `search_row_step`-th row only, from a row that moves at each
 //! search); with none, the windows' union holds every blob of the frame, so the windowed step
 //! stands for the search (new objects are taken from it) and the frame is not labelled whole.
