@@ -785,6 +785,19 @@ mod tests {
         v
     }
 
+    /// An extractor with no capacity limit, on `threads`, with the AVX2 pixel tests when
+    /// `avx2` (and the CPU has them).
+    fn uncapped(connectivity: Connectivity, threads: usize, avx2: bool) -> Extractor {
+        let mut ex = Extractor::new(ExtractConfig {
+            connectivity,
+            threads,
+            max_blobs: 1 << 20,
+            ..Default::default()
+        });
+        ex.use_avx2(avx2);
+        ex
+    }
+
     fn ours(blobs: &[Blob]) -> Vec<(RawMoments, PixelRect, bool)> {
         sorted(
             blobs
@@ -845,14 +858,8 @@ mod tests {
                 let img = random_image(w, h, seed * 100 + density as u64, density);
                 for conn in [Connectivity::Four, Connectivity::Eight] {
                     for threads in [1, 3] {
-                        let mut ex = Extractor::new(ExtractConfig {
-                            connectivity: conn,
-                            threads,
-                            max_blobs: 1 << 20,
-                            ..Default::default()
-                        });
                         // The SSE2 tests with one thread, the CPU's best with three.
-                        ex.use_avx2(threads != 1);
+                        let mut ex = uncapped(conn, threads, threads != 1);
                         let got = ours(ex.extract(img.view(), 100, &[]).unwrap());
                         let want = sorted(reference_blobs(&img, 100, conn, None));
                         assert_eq!(
@@ -908,12 +915,7 @@ mod tests {
         ];
         for conn in [Connectivity::Four, Connectivity::Eight] {
             for threads in [1, 2] {
-                let mut ex = Extractor::new(ExtractConfig {
-                    connectivity: conn,
-                    threads,
-                    max_blobs: 1 << 20,
-                    ..Default::default()
-                });
+                let mut ex = uncapped(conn, threads, true);
                 let got = ours(ex.extract(img.view(), 100, &windows).unwrap());
                 let want = sorted(reference_blobs(&img, 100, conn, Some(&windows)));
                 assert_eq!(got, want, "{conn:?} threads {threads}");
@@ -1027,12 +1029,7 @@ mod tests {
             for conn in [Connectivity::Four, Connectivity::Eight] {
                 let want = sorted(reference_blobs(&img, 100, conn, Some(&windows)));
                 for avx2 in [false, true] {
-                    let mut ex = Extractor::new(ExtractConfig {
-                        connectivity: conn,
-                        max_blobs: 1 << 20,
-                        ..Default::default()
-                    });
-                    ex.use_avx2(avx2);
+                    let mut ex = uncapped(conn, 1, avx2);
                     let got = ours(ex.extract(img.view(), 100, &windows).unwrap());
                     assert_eq!(got, want, "trial {trial} {conn:?} avx2 {avx2} {windows:?}");
                 }
@@ -1105,12 +1102,7 @@ mod tests {
                     crossing += 1;
                 }
                 for avx2 in [false, true] {
-                    let mut ex = Extractor::new(ExtractConfig {
-                        connectivity: conn,
-                        max_blobs: 1 << 20,
-                        ..Default::default()
-                    });
-                    ex.use_avx2(avx2);
+                    let mut ex = uncapped(conn, 1, avx2);
                     let blobs = ex.extract(img.view(), 100, &windows).unwrap();
                     assert!(blobs.is_sorted_by_key(|b| b.first_pixel), "trial {trial}");
                     let got = ours(blobs);
