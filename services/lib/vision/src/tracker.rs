@@ -19,10 +19,11 @@
 //! only from full-frame searches, which run while no object is tracked, when a lost object's
 //! window has grown to the frame, and every `search_every_frames` frames while fewer than
 //! `max_objects` are tracked. A search (periodic, or a lost object's) first reads the frame for
-//! any foreground pixel outside the other windows ([`crate::extract::any_foreground_outside`], about a tenth of the cost
-//! of labelling it, and of every `search_row_step`-th row only, from a row that moves at each
-//! search); with none, the windows' union holds every blob of the frame, so the windowed step
-//! stands for the search (new objects are taken from it) and the frame is not labelled whole.
+//! any foreground pixel outside the other windows ([`crate::extract::any_foreground_outside`],
+//! about a tenth of the cost of labelling it, and of every `search_row_step`-th row only, from
+//! a row that moves at each search); with none, the windows' union holds every blob of the
+//! frame, so the windowed step stands for the search (new objects are taken from it) and the
+//! frame is not labelled whole.
 //!
 //! Pixel conventions: `docs/conventions.md`.
 
@@ -365,6 +366,7 @@ impl Tracker {
     ) -> Result<TrackStep, VisionError> {
         let (w, h) = (img.width(), img.height());
         let limit = w.max(h);
+        let covers_frame = |r: &PixelRect| r.width() == w && r.height() == h;
         // Steps 1–5: a window per track around its prediction.
         self.windows.clear();
         let mut needs_full = self.tracks.is_empty();
@@ -373,7 +375,7 @@ impl Tracker {
             let (px, py) = t.predicted();
             let half = self.half_width(t, limit);
             let rect = clamp_window(px, py, half, w, h);
-            if rect.width() == w && rect.height() == h {
+            if covers_frame(&rect) {
                 needs_full = true;
             }
             self.tracks[i].window = rect;
@@ -396,20 +398,21 @@ impl Tracker {
         // the windowed step over those finds every blob there is (a lost object hidden in
         // another's blob, as two markers crossing in the image are, costs no labelling of the
         // whole frame on every frame it stays hidden).
-        let searched_in_windows = (searching || needs_full)
+        let tested = (searching || needs_full)
             && !self.tracks.is_empty()
-            && self.cfg.window_threshold.is_none()
-            && {
-                self.windows
-                    .retain(|win| win.rect.width() != w || win.rect.height() != h);
-                !self.windows.is_empty()
-                    && !any_foreground_outside(
-                        &img,
-                        threshold,
-                        &self.searched_or_masked(),
-                        self.search_rows(h, period, frame),
-                    )
-            };
+            && self.cfg.window_threshold.is_none();
+        if tested {
+            // A window grown to the frame is what the test searches, not a window to scan.
+            self.windows.retain(|win| !covers_frame(&win.rect));
+        }
+        let searched_in_windows = tested
+            && !self.windows.is_empty()
+            && !any_foreground_outside(
+                &img,
+                threshold,
+                &self.searched_or_masked(),
+                self.search_rows(h, period, frame),
+            );
         let full_frame = (needs_full || searching) && !searched_in_windows;
         if full_frame {
             self.windows.clear();
