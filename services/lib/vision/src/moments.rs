@@ -180,26 +180,15 @@ impl RawMoments {
     }
 }
 
-/// `SQUARES_BELOW[n]` = Σ i² for i < n, n ≤ 64.
-const SQUARES_BELOW: [u64; 65] = {
-    let mut t = [0u64; 65];
-    let mut n = 1;
-    while n < 65 {
-        t[n] = t[n - 1] + ((n - 1) * (n - 1)) as u64;
-        n += 1;
-    }
-    t
-};
-
 /// The runs of consecutive rows of one blob, summed relative to the first row `y0` so that
 /// every sum stays in `u64`, then added to the blob's [`RawMoments`] once (the same Eq. 3.33–
 /// 3.43 sums as [`RawMoments::add_run`], expanded binomially in `y = y0 + dy`).
 ///
-/// Exact for runs of at most 64 pixels in frames up to 8192 × 8192 (`MAX_SIDE_PX`): a row adds
-/// at most 64 · 8191³ < 2^45 to any sum and a block has at most 8192 rows, so every sum stays
-/// below 2^58. This is what the tracker's windows need: a window's blob row is one short run
-/// continuing the one above, and a run of such rows costs a few `u64` multiply-adds each
-/// instead of four `u128` additions.
+/// Exact for runs of any length in frames up to 8192 × 8192 (`MAX_SIDE_PX`): each sum is a sum
+/// of `x^p · dy^q` (p + q ≤ 3) over the block's pixels, at most the same sum over a whole
+/// 8192 × 8192 frame, which is below 2^63. This is what the tracker's windows need: a window's
+/// blob row is one run continuing the one above, and a run of such rows costs a few `u64`
+/// multiply-adds each instead of four `u128` additions.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
 pub struct RunBlock {
     y0: u32,
@@ -225,15 +214,14 @@ impl RunBlock {
         }
     }
 
-    /// Adds the run `x = a..=b` (a ≤ b, at most 64 pixels) on row `y0 + dy`.
+    /// Adds the run `x = a..=b` (a ≤ b) on row `y0 + dy`.
     #[inline(always)]
     pub fn add_run(&mut self, a: u32, b: u32, dy: u32) {
-        debug_assert!(a <= b && b - a < 64 && b < crate::image::MAX_SIDE_PX);
+        debug_assert!(a <= b && b < crate::image::MAX_SIDE_PX);
         let (a, b, dy) = (a as u64, b as u64, dy as u64);
         let n = b - a + 1;
         let s1 = (a + b) * n / 2;
-        // Σ (a + i)² over i < n = a·n·(a + n − 1) + Σ i², the last from a table (n ≤ 64).
-        let s2 = a * n * (a + n - 1) + SQUARES_BELOW[n as usize];
+        let s2 = sum2(b) - if a == 0 { 0 } else { sum2(a - 1) };
         let t_lo = if a == 0 { 0 } else { sum1(a - 1) };
         let s3 = s1 * (sum1(b) + t_lo);
         let dy2 = dy * dy;
@@ -471,8 +459,8 @@ impl WeightedMoments {
 mod tests {
     use super::*;
 
-    /// A block of rows gives exactly the sums of its runs added one by one, at the edges of
-    /// the 8192-pixel frame too.
+    /// A block of rows gives exactly the sums of its runs added one by one, for runs of any
+    /// length, at the edges of the 8192-pixel frame too.
     #[test]
     fn run_block_equals_runs_added_one_by_one() {
         let mut rng = stereoscope_numeric::SplitMix64::new(11);
@@ -487,7 +475,10 @@ mod tests {
             let mut block = RunBlock::new(y0);
             let mut one_by_one = RawMoments::default();
             for dy in 0..rows {
-                let len = 1 + (rng.next_u64() % 64) as u32;
+                // Short runs (a marker's row) in most cases, any length up to the frame's
+                // width in every third.
+                let longest = if case % 3 == 2 { 8192 } else { 64 };
+                let len = 1 + (rng.next_u64() % longest) as u32;
                 let a = match case {
                     0 => 0,
                     1 => 8192 - len,
@@ -500,17 +491,19 @@ mod tests {
             block.add_to(&mut from_block);
             assert_eq!(from_block, one_by_one, "case {case}, y0 {y0}, {rows} rows");
         }
-        // The largest block: 8192 rows of the frame's last 64 columns (overflow would panic in
-        // this test's build).
-        let mut block = RunBlock::new(0);
-        let mut one_by_one = RawMoments::default();
-        for y in 0..8192 {
-            block.add_run(8128, 8191, y);
-            one_by_one.add_run(8128, 8191, y);
+        // The largest blocks: 8192 rows of the frame's last 64 columns, and of the whole
+        // 8192-pixel width (overflow would panic in this test's build).
+        for a in [8128, 0] {
+            let mut block = RunBlock::new(0);
+            let mut one_by_one = RawMoments::default();
+            for y in 0..8192 {
+                block.add_run(a, 8191, y);
+                one_by_one.add_run(a, 8191, y);
+            }
+            let mut from_block = RawMoments::default();
+            block.add_to(&mut from_block);
+            assert_eq!(from_block, one_by_one, "runs from {a}");
         }
-        let mut from_block = RawMoments::default();
-        block.add_to(&mut from_block);
-        assert_eq!(from_block, one_by_one);
     }
 
     /// The axis' unit vector agrees with the cosine and sine of its angle, every quadrant and

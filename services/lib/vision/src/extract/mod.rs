@@ -1042,6 +1042,79 @@ mod tests {
     /// crossing from one into the other is one blob, unclipped there); one pixel apart, two.
     /// Against the flood fill of the windows' union, with several clusters in one frame, and
     /// the blobs in raster order of their first pixel.
+    /// Discs and bars of bright pixels (200–249) of every size up to the frame's, on a dim
+    /// background (0–89) with a sprinkle of bright pixels: rows of one long run, of several,
+    /// and runs ending at any column.
+    fn shapes_image(w: u32, h: u32, seed: u64) -> GrayImage<u8> {
+        let mut rng = stereoscope_numeric::SplitMix64::new(seed);
+        let mut img = random_image(w, h, seed, 1);
+        for _ in 0..1 + rng.next_u64() % 6 {
+            let (cx, cy) = (
+                (rng.next_u64() % w as u64) as i64,
+                (rng.next_u64() % h as u64) as i64,
+            );
+            let (rx, ry) = (
+                1 + (rng.next_u64() % (w as u64 / 2)) as i64,
+                1 + (rng.next_u64() % (h as u64 / 2)) as i64,
+            );
+            let bar = rng.next_u64() % 3 == 0;
+            for y in (cy - ry).max(0)..(cy + ry).min(h as i64) {
+                for x in (cx - rx).max(0)..(cx + rx).min(w as i64) {
+                    let (dx, dy) = ((x - cx) as f64 / rx as f64, (y - cy) as f64 / ry as f64);
+                    if bar || dx * dx + dy * dy <= 1.0 {
+                        img.set(x as u32, y as u32, 200 + (rng.next_u64() % 50) as u8);
+                    }
+                }
+            }
+        }
+        img
+    }
+
+    /// Windows of every width, narrow (one or two 64-pixel chunks a row) and wide, over blobs
+    /// whose rows are one run longer than 64 pixels, or several: the same blobs as the flood
+    /// fill. (A run longer than 64 pixels in a window narrower than 128 once overran the
+    /// block sums' table.)
+    #[test]
+    fn long_runs_in_windows_of_every_width_are_summed_exactly() {
+        let (w, h) = (420, 160);
+        let mut rng = stereoscope_numeric::SplitMix64::new(97);
+        let mut long_runs = 0;
+        for trial in 0..160u64 {
+            let img = shapes_image(w, h, 500 + trial);
+            let windows: Vec<Window> = (0..1 + trial % 3)
+                .map(|_| {
+                    let ww = 1 + (rng.next_u64() % w as u64) as u32;
+                    let hh = 1 + (rng.next_u64() % h as u64) as u32;
+                    let x0 = (rng.next_u64() % (w - ww + 1) as u64) as u32;
+                    let y0 = (rng.next_u64() % (h - hh + 1) as u64) as u32;
+                    Window::new(PixelRect {
+                        x0,
+                        y0,
+                        x1: x0 + ww - 1,
+                        y1: y0 + hh - 1,
+                    })
+                })
+                .collect();
+            for conn in [Connectivity::Four, Connectivity::Eight] {
+                let want = sorted(reference_blobs(&img, 100, conn, Some(&windows)));
+                long_runs += want.iter().filter(|(_, b, _)| b.x1 - b.x0 >= 64).count();
+                for (threads, avx2) in [(1, false), (1, true), (2, true)] {
+                    let mut ex = uncapped(conn, threads, avx2);
+                    let blobs = ex.extract(img.view(), 100, &windows).unwrap();
+                    let got = ours(blobs);
+                    assert_eq!(
+                        got, want,
+                        "trial {trial} {conn:?} {threads} avx2 {avx2} {windows:?}"
+                    );
+                }
+            }
+        }
+        assert!(
+            long_runs > 100,
+            "only {long_runs} blobs wider than 64 pixels"
+        );
+    }
+
     #[test]
     fn touching_windows_are_one_region_and_windows_apart_are_scanned_apart() {
         let mut rng = stereoscope_numeric::SplitMix64::new(31);
