@@ -229,6 +229,30 @@ impl Scratch {
                 }
                 _ => None,
             };
+            // A band of one segment, narrow or wide (at least 64 pixels): its blobs' rows of one
+            // run each are summed as blocks (below).
+            let one_seg = match (narrow, segs) {
+                (Some((seg, _, _)), _) => Some(seg),
+                (None, [seg]) if seg.x1 - seg.x0 >= 63 => Some(*seg),
+                _ => None,
+            };
+            // The single run of row `yy` of the band's one segment `wide` (None: no run, or
+            // several).
+            let one_run = |yy: u32, wide: &Seg| match narrow {
+                Some((seg, limit, second)) => {
+                    // SAFETY: every caller's `yy < y1 <= height`; a narrow band has
+                    // `seg.x0 + 64 <= width` (checked above) and its second chunk ends at
+                    // `seg.x1 < width`.
+                    let chunk = |x: usize| unsafe { img.chunk64_unchecked(yy, x) };
+                    let mask = narrow_row_mask::<P, AVX2>(
+                        chunk(seg.x0 as usize),
+                        second.map(|b| (chunk(b as usize), b - seg.x0)),
+                        seg.threshold,
+                    ) & limit;
+                    single_run_of_mask(mask, &seg)
+                }
+                None => single_run_of_row::<P, AVX2>(img.row(yy), wide),
+            };
             let mut row_runs = std::mem::take(&mut self.row_runs);
             let mut y = y0;
             while y < y1 {
@@ -311,27 +335,32 @@ impl Scratch {
                     break;
                 }
                 // The common row of a tracked blob: one run, continuing the one run of the row
-                // above — no labels to join, so it goes straight into that blob's sums.
-                if let Some((seg, limit, second)) = narrow
+                // above — no labels to join, so it goes straight into that blob's sums. Taken
+                // when the band is one segment: narrow (its rows read as a mask, above) or wide
+                // (at least 64 pixels, read chunk by chunk).
+                if let Some(seg) = one_seg
                     && y != ya
                     && y + 1 != yb
                     && prev_y == Some(y - 1)
                     && self.prev.len() == 1
                 {
-                    let start = narrow_mask.trailing_zeros();
-                    let ones = (!(narrow_mask >> start)).trailing_zeros();
-                    let (x0, x1) = (seg.x0 + start, seg.x0 + start + ones - 1);
+                    let first = match row {
+                        Some(row) => single_run_of_row::<P, AVX2>(row, &seg),
+                        None => single_run_of_mask(narrow_mask, &seg),
+                    };
                     let p = self.prev[0];
-                    let single = start + ones >= 128 || narrow_mask >> (start + ones) == 0;
-                    if single && p.x0 <= x1 + k && p.x1 + k >= x0 {
-                        let n = seg.x1 - seg.x0 + 1;
-                        let hclip =
-                            (start == 0 && seg.open_left) || (start + ones == n && seg.open_right);
+                    if let Some((x0, x1)) = first
+                        && p.x0 <= x1 + k
+                        && p.x1 + k >= x0
+                    {
+                        let hclip = |(r0, r1): (u32, u32)| {
+                            (r0 == seg.x0 && seg.open_left) || (r1 == seg.x1 && seg.open_right)
+                        };
                         let label = find(&mut self.parent, p.label);
                         let edge_row = (band.check_top && y == band.y0)
                             || (band.check_bottom && y + 1 == band.y1);
-                        let mut clipped =
-                            hclip || (edge_row && region.vertically_clipped(bi, y, x0, x1));
+                        let mut clipped = hclip((x0, x1))
+                            || (edge_row && region.vertically_clipped(bi, y, x0, x1));
                         // The blob's next rows, while each is again one run continuing the
                         // one above: summed relative to this row in u64 and added once. The
                         // loop stops before the part's last row (recorded for the joins) and
@@ -347,30 +376,15 @@ impl Scratch {
                         if band.check_bottom {
                             stop = stop.min(band.y1 - 1);
                         }
-                        let edge_bits = seg.open_left as u128 | (seg.open_right as u128) << (n - 1);
-                        let cx0 = seg.x0 as usize;
                         let mut yy = y + 1;
                         while yy < stop {
-                            // SAFETY: as for the skipped rows: `yy < stop <= y1`, the narrow
-                            // band's `seg.x0 + 64 <= width` and its second chunk ends at
-                            // `seg.x1 < width`.
-                            let chunk = |x: usize| unsafe { img.chunk64_unchecked(yy, x) };
-                            let mask = narrow_row_mask::<P, AVX2>(
-                                chunk(cx0),
-                                second.map(|b| (chunk(b as usize), b - seg.x0)),
-                                seg.threshold,
-                            ) & limit;
-                            if mask == 0 {
+                            let Some((r0, r1)) = one_run(yy, &seg) else {
+                                break;
+                            };
+                            if !(run.0 <= r1 + k && run.1 + k >= r0) {
                                 break;
                             }
-                            let start = mask.trailing_zeros();
-                            let ones = (!(mask >> start)).trailing_zeros();
-                            let single = start + ones >= 128 || mask >> (start + ones) == 0;
-                            let (r0, r1) = (seg.x0 + start, seg.x0 + start + ones - 1);
-                            if !(single && run.0 <= r1 + k && run.1 + k >= r0) {
-                                break;
-                            }
-                            clipped |= mask & edge_bits != 0;
+                            clipped |= hclip((r0, r1));
                             block.add_run(r0, r1, yy - y);
                             if let Some(levels) = background {
                                 self.add_weighted_run(label, r0, r1, yy, levels, img);

@@ -425,18 +425,8 @@ impl Extractor {
         windows: &[Window],
     ) {
         if let Weighting::Coverage { background, full } = self.cfg.weighting {
-            for b in &mut self.blobs {
-                let thr = windows
-                    .iter()
-                    .filter(|w| {
-                        w.rect
-                            .contains(b.first_pixel.1 as f64, b.first_pixel.0 as f64)
-                    })
-                    .map(|w| w.threshold.unwrap_or(threshold))
-                    .min()
-                    .unwrap_or(threshold);
-                add_edge_ring(b, img, thr, background, full);
-            }
+            let levels = (threshold, background, full);
+            edge_rings(&mut self.blobs, img, levels, windows, self.avx2);
         }
     }
 
@@ -567,6 +557,58 @@ impl Extractor {
     }
 }
 
+/// [`add_edge_ring`] for each blob, at the lowest threshold of the windows holding its first
+/// pixel (`levels`: the frame's threshold, the background and the full level), with AVX2 pixel
+/// tests and sums when `avx2` (the CPU was found to have it).
+fn edge_rings<P: Pixel>(
+    blobs: &mut [Blob],
+    img: &GrayView<'_, P>,
+    levels: (u32, u32, u32),
+    windows: &[Window],
+    avx2: bool,
+) {
+    #[cfg(target_arch = "x86_64")]
+    if avx2 {
+        /// # Safety
+        /// The CPU must support AVX2.
+        #[target_feature(enable = "avx2")]
+        unsafe fn with_avx2<P: Pixel>(
+            blobs: &mut [Blob],
+            img: &GrayView<'_, P>,
+            levels: (u32, u32, u32),
+            windows: &[Window],
+        ) {
+            edge_rings_with::<P, true>(blobs, img, levels, windows);
+        }
+        // SAFETY: `avx2` is set only when the CPU was found to support AVX2.
+        unsafe { with_avx2(blobs, img, levels, windows) };
+        return;
+    }
+    let _ = avx2;
+    edge_rings_with::<P, false>(blobs, img, levels, windows);
+}
+
+#[inline(always)]
+fn edge_rings_with<P: Pixel, const AVX2: bool>(
+    blobs: &mut [Blob],
+    img: &GrayView<'_, P>,
+    (threshold, background, full): (u32, u32, u32),
+    windows: &[Window],
+) {
+    for b in blobs {
+        let thr = windows
+            .iter()
+            .filter(|w| {
+                w.rect
+                    .contains(b.first_pixel.1 as f64, b.first_pixel.0 as f64)
+            })
+            .map(|w| w.threshold.unwrap_or(threshold))
+            .min()
+            .unwrap_or(threshold);
+        add_edge_ring::<P, AVX2>(b, img, thr, background, full);
+    }
+}
+
 /// Coverage weights of the pixels around a blob that fell below its threshold: a pixel that
 /// the target covers by less than about half is dimmer than the threshold, and leaving it out
 /// pulls the centroid towards the pixel grid (up to a tenth of a pixel on a marker of 20
@@ -576,7 +618,8 @@ impl Extractor {
 /// such pixel of the rows just above and below the box. (Only the outside is read: a big
 /// blob's inside costs nothing again. A dim hollow inside a blob's row, such as a double
 /// ball's waist, is not added; a dim pixel within two pixels of two blobs counts in both.)
-fn add_edge_ring<P: Pixel>(
+#[inline(always)]
+fn add_edge_ring<P: Pixel, const AVX2: bool>(
     b: &mut Blob,
     img: &GrayView<'_, P>,
     threshold: u32,
@@ -593,6 +636,28 @@ fn add_edge_ring<P: Pixel>(
     let top = threshold.min(full);
     for y in y0..=y1 {
         let row = &img.row(y)[x0 as usize..=x1 as usize];
+        if row.len() >= 64 {
+            // A wide blob's row: its outline found 64 pixels at a time, the weights outside it
+            // summed as a run's (pixels below `top <= full` need no cap).
+            let (sw, swx, swxx) = match first_at_or_above::<P, AVX2>(row, top) {
+                None => weighted_row_sums(row, x0, background, P::MAX_VALUE),
+                Some(first) => {
+                    let last = last_at_or_above::<P, AVX2>(row, top);
+                    let (a, b, c) = weighted_row_sums(&row[..first], x0, background, P::MAX_VALUE);
+                    let (d, e, f) = weighted_row_sums(
+                        &row[last + 1..],
+                        x0 + last as u32 + 1,
+                        background,
+                        P::MAX_VALUE,
+                    );
+                    (a + d, b + e, c + f)
+                }
+            };
+            if sw > 0 {
+                wm.add_row_sums(sw, swx, swxx, y);
+            }
+            continue;
+        }
         let (mut sw, mut swx, mut swxx) = (0u64, 0u64, 0u64);
         let mut add = |i: usize, v: u32| {
             if v > background {
@@ -623,6 +688,46 @@ fn add_edge_ring<P: Pixel>(
         if sw > 0 {
             wm.add_row_sums(sw, swx, swxx, y);
         }
+    }
+}
+
+/// The first pixel of `row` (at least 64 pixels) at or above `threshold`, 64 pixels at a time.
+#[inline(always)]
+fn first_at_or_above<P: Pixel, const AVX2: bool>(row: &[P], threshold: u32) -> Option<usize> {
+    let len = row.len();
+    let mut c = 0;
+    while c < len {
+        let n = (len - c).min(64);
+        let m = if n == 64 {
+            mask64::<P, AVX2>(&row[c..c + 64], threshold)
+        } else {
+            mask64::<P, AVX2>(&row[len - 64..], threshold) >> (64 - n)
+        };
+        if m != 0 {
+            return Some(c + m.trailing_zeros() as usize);
+        }
+        c += n;
+    }
+    None
+}
+
+/// The last pixel of `row` (at least 64 pixels) at or above `threshold`, 64 pixels at a time
+/// from the right; 0 when there is none.
+#[inline(always)]
+fn last_at_or_above<P: Pixel, const AVX2: bool>(row: &[P], threshold: u32) -> usize {
+    let mut end = row.len();
+    loop {
+        // The chunk ending at `end`, or the first 64 pixels (overlapping a chunk already read
+        // and found empty).
+        let c = end.saturating_sub(64);
+        let m = mask64::<P, AVX2>(&row[c..c + 64], threshold);
+        if m != 0 {
+            return c + 63 - m.leading_zeros() as usize;
+        }
+        if c == 0 {
+            return 0;
+        }
+        end = c;
     }
 }
 
@@ -1507,20 +1612,29 @@ mod tests {
                 let background = (rng.next_u64() % (max / 2)) as u32;
                 let threshold = background + 1 + (rng.next_u64() % (max / 2)) as u32;
                 let full = threshold + (rng.next_u64() % (max / 4)) as u32;
-                let mut blob = Blob {
+                let blob = Blob {
                     moments: RawMoments::default(),
                     bbox: bb,
                     flags: BlobFlags::default(),
                     weighted: Some(WeightedMoments::default()),
                     first_pixel: (bb.y0, bb.x0),
                 };
-                add_edge_ring(&mut blob, img, threshold, background, full);
                 let want = reference(img, bb, threshold.min(full), background);
-                assert_eq!(
-                    blob.weighted,
-                    Some(want),
-                    "{bb:?} {background} {threshold} {full}"
-                );
+                for avx2 in [false, true] {
+                    let mut blob = blob.clone();
+                    edge_rings(
+                        std::slice::from_mut(&mut blob),
+                        img,
+                        (threshold, background, full),
+                        &[],
+                        avx2 && cpu_has_avx2(),
+                    );
+                    assert_eq!(
+                        blob.weighted,
+                        Some(want),
+                        "{bb:?} {background} {threshold} {full} avx2 {avx2}"
+                    );
+                }
             }
         }
         let mut rng = stereoscope_numeric::SplitMix64::new(404);

@@ -33,6 +33,14 @@ pub(super) fn row_has_foreground<P: Pixel, const AVX2: bool>(row: &[P], segs: &[
     for seg in segs {
         let (mut x, end) = (seg.x0 as usize, seg.x1 as usize + 1);
         if end - x >= 64 {
+            // Four chunks at a time, then one, then the last ending at the segment's end.
+            while x + 256 <= end {
+                let c = |i: usize| &row[x + 64 * i..x + 64 * (i + 1)];
+                if any64x4::<P, AVX2>([c(0), c(1), c(2), c(3)], seg.threshold) {
+                    return true;
+                }
+                x += 256;
+            }
             while x + 64 <= end {
                 if mask64::<P, AVX2>(&row[x..x + 64], seg.threshold) != 0 {
                     return true;
@@ -186,4 +194,76 @@ pub(super) fn find_row_runs<P: Pixel>(row: &[P], segs: &[Seg], out: &mut Vec<(u3
         let last = segs.last().map_or(s, |g| g.x1);
         out.push((s, last, c));
     }
+}
+
+/// The one run of a segment's row held as a mask (bit i = pixel `seg.x0 + i`, as
+/// [`narrow_row_mask`] reads it): `None` when the row holds no run or several.
+#[inline(always)]
+pub(super) fn single_run_of_mask(mask: u128, seg: &Seg) -> Option<(u32, u32)> {
+    if mask == 0 {
+        return None;
+    }
+    let start = mask.trailing_zeros();
+    let end = start + (!(mask >> start)).trailing_zeros(); // exclusive
+    if end < 128 && mask >> end != 0 {
+        return None;
+    }
+    Some((seg.x0 + start, seg.x0 + end - 1))
+}
+
+/// The one run of a wide segment's row (at least 64 pixels), read 64 pixels at a time, the
+/// last chunk ending at the segment's end: `None` when the row holds no run or several. It
+/// stops at the first chunk that shows a second run.
+#[inline(always)]
+pub(super) fn single_run_of_row<P: Pixel, const AVX2: bool>(
+    row: &[P],
+    seg: &Seg,
+) -> Option<(u32, u32)> {
+    let (x0, end) = (seg.x0 as usize, seg.x1 as usize + 1);
+    debug_assert!(end - x0 >= 64 && end <= row.len());
+    // Where the run starts and ends (exclusive), once seen.
+    let (mut start, mut stop) = (None, None);
+    let mut c = x0;
+    while c < end {
+        let n = (end - c).min(64);
+        let m = if n == 64 {
+            mask64::<P, AVX2>(&row[c..c + 64], seg.threshold)
+        } else {
+            mask64::<P, AVX2>(&row[end - 64..end], seg.threshold) >> (64 - n)
+        };
+        match (start, stop) {
+            (None, _) => {
+                if m != 0 {
+                    let s = m.trailing_zeros() as usize;
+                    let e = s + (!(m >> s)).trailing_zeros() as usize;
+                    start = Some(c + s);
+                    if e < n {
+                        if m >> e != 0 {
+                            return None;
+                        }
+                        stop = Some(c + e);
+                    }
+                }
+            }
+            (Some(_), None) => {
+                // A chunk of ones continues the run (`!m` is 0 for 64 ones); above `n` the
+                // shifted mask is 0, so `ones <= n`.
+                let ones = (!m).trailing_zeros() as usize;
+                if ones < n {
+                    if m >> ones != 0 {
+                        return None;
+                    }
+                    stop = Some(c + ones);
+                }
+            }
+            (Some(_), Some(_)) => {
+                if m != 0 {
+                    return None;
+                }
+            }
+        }
+        c += n;
+    }
+    let start = start?;
+    Some((start as u32, stop.unwrap_or(end) as u32 - 1))
 }
