@@ -1162,7 +1162,7 @@ mod tests {
                 1 + (rng.next_u64() % (w as u64 / 2)) as i64,
                 1 + (rng.next_u64() % (h as u64 / 2)) as i64,
             );
-            let bar = rng.next_u64() % 3 == 0;
+            let bar = rng.next_u64().is_multiple_of(3);
             for y in (cy - ry).max(0)..(cy + ry).min(h as i64) {
                 for x in (cx - rx).max(0)..(cx + rx).min(w as i64) {
                     let (dx, dy) = ((x - cx) as f64 / rx as f64, (y - cy) as f64 / ry as f64);
@@ -1621,7 +1621,7 @@ mod tests {
                 };
                 let want = reference(img, bb, threshold.min(full), background);
                 for avx2 in [false, true] {
-                    let mut blob = blob.clone();
+                    let mut blob = blob;
                     edge_rings(
                         std::slice::from_mut(&mut blob),
                         img,
