@@ -414,7 +414,7 @@ impl Scratch {
                     }
                 }
                 match (row, narrow) {
-                    (Some(row), _) => find_row_runs(row, segs, &mut row_runs),
+                    (Some(row), _) => find_row_runs::<P, AVX2>(row, segs, &mut row_runs),
                     (None, Some((seg, _, _))) => runs_from_mask(narrow_mask, &seg, &mut row_runs),
                     (None, None) => row_runs.clear(),
                 }

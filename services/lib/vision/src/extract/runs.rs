@@ -113,7 +113,12 @@ pub(super) fn runs_from_mask(mut mask: u128, seg: &Seg, out: &mut Vec<(u32, u32,
 
 /// Finds the foreground runs of one row across the row's segments, joining runs that cross
 /// from one segment into a contiguous next one. Each run: `(x0, x1, clipped_horizontally)`.
-pub(super) fn find_row_runs<P: Pixel>(row: &[P], segs: &[Seg], out: &mut Vec<(u32, u32, bool)>) {
+#[inline(always)]
+pub(super) fn find_row_runs<P: Pixel, const AVX2: bool>(
+    row: &[P],
+    segs: &[Seg],
+    out: &mut Vec<(u32, u32, bool)>,
+) {
     out.clear();
     // An open run: (start, clipped on the left).
     let mut open: Option<(u32, bool)> = None;
@@ -132,7 +137,8 @@ pub(super) fn find_row_runs<P: Pixel>(row: &[P], segs: &[Seg], out: &mut Vec<(u3
         while x < end {
             if open.is_none() {
                 // The common case: 64 background pixels, one compare and skip.
-                while x + 64 <= end && !P::any_foreground64(&row[x as usize..x as usize + 64], thr)
+                while x + 64 <= end
+                    && mask64::<P, AVX2>(&row[x as usize..x as usize + 64], thr) == 0
                 {
                     x += 64;
                 }
@@ -143,7 +149,7 @@ pub(super) fn find_row_runs<P: Pixel>(row: &[P], segs: &[Seg], out: &mut Vec<(u3
             let n = (end - x).min(64);
             let limit = if n == 64 { u64::MAX } else { (1u64 << n) - 1 };
             let mask = if x as usize + 64 <= row.len() {
-                P::foreground_mask64(&row[x as usize..x as usize + 64], thr) & limit
+                mask64::<P, AVX2>(&row[x as usize..x as usize + 64], thr) & limit
             } else {
                 // The last pixels of the row: read through a padded copy.
                 let mut pad = [P::default(); 64];
