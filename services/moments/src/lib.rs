@@ -28,7 +28,7 @@ use stereoscope_rig::schema::WeightingSpec;
 use stereoscope_transport::iox::FrameSubscriber;
 use stereoscope_transport::{Flow, Outlet, Service, ServiceNode, Shutdown, drive};
 use stereoscope_vision::extract::{BlobFlags, Weighting};
-use stereoscope_vision::{GrayView, Histogram, Pixel, TrackStatus, Tracker, VisionError};
+use stereoscope_vision::{CoreScan, GrayView, Histogram, Pixel, TrackStatus, Tracker, VisionError};
 
 /// A camera's preview for the viewer (`docs/viewer.md`): at most one every this many
 /// milliseconds, at most this wide, and only while someone subscribes to it.
@@ -102,6 +102,10 @@ pub struct Worker {
     inverted16: Vec<u16>,
     /// Blobs ignored in masked places (`moments.mask`), all frames.
     masked: u64,
+    /// Frames whose windowed step the cores settled, and frames whose cores were read and
+    /// did not settle it (`docs/vision.md`, "Cores"), all frames.
+    cores_settled: u64,
+    cores_widened: u64,
 }
 
 impl Worker {
@@ -118,12 +122,20 @@ impl Worker {
             inverted8: Vec::new(),
             inverted16: Vec::new(),
             masked: 0,
+            cores_settled: 0,
+            cores_widened: 0,
         })
     }
 
     /// Blobs ignored so far because they were in a masked place.
     pub fn masked(&self) -> u64 {
         self.masked
+    }
+
+    /// Frames so far whose windowed step the cores settled, and frames whose cores did not
+    /// (their windows were read after them).
+    pub fn core_scans(&self) -> (u64, u64) {
+        (self.cores_settled, self.cores_widened)
     }
 
     pub fn threshold(&self) -> Option<u32> {
@@ -199,6 +211,11 @@ impl Worker {
         let threshold = self.refresh_threshold(&img, header.sequence)?;
         let step = self.tracker.step_frame(img, threshold, header.sequence)?;
         self.masked += step.masked as u64;
+        match step.cores {
+            CoreScan::Settled => self.cores_settled += 1,
+            CoreScan::Widened => self.cores_widened += 1,
+            CoreScan::Windows => {}
+        }
         let par = self.settings.tracker.par;
         let mut blobs = Vec::new();
         for t in self.tracker.tracks().iter().take(MAX_REPORTED_BLOBS) {
@@ -554,6 +571,9 @@ impl Service for MomentsService {
             detail.insert("threshold".into(), threshold);
             detail.insert("tracked".into(), self.worker.tracked().to_string());
             detail.insert("masked".into(), self.worker.masked().to_string());
+            let (settled, widened) = self.worker.core_scans();
+            detail.insert("cores_settled".into(), settled.to_string());
+            detail.insert("cores_widened".into(), widened.to_string());
         }
         Ok(Flow::Continue)
     }

@@ -5,6 +5,7 @@
 //! whole chain (two 640×480 cameras at 120 fps, 4 objects) run as processes by the launcher.
 //!
 //!   cargo bench -p stereoscope --bench live -- [--quick] [--json OUT] [--frames-dir DIR]
+//!       [--worker-only] [--only SCENE-WxH] [--windows-whole]
 //!
 //! `services/stereoscope/benches/compare-live.sh` runs it with OpenCV timed on the worker's
 //! frames in the same run; results in docs/performance.md.
@@ -211,7 +212,9 @@ fn worker_fps(
         src.read(k, 1000.0 + k as f64 / 120.0, &mut buf).unwrap();
         frames.push(buf);
     }
-    let s = rig.worker_settings(0).unwrap();
+    let mut s = rig.worker_settings(0).unwrap();
+    // `--windows-whole`: the Eq. 5.1 windows read whole on every frame (no cores), to compare.
+    s.tracker.core_scan = !std::env::args().any(|a| a == "--windows-whole");
     let mut worker = Worker::new(s.clone(), "bench", "cam0").unwrap();
     let mut header = FrameHeader::new("cam0", PixelFormat::Gray8, w, h).unwrap();
     let total = if quick { 5 * n } else { 25 * n };
@@ -224,6 +227,11 @@ fn worker_fps(
         found[k] = Some(obs);
     }
     let fps = total as f64 / t.elapsed().as_secs_f64();
+    let (settled, widened) = worker.core_scans();
+    eprintln!(
+        "worker {w}x{h} {}: cores settled {settled} and widened {widened} of {total} frames",
+        if markers { "markers" } else { "targets" }
+    );
     let delivered_ms = worker_delivered_ms(&s, &frames, w, h, total);
     let found: Vec<_> = found.into_iter().flatten().collect();
     if let Some(dir) = frames_dir {

@@ -165,6 +165,7 @@ pub fn worker_settings(
         min_half_width_px,
         par,
         window_threshold: s.window_threshold.map(method),
+        core_scan: s.core_scan.unwrap_or(true),
         ..TrackerConfig::default()
     };
     tracker
@@ -268,6 +269,13 @@ mod tests {
             at(Some(&sampled)).unwrap().tracker.search_row_step,
             Some(240)
         );
+        // Cores are on unless the rig turns them off.
+        assert!(at(None).unwrap().tracker.core_scan);
+        let whole = MomentsSpec {
+            core_scan: Some(false),
+            ..Default::default()
+        };
+        assert!(!at(Some(&whole)).unwrap().tracker.core_scan);
         // A 16-bit camera takes levels above 255.
         let deep = MomentsSpec {
             threshold: Some(ThresholdSpec::Level(300)),

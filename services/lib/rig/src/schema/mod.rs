@@ -426,6 +426,11 @@ pub struct MomentsSpec {
     pub search_row_step: Option<u32>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub min_half_width_px: Option<u32>,
+    /// Read each object found in the last frame in its core (its last box moved by its
+    /// motion, widened) first, and its whole window only when that does not settle the frame
+    /// (default true; `docs/vision.md`, "Cores").
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub core_scan: Option<bool>,
     /// Frames between fresh automatic thresholds (default 30).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub threshold_every_frames: Option<u32>,

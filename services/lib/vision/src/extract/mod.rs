@@ -195,6 +195,9 @@ pub struct ExtractStats {
     /// Connected regions found, before the area filter and the capacity.
     pub regions: usize,
     pub below_min_area: usize,
+    /// Regions flagged `CLIPPED` (touching a window's edge inside the frame), before the area
+    /// filter and the capacity.
+    pub clipped_regions: usize,
     pub dropped_over_capacity: usize,
     /// Foreground runs.
     pub runs: usize,
@@ -748,6 +751,9 @@ fn emit_blobs(
             continue;
         }
         stats.regions += 1;
+        if a.flags.contains(BlobFlags::CLIPPED) {
+            stats.clipped_regions += 1;
+        }
         if a.m.m00 < cfg.min_area_px {
             stats.below_min_area += 1;
             continue;

@@ -25,6 +25,10 @@
 //! frame, so the windowed step stands for the search (new objects are taken from it) and the
 //! frame is not labelled whole.
 //!
+//! The windowed step reads each object found in the last frame in its core first (its last box
+//! moved by its motion, widened), and the whole windows only when the cores do not settle the
+//! frame: the same tracks for a fifth of the reads ([`cores`]).
+//!
 //! Pixel conventions: `docs/conventions.md`.
 
 use crate::error::VisionError;
@@ -37,6 +41,9 @@ use crate::image::{GrayView, Pixel, PixelRect};
 use crate::moments::{directed_angle_deg, validate_par};
 use stereoscope_numeric::Assigner;
 use stereoscope_numeric::heading::{HeadingConfig, HeadingTracker, HeadingUpdate};
+
+mod cores;
+pub use cores::{CORE_MARGIN_PX, CoreScan};
 
 /// The periodic search's test reads at least this many rows by default
 /// ([`TrackerConfig::search_row_step`]).
@@ -72,6 +79,10 @@ pub struct TrackerConfig {
     /// Threshold each window from its own histogram with this method (the thesis's
     /// `region.thres`); `None` uses the frame threshold everywhere.
     pub window_threshold: Option<ThresholdMethod>,
+    /// Read each object found in the last frame in its core first — its last box moved by its
+    /// motion and widened by a margin, inside its window — and the whole Eq. 5.1 windows only
+    /// when the cores do not settle the frame ([`CoreScan`]). `false`: always the windows.
+    pub core_scan: bool,
 }
 
 impl Default for TrackerConfig {
@@ -88,6 +99,7 @@ impl Default for TrackerConfig {
             heading: HeadingConfig::default(),
             direction_min_skewness: Some(0.2),
             window_threshold: None,
+            core_scan: true,
         }
     }
 }
@@ -199,6 +211,8 @@ pub struct TrackStep {
     pub dropped: usize,
     /// Blobs ignored because their centroid is in a mask rectangle.
     pub masked: usize,
+    /// Whether the cores were read first, and whether they settled the frame.
+    pub cores: CoreScan,
 }
 
 /// Self-adaptive multi-object tracker over one camera's frames.
@@ -212,6 +226,12 @@ pub struct Tracker {
     last_frame: Option<u64>,
     counted_frames: u64,
     windows: Vec<Window>,
+    /// Each track's core ([`CoreScan`]), when it has one.
+    core_rects: Vec<Option<PixelRect>>,
+    /// What the cores' step reads: each track's core, or its window when it has none.
+    cores: Vec<Window>,
+    /// The blobs already some track's nearest, while the cores are checked.
+    nearest_taken: Vec<bool>,
     cost: Vec<f64>,
     /// This step's blob centroids, for the costs.
     centroids: Vec<(f64, f64)>,
@@ -268,6 +288,9 @@ impl Tracker {
             last_frame: None,
             counted_frames: 0,
             windows: Vec::new(),
+            core_rects: Vec::new(),
+            cores: Vec::new(),
+            nearest_taken: Vec::new(),
             cost: Vec::new(),
             centroids: Vec::new(),
             assigner: Assigner::default(),
@@ -353,6 +376,35 @@ impl Tracker {
         }
     }
 
+    /// The assignment's costs for the extractor's blobs: squared distance to each track's
+    /// prediction, gated by its window; a masked blob is as good as taken (`taken`): no track
+    /// follows it, none starts from it.
+    fn fill_costs(&mut self) {
+        let blobs = self.extractor.blobs();
+        self.cost.clear();
+        self.centroids.clear();
+        self.centroids
+            .extend(blobs.iter().map(|b| b.best_centroid_px()));
+        self.taken.clear();
+        self.taken.extend(
+            self.centroids
+                .iter()
+                .map(|&(x, y)| self.mask.iter().any(|m| m.contains(x, y))),
+        );
+        for t in &self.tracks {
+            let (px, py) = t.predicted();
+            let masked = &self.taken;
+            self.cost
+                .extend(self.centroids.iter().zip(masked).map(|(&(bx, by), &m)| {
+                    if !m && t.window.contains(bx, by) {
+                        (bx - px).powi(2) + (by - py).powi(2)
+                    } else {
+                        f64::INFINITY
+                    }
+                }));
+        }
+    }
+
     /// [`Tracker::step`] for frame number `frame` (the camera's sequence number): the periodic
     /// search for new objects runs on the first frame of each period of
     /// `search_every_frames` numbers, so trackers fed the same frames search on the same ones
@@ -417,39 +469,33 @@ impl Tracker {
         if full_frame {
             self.windows.clear();
         }
-        self.extractor.extract(img, threshold, &self.windows)?;
+        // The cores first, where they may settle the frame; else (or then) the windows.
+        let mut cores = CoreScan::Windows;
+        if self.cfg.core_scan
+            && !(searching || needs_full)
+            && self.cfg.window_threshold.is_none()
+            && self.set_cores()
+        {
+            self.extractor.extract(img, threshold, &self.cores)?;
+            self.fill_costs();
+            cores = if self.cores_settle(w, h) {
+                CoreScan::Settled
+            } else {
+                CoreScan::Widened
+            };
+        }
+        if cores != CoreScan::Settled {
+            self.extractor.extract(img, threshold, &self.windows)?;
+            self.fill_costs();
+        }
         let blobs = self.extractor.blobs();
         let mut step = TrackStep {
             full_frame: full_frame || searched_in_windows,
             extract: self.extractor.stats(),
+            masked: self.taken.iter().filter(|&&m| m).count(),
+            cores,
             ..Default::default()
         };
-
-        // Global assignment: cost = squared distance to the prediction, gated by the window.
-        self.cost.clear();
-        self.centroids.clear();
-        self.centroids
-            .extend(blobs.iter().map(|b| b.best_centroid_px()));
-        // A masked blob is as good as taken: no track follows it, none starts from it.
-        self.taken.clear();
-        self.taken.extend(
-            self.centroids
-                .iter()
-                .map(|&(x, y)| self.mask.iter().any(|m| m.contains(x, y))),
-        );
-        step.masked = self.taken.iter().filter(|&&m| m).count();
-        for t in &self.tracks {
-            let (px, py) = t.predicted();
-            let masked = &self.taken;
-            self.cost
-                .extend(self.centroids.iter().zip(masked).map(|(&(bx, by), &m)| {
-                    if !m && t.window.contains(bx, by) {
-                        (bx - px).powi(2) + (by - py).powi(2)
-                    } else {
-                        f64::INFINITY
-                    }
-                }));
-        }
         let assignment = self
             .assigner
             .solve(&self.cost, self.tracks.len(), blobs.len());
