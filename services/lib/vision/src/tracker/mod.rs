@@ -27,7 +27,7 @@
 //!
 //! The windowed step reads each object found in the last frame in its core first (its last box
 //! moved by its motion, widened), and the whole windows only when the cores do not settle the
-//! frame: the same tracks for a fifth of the reads ([`cores`]).
+//! frame: the same tracks for a fifth of the reads ([`CoreScan`]).
 //!
 //! Pixel conventions: `docs/conventions.md`.
 
