@@ -19,10 +19,10 @@ use crate::image::PixelRect;
 /// inside the frame (every blob found is whole, the same blob the windows would give), every
 /// object read in its core has a blob in its window, no two objects have the same nearest blob
 /// (so the minimum-cost assignment gives each its nearest), and each nearest centroid is
-/// nearer its object's prediction than any edge of its core inside the frame. A blob outside the cores has
-/// its pixels, and so its centroid, beyond those edges — unless it wraps round a core on
-/// opposite sides without touching it, the one case the windows would see and the cores
-/// not. Otherwise the windows are read as without cores. The periodic and lost objects'
+/// nearer its object's prediction than any edge of its core inside the frame. A blob outside
+/// the cores has its pixels, and so its centroid, beyond those edges — unless it wraps round a
+/// core on opposite sides without touching it, the one case the windows would see and the
+/// cores not. Otherwise the windows are read as without cores. The periodic and lost objects'
 /// searches, and per-window thresholds, read the windows.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub enum CoreScan {

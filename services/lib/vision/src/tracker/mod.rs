@@ -209,7 +209,8 @@ pub struct TrackStep {
     pub lost: usize,
     pub new: usize,
     pub dropped: usize,
-    /// Blobs ignored because their centroid is in a mask rectangle.
+    /// Blobs ignored because their centroid is in a mask rectangle, of those read (a frame
+    /// the cores settle reads less than the windows: [`CoreScan`]).
     pub masked: usize,
     /// Whether the cores were read first, and whether they settled the frame.
     pub cores: CoreScan,
