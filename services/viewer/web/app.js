@@ -15,7 +15,7 @@ const $ = (id) => document.getElementById(id);
 
 // What tests read (tests/clients/viewer_check.py): counts, the newest frame drawn, the view.
 const state = window.stereoscope = {
-  connects: 0, poseFrames: 0, truthFrames: 0, previews: 0, healthReports: 0, coverageReports: 0, errors: [],
+  connects: 0, poseFrames: 0, lastPoseSequence: null, truthFrames: 0, previews: 0, healthReports: 0, coverageReports: 0, errors: [],
   drawnCoverage: {},
   socketOpen: false, frozen: false, drawnFrame: null,
   freeze(on) { state.frozen = on; },
@@ -357,7 +357,7 @@ function connect() {
   ws.onmessage = (ev) => {
     if (ev.data instanceof ArrayBuffer) { drawPreview(ev.data); return; }
     const m = JSON.parse(ev.data);
-    if (m.type === 'poses') { pendingFrame = m.frame; state.poseFrames++; rateCount++; }
+    if (m.type === 'poses') { pendingFrame = m.frame; state.poseFrames++; state.lastPoseSequence = m.frame.sequence; rateCount++; }
     else if (m.type === 'truth') { pendingTruth = m.truth; state.truthFrames++; }
     else if (m.type === 'health') { health.set(`${m.health.host}/${m.health.service}`, { h: m.health, at: performance.now() }); state.healthReports++; }
     else if (m.type === 'hello') { if (!rig) loadRig(); }
