@@ -77,7 +77,7 @@ pub struct PointsFit {
 pub struct FloorReport {
     pub rig: String,
     pub units: String,
-    /// Pose frames read, and markers seen in at least half of them.
+    /// Pose frames read, and markers seen in at least half of those their cameras were in.
     pub frames: usize,
     pub steady_markers: usize,
     /// L-frame: the RMS distance of its markers from the fitted L; points: the floor markers'
@@ -96,22 +96,46 @@ pub struct FloorReport {
 type Steady = (u32, Point3<f64>);
 
 /// Each object's median position over the frames it was triangulated in, for the objects seen
-/// in at least half of the frames.
+/// in at least half of the frames it could have been: those whose cameras include every
+/// camera of the object's most frequent set (a marker on the floor seen by two cameras of
+/// four is triangulated only when both are in the frame set, and cameras that drop frames
+/// each on their own made it fall below half of all frames). A marker seen fewer than
+/// `MIN_STEADY_FRAMES` times is not steady.
 fn steady_markers(frames: &[PoseFrame]) -> Vec<Steady> {
-    let mut seen: BTreeMap<u32, Vec<[f64; 3]>> = BTreeMap::new();
+    struct Seen<'a> {
+        positions: Vec<[f64; 3]>,
+        camera_sets: BTreeMap<&'a [String], usize>,
+    }
+    let mut seen: BTreeMap<u32, Seen> = BTreeMap::new();
     for f in frames {
         for p in &f.poses {
             // Body markers too: an L-frame defined as a [[body]] is labelled as one.
             if p.method == PoseMethod::Triangulated {
-                seen.entry(p.object_id).or_default().push(p.position_m);
+                let s = seen.entry(p.object_id).or_insert_with(|| Seen {
+                    positions: Vec::new(),
+                    camera_sets: BTreeMap::new(),
+                });
+                s.positions.push(p.position_m);
+                *s.camera_sets.entry(p.cameras.as_slice()).or_default() += 1;
             }
         }
     }
     seen.into_iter()
-        .filter(|(_, v)| v.len() * 2 >= frames.len())
-        .map(|(id, v)| {
+        .filter(|(_, s)| {
+            let usual = s
+                .camera_sets
+                .iter()
+                .max_by_key(|(_, n)| **n)
+                .map_or(&[][..], |(cams, _)| *cams);
+            let possible = frames
+                .iter()
+                .filter(|f| usual.iter().all(|c| f.cameras.contains(c)))
+                .count();
+            s.positions.len() >= MIN_STEADY_FRAMES && s.positions.len() * 2 >= possible
+        })
+        .map(|(id, s)| {
             let med = |i: usize| {
-                let mut a: Vec<f64> = v.iter().map(|p| p[i]).collect();
+                let mut a: Vec<f64> = s.positions.iter().map(|p| p[i]).collect();
                 a.sort_by(f64::total_cmp);
                 a[a.len() / 2]
             };
@@ -119,6 +143,9 @@ fn steady_markers(frames: &[PoseFrame]) -> Vec<Steady> {
         })
         .collect()
 }
+
+/// Fewer triangulations than this make no steady marker, however few frames could show it.
+const MIN_STEADY_FRAMES: usize = 3;
 
 /// The assignment of `markers` to the model's points whose pairwise distances fit the model's
 /// best, and the worst distance error (model units). With `scaled`, distances are compared
@@ -268,7 +295,7 @@ fn fit_l_frame(
         .filter(|l| l.1 <= tolerance);
     let Some((ids, _)) = found else {
         bail!(
-            "{}: no {} steady markers make an L of {:.1} × {:.1} mm{} within {:.1} mm{} ({} markers seen in half the frames; their distances: {})",
+            "{}: no {} steady markers make an L of {:.1} × {:.1} mm{} within {:.1} mm{} ({} markers seen in half the frames their cameras were in; their distances: {})",
             opts.poses.display(),
             model.len(),
             long * 1e3,
@@ -573,4 +600,77 @@ pub fn run(
         writeln!(err, "wrote {}", path.display())?;
     }
     Ok(0)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use stereoscope_proto::messages::{Pose, SCHEMA_VERSION};
+
+    fn frame(cameras: &[&str], poses: &[(u32, &[&str])]) -> PoseFrame {
+        let names = |c: &[&str]| c.iter().map(|s| s.to_string()).collect::<Vec<_>>();
+        PoseFrame {
+            schema: SCHEMA_VERSION,
+            rig: "r".into(),
+            cameras: names(cameras),
+            poses: poses
+                .iter()
+                .map(|(id, cams)| Pose {
+                    object_id: *id,
+                    position_m: [*id as f64, 0.0, 0.0],
+                    velocity_m_per_s: [0.0; 3],
+                    heading_deg: None,
+                    heading_directed: false,
+                    method: PoseMethod::Triangulated,
+                    cameras: names(cams),
+                    residual_px: 0.1,
+                    out_of_range: false,
+                    body: None,
+                })
+                .collect(),
+            sequence: 0,
+            timestamp_ns: 0,
+            frame_published_ns: 0,
+            published_ns: 0,
+            bodies: Vec::new(),
+        }
+    }
+
+    /// Marker 1 is seen by cam0 and cam3 whenever both are in the set (a third of the
+    /// frames), marker 2 by all four in every frame; marker 3 is seen twice by cam1 and cam2,
+    /// which are in every frame; marker 4 only in the three frames where cam0..cam2 were
+    /// all present.
+    #[test]
+    fn a_marker_is_steady_in_half_the_frames_its_cameras_were_in() {
+        let all = ["cam0", "cam1", "cam2", "cam3"];
+        let mut frames = Vec::new();
+        for k in 0..30 {
+            let both = k % 3 == 0;
+            let cams: Vec<&str> = all
+                .iter()
+                .copied()
+                .filter(|c| both || (*c != "cam0" && *c != "cam3"))
+                .collect();
+            let mut poses: Vec<(u32, &[&str])> = vec![(2, &all)];
+            if both {
+                poses.push((1, &["cam0", "cam3"]));
+            }
+            if k < 2 {
+                poses.push((3, &["cam1", "cam2"]));
+            }
+            frames.push(frame(&cams, &poses));
+        }
+        let ids: Vec<u32> = steady_markers(&frames).iter().map(|m| m.0).collect();
+        assert_eq!(ids, vec![1, 2]);
+        // A marker of three triangulations from three frames that could show it is steady; of
+        // two, not.
+        let three = [
+            frame(&["cam0", "cam1", "cam2"], &[(4, &["cam0", "cam1", "cam2"])]),
+            frame(&["cam0", "cam1", "cam2"], &[(4, &["cam0", "cam1", "cam2"])]),
+            frame(&["cam0", "cam1", "cam2"], &[(4, &["cam0", "cam1", "cam2"])]),
+            frame(&["cam0", "cam1"], &[]),
+        ];
+        assert_eq!(steady_markers(&three).len(), 1);
+        assert!(steady_markers(&three[1..]).is_empty());
+    }
 }
