@@ -28,6 +28,15 @@ pub struct Assigner {
     minv: Vec<f64>,
     used: Vec<bool>,
     out: Vec<Option<usize>>,
+    /// Union-find over rows `0..rows` and columns `rows..rows + cols`: the components of the
+    /// allowed pairs.
+    parent: Vec<usize>,
+    /// (component, row) and (component, column), sorted by component.
+    members_r: Vec<(usize, usize)>,
+    members_c: Vec<(usize, usize)>,
+    /// One component's cost matrix and its solution.
+    sub: Vec<f64>,
+    sub_out: Vec<Option<usize>>,
 }
 
 impl Assigner {
@@ -38,35 +47,103 @@ impl Assigner {
         if rows == 0 || cols == 0 || cost.len() < rows * cols {
             return &self.out;
         }
-        // The common case while tracking: every row has at most one allowed column and no
-        // column is wanted twice. That is the optimum; skip the general method.
-        let mut unique = true;
+        // The common case while tracking: no two rows have the same cheapest allowed column.
+        // Each row then takes its own: every row that can have a column has one, each at its
+        // least cost, so no assignment has more pairs or a lower total.
+        self.used.clear();
+        self.used.resize(cols, false);
+        let mut distinct = true;
         for r in 0..rows {
-            let mut only = None;
-            for c in 0..cols {
-                if cost[r * cols + c].is_finite() {
-                    if only.is_some() {
-                        unique = false;
-                        break;
-                    }
-                    only = Some(c);
-                }
-            }
-            if !unique {
-                break;
-            }
-            if let Some(c) = only {
-                if self.out[..r].contains(&Some(c)) {
-                    unique = false;
+            let row = &cost[r * cols..(r + 1) * cols];
+            let cheapest = (0..cols)
+                .filter(|&c| row[c].is_finite())
+                .min_by(|&a, &b| row[a].total_cmp(&row[b]));
+            if let Some(c) = cheapest {
+                if self.used[c] {
+                    distinct = false;
                     break;
                 }
+                self.used[c] = true;
                 self.out[r] = Some(c);
             }
         }
-        if unique {
+        if distinct {
             return &self.out;
         }
         self.out.fill(None);
+        // Rows and columns joined by no allowed pair never compete: each component of the
+        // allowed pairs is solved on its own (a frame's tracks and blobs fall apart into small
+        // groups, and the method is cubic in its matrix's size). The most pairs, then the
+        // least cost, of the whole is the union of each component's.
+        self.parent.clear();
+        self.parent.extend(0..rows + cols);
+        fn root(parent: &mut [usize], mut i: usize) -> usize {
+            while parent[i] != i {
+                parent[i] = parent[parent[i]];
+                i = parent[i];
+            }
+            i
+        }
+        for r in 0..rows {
+            for c in 0..cols {
+                if cost[r * cols + c].is_finite() {
+                    let (a, b) = (root(&mut self.parent, r), root(&mut self.parent, rows + c));
+                    if a != b {
+                        self.parent[a.max(b)] = a.min(b);
+                    }
+                }
+            }
+        }
+        self.members_r.clear();
+        self.members_c.clear();
+        for r in 0..rows {
+            let k = root(&mut self.parent, r);
+            self.members_r.push((k, r));
+        }
+        for c in 0..cols {
+            let k = root(&mut self.parent, rows + c);
+            self.members_c.push((k, c));
+        }
+        self.members_r.sort_unstable();
+        self.members_c.sort_unstable();
+        let (members_r, members_c) = (
+            std::mem::take(&mut self.members_r),
+            std::mem::take(&mut self.members_c),
+        );
+        let mut sub = std::mem::take(&mut self.sub);
+        let mut ci = 0;
+        for group in members_r.chunk_by(|a, b| a.0 == b.0) {
+            let k = group[0].0;
+            while ci < members_c.len() && members_c[ci].0 < k {
+                ci += 1;
+            }
+            let c_start = ci;
+            while ci < members_c.len() && members_c[ci].0 == k {
+                ci += 1;
+            }
+            let cs = &members_c[c_start..ci];
+            if cs.is_empty() {
+                continue; // a row with no allowed column
+            }
+            sub.clear();
+            for &(_, r) in group {
+                sub.extend(cs.iter().map(|&(_, c)| cost[r * cols + c]));
+            }
+            self.solve_dense(&sub, group.len(), cs.len());
+            for (i, &(_, r)) in group.iter().enumerate() {
+                self.out[r] = self.sub_out[i].map(|j| cs[j].1);
+            }
+        }
+        self.members_r = members_r;
+        self.members_c = members_c;
+        self.sub = sub;
+        &self.out
+    }
+
+    /// The Hungarian method on a whole `rows × cols` matrix, into `sub_out`.
+    fn solve_dense(&mut self, cost: &[f64], rows: usize, cols: usize) {
+        self.sub_out.clear();
+        self.sub_out.resize(rows, None);
         // Finite stand-in for "not allowed", larger than any sum of allowed costs.
         let finite_max = cost
             .iter()
@@ -144,10 +221,9 @@ impl Assigner {
         for j in 1..=n {
             let i = p[j];
             if i >= 1 && i <= rows && j <= cols && cost[(i - 1) * cols + (j - 1)].is_finite() {
-                self.out[i - 1] = Some(j - 1);
+                self.sub_out[i - 1] = Some(j - 1);
             }
         }
-        &self.out
     }
 }
 
@@ -222,6 +298,58 @@ mod tests {
                 brute(&cost)
             );
         }
+    }
+
+    /// Sparse matrices, as tracking makes them (most pairs gated out): they fall apart into
+    /// components, each solved on its own; the whole must still be the optimum.
+    #[test]
+    fn components_solved_apart_give_the_optimum() {
+        let mut rng = crate::SplitMix64::new(11);
+        let mut split = 0;
+        for trial in 0..400 {
+            let (r, c) = (1 + (trial % 6), 1 + ((trial / 6) % 6));
+            let density = [0.15, 0.3, 0.5][trial % 3];
+            let cost: Vec<Vec<f64>> = (0..r)
+                .map(|_| {
+                    (0..c)
+                        .map(|_| {
+                            if rng.uniform() < density {
+                                rng.range(0.0, 50.0)
+                            } else {
+                                f64::INFINITY
+                            }
+                        })
+                        .collect()
+                })
+                .collect();
+            // Two rows with the same cheapest column make the components (and the general
+            // method) run rather than the shortcut.
+            let cheapest: Vec<usize> = cost
+                .iter()
+                .filter_map(|row| {
+                    (0..row.len())
+                        .filter(|&c| row[c].is_finite())
+                        .min_by(|&a, &b| row[a].total_cmp(&row[b]))
+                })
+                .collect();
+            split += (1..cheapest.len()).any(|i| cheapest[..i].contains(&cheapest[i])) as usize;
+            let got = assign_min_cost(&cost);
+            let mut seen = std::collections::HashSet::new();
+            let (mut total, mut pairs) = (0.0, 0);
+            for (row, col) in got.iter().enumerate() {
+                if let Some(col) = col {
+                    assert!(seen.insert(*col), "trial {trial}: column used twice");
+                    total += cost[row][*col];
+                    pairs += 1;
+                }
+            }
+            let best = brute(&cost);
+            assert!(
+                (total - best).abs() < 1e-9 || (best.is_infinite() && pairs == 0),
+                "trial {trial}: {total} vs {best}"
+            );
+        }
+        assert!(split > 80, "{split} trials reached the components");
     }
 
     #[test]
