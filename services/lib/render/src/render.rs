@@ -526,32 +526,16 @@ fn blur(img: &mut [f64], w: usize, h: usize, sigma: f64, background: &Background
             *v -= level + gx * x as f64 + gy * y as f64;
         }
     }
-    // A window of one line, padded by repeating its end values, convolved over `lo..=hi`.
-    let mut line = vec![0.0; w.max(h) + 2 * r];
-    let mut convolve = |values: &mut dyn Iterator<Item = f64>, n: usize, lo: usize, hi: usize| {
-        for (slot, v) in line[r..r + n].iter_mut().zip(values) {
-            *slot = v;
-        }
-        let (first, last) = (line[r], line[r + n - 1]);
-        line[..r].fill(first);
-        line[r + n..r + n + r].fill(last);
-        (lo..=hi)
-            .map(|c| {
-                k.iter()
-                    .zip(&line[c..c + 2 * r + 1])
-                    .map(|(a, b)| a * b)
-                    .sum()
-            })
-            .collect::<Vec<f64>>()
-    };
     // The span `lo..=hi` of `values` that the kernel reaches from a non-zero value.
     let reach = |values: &[f64]| -> Option<(usize, usize)> {
         let a = values.iter().position(|&v| v != 0.0)?;
         let b = values.iter().rposition(|&v| v != 0.0)?;
         Some((a.saturating_sub(r), (b + r).min(values.len() - 1)))
     };
-    // Rows, each only where the kernel reaches a non-zero value; `rows[y]` is where row y's
-    // result is kept in `tmp` (a frame-sized buffer per frame cost page faults), and its span.
+    // Rows, each only where the kernel reaches a non-zero value (the row padded by repeating
+    // its end values); `rows[y]` is where row y's result is kept in `tmp` (a frame-sized buffer
+    // per frame cost page faults), and its span.
+    let mut line = vec![0.0; w + 2 * r];
     let mut tmp: Vec<f64> = Vec::new();
     let mut rows: Vec<Option<(usize, usize, usize)>> = vec![None; h];
     for (y, kept) in rows.iter_mut().enumerate() {
@@ -559,8 +543,16 @@ fn blur(img: &mut [f64], w: usize, h: usize, sigma: f64, background: &Background
         let Some((lo, hi)) = reach(row) else {
             continue;
         };
+        line[..r].fill(row[0]);
+        line[r..r + w].copy_from_slice(row);
+        line[r + w..].fill(row[w - 1]);
         let at = tmp.len();
-        tmp.extend(convolve(&mut row.iter().copied(), w, lo, hi));
+        tmp.extend((lo..=hi).map(|c| {
+            k.iter()
+                .zip(&line[c..c + 2 * r + 1])
+                .map(|(a, b)| a * b)
+                .sum::<f64>()
+        }));
         row.fill(0.0);
         *kept = Some((at, lo, hi));
     }

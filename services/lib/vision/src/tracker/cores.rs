@@ -154,11 +154,7 @@ mod tests {
 
     /// A 640 × 480 frame of discs `(x, y, radius)`.
     fn frame(discs: &[(f64, f64, f64)]) -> GrayImage<u8> {
-        let mut img = GrayImage::filled(640, 480, 12u8).unwrap();
-        for &(x, y, r) in discs {
-            draw_ellipse(&mut img, &Ellipse::disc(x, y, r), 1.0, 12.0, 220.0, 4);
-        }
-        img
+        super::super::tests::discs_frame(640, 480, 12, 220, discs)
     }
 
     /// Frame `f` of a scene with what the cores must handle: steady motion, a circle (the

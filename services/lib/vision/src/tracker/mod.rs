@@ -634,9 +634,21 @@ mod tests {
     use stereoscope_numeric::heading::HeadingStatus;
 
     fn frame(objs: &[(f64, f64, f64)]) -> GrayImage<u8> {
-        let mut img = GrayImage::filled(320, 240, 10u8).unwrap();
-        for &(x, y, r) in objs {
-            draw_ellipse(&mut img, &Ellipse::disc(x, y, r), 1.0, 10.0, 210.0, 4);
+        discs_frame(320, 240, 10, 210, objs)
+    }
+
+    /// A `width × height` frame of discs `(x, y, radius)` at `level` on `background`.
+    pub(in crate::tracker) fn discs_frame(
+        width: u32,
+        height: u32,
+        background: u8,
+        level: u8,
+        discs: &[(f64, f64, f64)],
+    ) -> GrayImage<u8> {
+        let mut img = GrayImage::filled(width, height, background).unwrap();
+        for &(x, y, r) in discs {
+            let (bg, fg) = (background as f64, level as f64);
+            draw_ellipse(&mut img, &Ellipse::disc(x, y, r), 1.0, bg, fg, 4);
         }
         img
     }
