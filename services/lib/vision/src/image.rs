@@ -66,6 +66,28 @@ pub trait Pixel: Copy + Default + Send + Sync + PartialOrd + std::fmt::Debug + '
     unsafe fn any_foreground64x4_avx2(chunks: [&[Self]; 4], threshold: u32) -> bool {
         Self::any_foreground64x4(chunks, threshold)
     }
+
+    /// A run's weight sums `(Σw, Σw·x, Σw·x²)` over `row[a..b]`, `w = min(pixel − bg, cap)`
+    /// (Eq. 3.1 weights), `x` the pixel's index in `row` (`crate::weights`).
+    #[inline(always)]
+    fn weight_sums(row: &[Self], a: usize, b: usize, bg: u32, cap: u32) -> (u64, u64, u64) {
+        crate::weights::scalar(row, a, b, bg, cap)
+    }
+
+    /// [`Pixel::weight_sums`] with 256-bit vectors where the type has them.
+    ///
+    /// # Safety
+    /// As [`Pixel::foreground_mask64_avx2`].
+    #[inline(always)]
+    unsafe fn weight_sums_avx2(
+        row: &[Self],
+        a: usize,
+        b: usize,
+        bg: u32,
+        cap: u32,
+    ) -> (u64, u64, u64) {
+        Self::weight_sums(row, a, b, bg, cap)
+    }
 }
 
 impl Pixel for u8 {
@@ -172,6 +194,26 @@ impl Pixel for u8 {
             let t = _mm256_set1_epi8(threshold.min(255) as u8 as i8);
             _mm256_movemask_epi8(_mm256_cmpeq_epi8(_mm256_max_epu8(m, t), m)) != 0
         }
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[inline(always)]
+    fn weight_sums(row: &[Self], a: usize, b: usize, bg: u32, cap: u32) -> (u64, u64, u64) {
+        // SAFETY: 16-byte vectors are SSE2, the x86-64 baseline.
+        unsafe { crate::weights::u8_sums::<std::arch::x86_64::__m128i>(row, a, b, bg, cap) }
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[inline(always)]
+    unsafe fn weight_sums_avx2(
+        row: &[Self],
+        a: usize,
+        b: usize,
+        bg: u32,
+        cap: u32,
+    ) -> (u64, u64, u64) {
+        // SAFETY: the caller guarantees AVX2.
+        unsafe { crate::weights::u8_sums::<std::arch::x86_64::__m256i>(row, a, b, bg, cap) }
     }
 }
 

@@ -10,6 +10,7 @@
 //! - [`tracker`]: self-adaptive tracking windows for several objects (Eq. 5.1–5.3).
 //! - [`assign`]: minimum-cost assignment.
 //! - [`raster`]: anti-aliased test shapes and noise with known truth.
+//! - `weights`: a run's grey-level weight sums (Eq. 3.1), vectorised for 8-bit pixels.
 //!
 //! Pure: no I/O, no IPC, no global state. Pixel conventions: `docs/conventions.md`; what each
 //! module computes: `docs/vision.md`.
@@ -22,6 +23,7 @@ pub mod moments;
 pub mod preview;
 pub mod raster;
 pub mod tracker;
+mod weights;
 
 pub use error::VisionError;
 pub use extract::{

@@ -57,34 +57,6 @@ pub(super) fn merge_acc(into: &mut Acc, from: &Acc) {
     into.flags.0 |= from.flags.0;
 }
 
-/// A run's weight sums `(Σw, Σw·x, Σw·x²)`, `w = min(pixel − bg, cap)` (Eq. 3.1 weights), for
-/// the pixels `px` starting at column `x0`. Summed in `u32` relative to each piece's start —
-/// pieces short enough that `Σw·i²` cannot overflow (256 pixels of 8 bits, 32 of 16) — and
-/// moved to `x` in `u64` per piece: the inner loop is plain 32-bit arithmetic that the
-/// compiler vectorises (AVX2 inside `scan_avx2`), where per-pixel 64-bit products did not.
-#[inline(always)]
-pub(super) fn weighted_row_sums<P: Pixel>(px: &[P], x0: u32, bg: u32, cap: u32) -> (u64, u64, u64) {
-    let cap = cap.min(P::MAX_VALUE);
-    let piece = if P::BITS <= 8 { 256 } else { 32 };
-    let (mut sw, mut swx, mut swxx) = (0u64, 0u64, 0u64);
-    for (c, chunk) in px.chunks(piece).enumerate() {
-        let (mut s0, mut s1, mut s2) = (0u32, 0u32, 0u32);
-        for (i, p) in chunk.iter().enumerate() {
-            let w = p.value().saturating_sub(bg).min(cap);
-            let i = i as u32;
-            s0 += w;
-            s1 += w * i;
-            s2 += w * i * i;
-        }
-        let base = x0 as u64 + (c * piece) as u64;
-        let (s0, s1, s2) = (s0 as u64, s1 as u64, s2 as u64);
-        sw += s0;
-        swx += base * s0 + s1;
-        swxx += base * base * s0 + 2 * base * s1 + s2;
-    }
-    (sw, swx, swxx)
-}
-
 // The narrow-window pixel tests (a tracking window's row is one 64-pixel chunk), in SSE2 (the
 // x86-64 baseline) or, when `AVX2` is set, with 256-bit vectors: two loads per row instead of
 // four. `AVX2 = true` is instantiated only inside `Scratch::scan_avx2`, which runs only after
@@ -96,7 +68,7 @@ impl Scratch {
     /// Adds the run `x0..=x1` of row `y` to blob `label`'s sums (and weighted sums).
     #[inline(always)]
     #[allow(clippy::too_many_arguments)]
-    pub(super) fn add_run<P: Pixel>(
+    pub(super) fn add_run<P: Pixel, const AVX2: bool>(
         &mut self,
         label: u32,
         x0: u32,
@@ -115,14 +87,14 @@ impl Scratch {
             a.flags.insert(BlobFlags::CLIPPED);
         }
         if let Some(levels) = background {
-            self.add_weighted_run(label, x0, x1, y, levels, img);
+            self.add_weighted_run::<P, AVX2>(label, x0, x1, y, levels, img);
         }
     }
 
     /// Adds the run's grey-level weights (Eq. 3.1, `pixel − background` capped) to blob
     /// `label`'s weighted sums.
     #[inline(always)]
-    pub(super) fn add_weighted_run<P: Pixel>(
+    pub(super) fn add_weighted_run<P: Pixel, const AVX2: bool>(
         &mut self,
         label: u32,
         x0: u32,
@@ -132,7 +104,7 @@ impl Scratch {
         img: &GrayView<'_, P>,
     ) {
         let row = img.row(y);
-        let (sw, swx, swxx) = weighted_row_sums(&row[x0 as usize..=x1 as usize], x0, bg, cap);
+        let (sw, swx, swxx) = weight_sums::<P, AVX2>(row, x0 as usize, x1 as usize + 1, bg, cap);
         self.wacc[label as usize].add_row_sums(sw, swx, swxx, y);
     }
 
@@ -368,7 +340,7 @@ impl Scratch {
                         let mut block = RunBlock::new(y);
                         block.add_run(x0, x1, 0);
                         if let Some(levels) = background {
-                            self.add_weighted_run(label, x0, x1, y, levels, img);
+                            self.add_weighted_run::<P, AVX2>(label, x0, x1, y, levels, img);
                         }
                         let (mut bx0, mut bx1) = (x0, x1);
                         let mut run = (x0, x1);
@@ -387,7 +359,7 @@ impl Scratch {
                             clipped |= hclip((r0, r1));
                             block.add_run(r0, r1, yy - y);
                             if let Some(levels) = background {
-                                self.add_weighted_run(label, r0, r1, yy, levels, img);
+                                self.add_weighted_run::<P, AVX2>(label, r0, r1, yy, levels, img);
                             }
                             bx0 = bx0.min(r0);
                             bx1 = bx1.max(r1);
@@ -467,7 +439,7 @@ impl Scratch {
                             self.wacc.push(WeightedMoments::default());
                         }
                     }
-                    self.add_run(label, x0, x1, y, clipped, background, img);
+                    self.add_run::<P, AVX2>(label, x0, x1, y, clipped, background, img);
                     self.cur.push(RunRef { x0, x1, label });
                 }
                 self.runs += row_runs.len();

@@ -621,6 +621,10 @@ fn edge_rings_with<P: Pixel, const AVX2: bool>(
 /// such pixel of the rows just above and below the box. (Only the outside is read: a big
 /// blob's inside costs nothing again. A dim hollow inside a blob's row, such as a double
 /// ball's waist, is not added; a dim pixel within two pixels of two blobs counts in both.)
+///
+/// Each row is read as 64-pixel masks: one at the threshold finds the outline, one just above
+/// the background picks the few pixels that carry a weight (most of the outside is
+/// background), and only those are summed.
 #[inline(always)]
 fn add_edge_ring<P: Pixel, const AVX2: bool>(
     b: &mut Blob,
@@ -637,100 +641,112 @@ fn add_edge_ring<P: Pixel, const AVX2: bool>(
     let (x0, x1) = (bb.x0.saturating_sub(1), (bb.x1 + 1).min(w - 1));
     let (y0, y1) = (bb.y0.saturating_sub(1), (bb.y1 + 1).min(h - 1));
     let top = threshold.min(full);
+    // Pixels at or above this level weigh something; none when the background is the top.
+    let Some(weighty) = background.checked_add(1).filter(|&l| l <= P::MAX_VALUE) else {
+        return;
+    };
+    let (a, e) = (x0 as usize, x1 as usize + 1);
     for y in y0..=y1 {
-        let row = &img.row(y)[x0 as usize..=x1 as usize];
-        if row.len() >= 64 {
-            // A wide blob's row: its outline found 64 pixels at a time, the weights outside it
-            // summed as a run's (pixels below `top <= full` need no cap).
-            let (sw, swx, swxx) = match first_at_or_above::<P, AVX2>(row, top) {
-                None => weighted_row_sums(row, x0, background, P::MAX_VALUE),
-                Some(first) => {
-                    let last = last_at_or_above::<P, AVX2>(row, top);
-                    let (a, b, c) = weighted_row_sums(&row[..first], x0, background, P::MAX_VALUE);
-                    let (d, e, f) = weighted_row_sums(
-                        &row[last + 1..],
-                        x0 + last as u32 + 1,
-                        background,
-                        P::MAX_VALUE,
-                    );
-                    (a + d, b + e, c + f)
+        let row = img.row(y);
+        let mut sums = (0u64, 0u64, 0u64);
+        if row.len() < 64 {
+            // A frame narrower than one mask: pixel by pixel.
+            let first = (a..e).find(|&x| row[x].value() >= top).unwrap_or(e);
+            let last = (first..e).rev().find(|&x| row[x].value() >= top);
+            for x in (a..first).chain(last.map_or(e, |l| l + 1)..e) {
+                add_weight(&mut sums, x, row[x].value(), background);
+            }
+        } else if e - a <= 64 {
+            // The row's box in one mask (the common case: a marker, a target at 640 × 480).
+            let n = e - a;
+            let bright = mask_at::<P, AVX2>(row, a, n, top);
+            let inside = if bright == 0 {
+                0
+            } else {
+                let (f, l) = (bright.trailing_zeros(), 63 - bright.leading_zeros());
+                (u64::MAX >> (63 - l)) & (u64::MAX << f)
+            };
+            let weighed = mask_at::<P, AVX2>(row, a, n, weighty) & !inside;
+            add_weights(&mut sums, row, a, weighed, background);
+        } else {
+            let mut first = None;
+            let mut c = a;
+            while c < e {
+                let n = (e - c).min(64);
+                let m = mask_at::<P, AVX2>(row, c, n, top);
+                if m != 0 {
+                    first = Some(c + m.trailing_zeros() as usize);
+                    break;
+                }
+                c += n;
+            }
+            let outside = match first {
+                None => [(a, e), (e, e)],
+                Some(f) => {
+                    // From the right back to the last bright pixel (there is one: `f`).
+                    let mut end = e;
+                    let last = loop {
+                        let c = end.saturating_sub(64).max(f);
+                        let m = mask_at::<P, AVX2>(row, c, end - c, top);
+                        if m != 0 {
+                            break c + 63 - m.leading_zeros() as usize;
+                        }
+                        end = c;
+                    };
+                    [(a, f), (last + 1, e)]
                 }
             };
-            if sw > 0 {
-                wm.add_row_sums(sw, swx, swxx, y);
+            for (mut c, end) in outside {
+                while c < end {
+                    let n = (end - c).min(64);
+                    let m = mask_at::<P, AVX2>(row, c, n, weighty);
+                    add_weights(&mut sums, row, c, m, background);
+                    c += n;
+                }
             }
-            continue;
         }
-        let (mut sw, mut swx, mut swxx) = (0u64, 0u64, 0u64);
-        let mut add = |i: usize, v: u32| {
-            if v > background {
-                let x = x0 as u64 + i as u64;
-                let wt = (v - background) as u64;
-                sw += wt;
-                swx += wt * x;
-                swxx += wt * x * x;
-            }
-        };
-        // From the left up to the first bright pixel, then from the right back to it.
-        let mut first_bright = row.len();
-        for (i, p) in row.iter().enumerate() {
-            let v = p.value();
-            if v >= top {
-                first_bright = i;
-                break;
-            }
-            add(i, v);
-        }
-        for i in (first_bright + 1..row.len()).rev() {
-            let v = row[i].value();
-            if v >= top {
-                break;
-            }
-            add(i, v);
-        }
+        let (sw, swx, swxx) = sums;
         if sw > 0 {
             wm.add_row_sums(sw, swx, swxx, y);
         }
     }
 }
 
-/// The first pixel of `row` (at least 64 pixels) at or above `threshold`, 64 pixels at a time.
+/// Bit `i` set where `row[c + i] >= level`, for the `n` pixels from `c` (`1 <= n <= 64`,
+/// `c + n <= row.len()`, `row.len() >= 64`): one 64-pixel mask, read from `c` or, near the
+/// row's end, from the last 64 pixels and shifted.
 #[inline(always)]
-fn first_at_or_above<P: Pixel, const AVX2: bool>(row: &[P], threshold: u32) -> Option<usize> {
-    let len = row.len();
-    let mut c = 0;
-    while c < len {
-        let n = (len - c).min(64);
-        let m = if n == 64 {
-            mask64::<P, AVX2>(&row[c..c + 64], threshold)
-        } else {
-            mask64::<P, AVX2>(&row[len - 64..], threshold) >> (64 - n)
-        };
-        if m != 0 {
-            return Some(c + m.trailing_zeros() as usize);
-        }
-        c += n;
-    }
-    None
+fn mask_at<P: Pixel, const AVX2: bool>(row: &[P], c: usize, n: usize, level: u32) -> u64 {
+    let s = c.min(row.len() - 64);
+    let m = mask64::<P, AVX2>(&row[s..s + 64], level) >> (c - s);
+    if n >= 64 { m } else { m & ((1u64 << n) - 1) }
 }
 
-/// The last pixel of `row` (at least 64 pixels) at or above `threshold`, 64 pixels at a time
-/// from the right; 0 when there is none.
+/// Adds `pixel − background` at column `x` to the row's sums `(Σw, Σw·x, Σw·x²)`, for a pixel
+/// above the background.
 #[inline(always)]
-fn last_at_or_above<P: Pixel, const AVX2: bool>(row: &[P], threshold: u32) -> usize {
-    let mut end = row.len();
-    loop {
-        // The chunk ending at `end`, or the first 64 pixels (overlapping a chunk already read
-        // and found empty).
-        let c = end.saturating_sub(64);
-        let m = mask64::<P, AVX2>(&row[c..c + 64], threshold);
-        if m != 0 {
-            return c + 63 - m.leading_zeros() as usize;
-        }
-        if c == 0 {
-            return 0;
-        }
-        end = c;
+fn add_weight(sums: &mut (u64, u64, u64), x: usize, v: u32, background: u32) {
+    if v > background {
+        let (x, wt) = (x as u64, (v - background) as u64);
+        sums.0 += wt;
+        sums.1 += wt * x;
+        sums.2 += wt * x * x;
+    }
+}
+
+/// [`add_weight`] for each pixel `row[c + i]` with bit `i` of `mask` set.
+#[inline(always)]
+fn add_weights<P: Pixel>(
+    sums: &mut (u64, u64, u64),
+    row: &[P],
+    c: usize,
+    mut mask: u64,
+    background: u32,
+) {
+    while mask != 0 {
+        let x = c + mask.trailing_zeros() as usize;
+        add_weight(sums, x, row[x].value(), background);
+        mask &= mask - 1;
     }
 }
 
@@ -918,39 +934,71 @@ mod tests {
         )
     }
 
-    /// The pieces' 32-bit sums moved to `x` equal plain 64-bit sums, for runs long enough to
-    /// span many pieces, at the largest weights (no overflow) and at random ones.
+    /// A run's weight sums by every path — pixel by pixel in pieces, 16-byte vectors, 32-byte
+    /// vectors (where the CPU has AVX2) — equal plain 64-bit sums: runs of every length up to
+    /// many pieces, starting and ending anywhere in rows of every width (rows narrower than one
+    /// vector, runs shorter than one, runs ending at the row's end), columns up to 64 000, at
+    /// the largest weights (no overflow) and at random ones.
     #[test]
     fn weighted_run_sums_equal_64_bit_sums() {
-        fn reference<P: Pixel>(px: &[P], x0: u32, bg: u32, cap: u32) -> (u64, u64, u64) {
+        fn reference<P: Pixel>(
+            row: &[P],
+            a: usize,
+            b: usize,
+            bg: u32,
+            cap: u32,
+        ) -> (u64, u64, u64) {
             let mut s = (0u64, 0u64, 0u64);
-            for (i, p) in px.iter().enumerate() {
+            for (x, p) in row.iter().enumerate().take(b).skip(a) {
                 let w = p.value().saturating_sub(bg).min(cap) as u64;
-                let x = (x0 as usize + i) as u64;
+                let x = x as u64;
                 s = (s.0 + w, s.1 + w * x, s.2 + w * x * x);
             }
             s
         }
-        fn check<P: Pixel>(px: &[P], x0: u32, bg: u32, cap: u32) {
-            assert_eq!(
-                label::weighted_row_sums(px, x0, bg, cap),
-                reference(px, x0, bg, cap),
-                "{} pixels from x = {x0}, background {bg}, cap {cap}",
-                px.len()
+        fn check<P: Pixel>(row: &[P], a: usize, b: usize, bg: u32, cap: u32) {
+            let want = reference(row, a, b, bg, cap);
+            let what = format!(
+                "{a}..{b} of {} pixels, background {bg}, cap {cap}",
+                row.len()
             );
+            assert_eq!(
+                crate::weights::scalar(row, a, b, bg, cap),
+                want,
+                "pieces: {what}"
+            );
+            assert_eq!(P::weight_sums(row, a, b, bg, cap), want, "16 bytes: {what}");
+            if cpu_has_avx2() {
+                // SAFETY: the CPU has AVX2 (checked).
+                let got = unsafe { P::weight_sums_avx2(row, a, b, bg, cap) };
+                assert_eq!(got, want, "32 bytes: {what}");
+            }
         }
         let mut rng = stereoscope_numeric::SplitMix64::new(7);
-        for n in [1usize, 31, 32, 33, 255, 256, 257, 1000, 4096] {
-            for x0 in [0u32, 1, 1919, 60_000] {
-                let max8 = vec![255u8; n];
-                let max16 = vec![65535u16; n];
-                let rand8: Vec<u8> = (0..n).map(|_| rng.next_u64() as u8).collect();
-                let rand16: Vec<u16> = (0..n).map(|_| rng.next_u64() as u16).collect();
-                for (bg, cap) in [(0, u32::MAX), (0, 255), (40, 180), (1000, 30_000)] {
-                    check(&max8, x0, bg, cap);
-                    check(&rand8, x0, bg, cap);
-                    check(&max16, x0, bg, cap);
-                    check(&rand16, x0, bg, cap);
+        for len in [1usize, 15, 16, 17, 31, 32, 33, 100, 129, 300, 5000, 64_100] {
+            let max8 = vec![255u8; len];
+            let max16 = vec![65535u16; len];
+            let rand8: Vec<u8> = (0..len).map(|_| rng.next_u64() as u8).collect();
+            let rand16: Vec<u16> = (0..len).map(|_| rng.next_u64() as u16).collect();
+            let mut ranges = vec![(0, len), (0, 0), (len, len), (len - 1, len)];
+            for _ in 0..40 {
+                let n = [
+                    1, 5, 15, 16, 17, 31, 32, 33, 127, 128, 129, 255, 256, 257, 1000,
+                ][(rng.next_u64() % 15) as usize]
+                    .min(len);
+                let a = match rng.next_u64() % 3 {
+                    0 => 0,
+                    1 => len - n,
+                    _ => (rng.next_u64() % (len - n + 1) as u64) as usize,
+                };
+                ranges.push((a, a + n));
+            }
+            for (a, b) in ranges {
+                for (bg, cap) in [(0, u32::MAX), (0, 255), (40, 180), (1000, 30_000), (250, 3)] {
+                    check(&max8, a, b, bg, cap);
+                    check(&rand8, a, b, bg, cap);
+                    check(&max16, a, b, bg, cap);
+                    check(&rand16, a, b, bg, cap);
                 }
             }
         }
@@ -1611,7 +1659,7 @@ mod tests {
                 let bb = PixelRect {
                     x0,
                     y0,
-                    x1: (x0 + (rng.next_u64() % 90) as u32).min(w - 1),
+                    x1: (x0 + (rng.next_u64() % 140) as u32).min(w - 1),
                     y1: (y0 + (rng.next_u64() % 20) as u32).min(h - 1),
                 };
                 let max = P::MAX_VALUE as u64;
@@ -1644,15 +1692,20 @@ mod tests {
             }
         }
         let mut rng = stereoscope_numeric::SplitMix64::new(404);
-        for density in [0, 3, 30, 90, 100] {
-            let img8 = random_image(150, 40, 77 + density as u64, density);
+        // 150 pixels wide: boxes of one mask, of several, at the right edge; 50: a frame
+        // narrower than one mask.
+        for (density, width) in [0, 3, 30, 90, 100]
+            .into_iter()
+            .flat_map(|d| [(d, 150), (d, 50)])
+        {
+            let img8 = random_image(width, 40, 77 + density as u64, density);
             check(&img8.view(), &mut rng);
             let data: Vec<u16> = img8
                 .as_slice()
                 .iter()
                 .map(|&p| (p as u16 * 257) ^ (rng.next_u64() as u16 & 0xff))
                 .collect();
-            let img16 = GrayImage::from_vec(data, 150, 40).unwrap();
+            let img16 = GrayImage::from_vec(data, width, 40).unwrap();
             check(&img16.view(), &mut rng);
         }
     }

@@ -14,6 +14,24 @@ pub(super) fn mask64<P: Pixel, const AVX2: bool>(chunk: &[P], threshold: u32) ->
     }
 }
 
+/// A run's weight sums over `row[a..b]` ([`Pixel::weight_sums`]), with 256-bit vectors when
+/// `AVX2`.
+#[inline(always)]
+pub(super) fn weight_sums<P: Pixel, const AVX2: bool>(
+    row: &[P],
+    a: usize,
+    b: usize,
+    bg: u32,
+    cap: u32,
+) -> (u64, u64, u64) {
+    if AVX2 {
+        // SAFETY: as for `mask64`.
+        unsafe { P::weight_sums_avx2(row, a, b, bg, cap) }
+    } else {
+        P::weight_sums(row, a, b, bg, cap)
+    }
+}
+
 #[inline(always)]
 pub(super) fn any64x4<P: Pixel, const AVX2: bool>(chunks: [&[P]; 4], threshold: u32) -> bool {
     if AVX2 {
