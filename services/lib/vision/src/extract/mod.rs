@@ -657,7 +657,7 @@ fn add_edge_ring<P: Pixel, const AVX2: bool>(
                 add_weight(&mut sums, x, row[x].value(), background);
             }
         } else if e - a <= 64 {
-            // The row's box in one mask (the common case: a marker, a target at 640 × 480).
+            // The row's box in one mask (a marker; a target at 640 × 480).
             let n = e - a;
             let bright = mask_at::<P, AVX2>(row, a, n, top);
             let inside = if bright == 0 {
@@ -668,6 +668,19 @@ fn add_edge_ring<P: Pixel, const AVX2: bool>(
             };
             let weighed = mask_at::<P, AVX2>(row, a, n, weighty) & !inside;
             add_weights(&mut sums, row, a, weighed, background);
+        } else if e - a <= 128 {
+            // In two masks (a target up to 126 pixels wide).
+            let n = e - a;
+            let bright = masks128::<P, AVX2>(row, a, n, top);
+            let inside = if bright == 0 {
+                0
+            } else {
+                let (f, l) = (bright.trailing_zeros(), 127 - bright.leading_zeros());
+                (u128::MAX >> (127 - l)) & (u128::MAX << f)
+            };
+            let weighed = masks128::<P, AVX2>(row, a, n, weighty) & !inside;
+            add_weights(&mut sums, row, a, weighed as u64, background);
+            add_weights(&mut sums, row, a + 64, (weighed >> 64) as u64, background);
         } else {
             let mut first = None;
             let mut c = a;
@@ -720,6 +733,18 @@ fn mask_at<P: Pixel, const AVX2: bool>(row: &[P], c: usize, n: usize, level: u32
     let s = c.min(row.len() - 64);
     let m = mask64::<P, AVX2>(&row[s..s + 64], level) >> (c - s);
     if n >= 64 { m } else { m & ((1u64 << n) - 1) }
+}
+
+/// [`mask_at`] for up to 128 pixels (`1 <= n <= 128`), in one or two masks. (A function, not
+/// a closure: a closure is not compiled with its caller's AVX2.)
+#[inline(always)]
+fn masks128<P: Pixel, const AVX2: bool>(row: &[P], c: usize, n: usize, level: u32) -> u128 {
+    let m = mask_at::<P, AVX2>(row, c, n.min(64), level) as u128;
+    if n > 64 {
+        m | (mask_at::<P, AVX2>(row, c + 64, n - 64, level) as u128) << 64
+    } else {
+        m
+    }
 }
 
 /// Adds `pixel − background` at column `x` to the row's sums `(Σw, Σw·x, Σw·x²)`, for a pixel
@@ -818,6 +843,21 @@ mod tests {
         conn: Connectivity,
         mask: Option<&[Window]>,
     ) -> Vec<(RawMoments, PixelRect, bool)> {
+        reference_weighted_blobs(img, thr, conn, mask, 0)
+            .into_iter()
+            .map(|(b, _)| b)
+            .collect()
+    }
+
+    /// [`reference_blobs`] with each blob's grey-level moments (weight `pixel − background`),
+    /// pixel by pixel.
+    fn reference_weighted_blobs(
+        img: &GrayImage<u8>,
+        thr: u32,
+        conn: Connectivity,
+        mask: Option<&[Window]>,
+        background: u32,
+    ) -> Vec<((RawMoments, PixelRect, bool), WeightedMoments)> {
         let (w, h) = (img.width() as i64, img.height() as i64);
         let inside = |x: i64, y: i64| -> Option<u32> {
             if x < 0 || y < 0 || x >= w || y >= h {
@@ -846,6 +886,7 @@ mod tests {
                     continue;
                 }
                 let mut m = RawMoments::default();
+                let mut wm = WeightedMoments::default();
                 let mut bb = PixelRect {
                     x0: x as u32,
                     y0: y as u32,
@@ -858,6 +899,9 @@ mod tests {
                 let mut clipped = false;
                 while let Some((px, py)) = stack.pop() {
                     m.add_pixel(px as u32, py as u32);
+                    let wt = (img.get(px as u32, py as u32).unwrap() as u32)
+                        .saturating_sub(background) as u64;
+                    wm.add_row_sums(wt, wt * px as u64, wt * (px * px) as u64, py as u32);
                     for (dx, dy) in [(-1, 0), (1, 0), (0, -1), (0, 1)] {
                         let (nx, ny) = (px + dx, py + dy);
                         if nx >= 0 && ny >= 0 && nx < w && ny < h && inside(nx, ny).is_none() {
@@ -888,7 +932,7 @@ mod tests {
                         }
                     }
                 }
-                out.push((m, bb, clipped));
+                out.push(((m, bb, clipped), wm));
             }
         }
         out
@@ -1349,12 +1393,13 @@ mod tests {
     /// The tracking windows' inner loop (a blob's rows summed as a block) and both pixel-test
     /// widths against the flood fill: ellipses of radius 2–14 px in windows up to 150 px wide,
     /// some cutting them, some overlapping, at the frame's edges too; and a blob the window
-    /// holds whole gets the very moments (binary and grey-level) of the full-frame pass.
+    /// holds whole gets the very moments (binary and grey-level) of the full-frame pass; every
+    /// blob's grey-level moments equal the flood fill's, pixel by pixel.
     #[test]
     fn tracking_windows_over_ellipses_match_flood_fill_with_either_vector_width() {
         use crate::raster::{Ellipse, draw_ellipse};
         let mut rng = stereoscope_numeric::SplitMix64::new(5);
-        let mut whole = 0;
+        let (mut whole, mut weighed) = (0, 0);
         for trial in 0..120u64 {
             let (w, h) = (160 + (trial % 5) as u32 * 17, 120);
             let mut img = GrayImage::filled(w, h, 10u8).unwrap();
@@ -1393,6 +1438,26 @@ mod tests {
                         ex.use_avx2(avx2);
                         let got = ex.extract(img.view(), 100, &windows).unwrap().to_vec();
                         assert_eq!(ours(&got), want, "trial {trial} {conn:?} avx2 {avx2}");
+                        if let Weighting::Intensity { background } = weighting {
+                            // Grey-level moments pixel by pixel, blob for blob.
+                            let refs = reference_weighted_blobs(
+                                &img,
+                                100,
+                                conn,
+                                Some(&windows),
+                                background,
+                            );
+                            for b in &got {
+                                let r =
+                                    refs.iter().find(|(r, _)| r.0 == b.moments && r.1 == b.bbox);
+                                assert_eq!(
+                                    r.map(|r| r.1),
+                                    b.weighted,
+                                    "trial {trial} {conn:?} avx2 {avx2}"
+                                );
+                                weighed += 1;
+                            }
+                        }
                         let mut full = Extractor::new(cfg);
                         full.use_avx2(!avx2);
                         let all = full.extract(img.view(), 100, &[]).unwrap();
@@ -1406,6 +1471,10 @@ mod tests {
             }
         }
         assert!(whole > 200, "{whole} whole blobs compared");
+        assert!(
+            weighed > 200,
+            "{weighed} blobs' grey-level moments compared"
+        );
     }
 
     #[test]
