@@ -1155,13 +1155,19 @@ mod tests {
                 })
                 .collect();
             // Every third trial lights only the pixel just past one edge of a window: gaps
-            // and bands that are one pixel off fail there.
+            // and bands that are one pixel short fail there.
+            // Or only a window's own edge pixel (inside it): a gap read one pixel too wide
+            // fails there.
             if let (0, Some(r)) = (trial % 3, windows.first()) {
-                let (x, y) = match (trial / 3) % 4 {
+                let (x, y) = match (trial / 3) % 8 {
                     0 => (r.x1 as i64 + 1, r.y0 as i64),
                     1 => (r.x0 as i64 - 1, r.y0 as i64),
                     2 => (r.x0 as i64, r.y1 as i64 + 1),
-                    _ => (r.x0 as i64, r.y0 as i64 - 1),
+                    3 => (r.x0 as i64, r.y0 as i64 - 1),
+                    4 => (r.x0 as i64, r.y0 as i64),
+                    5 => (r.x1 as i64, r.y0 as i64),
+                    6 => (r.x0 as i64, r.y1 as i64),
+                    _ => (r.x1 as i64, r.y1 as i64),
                 };
                 if (0..w as i64).contains(&x) && (0..h as i64).contains(&y) {
                     img.as_mut_slice()[(y * w as i64 + x) as usize] = 200;

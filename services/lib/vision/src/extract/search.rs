@@ -108,18 +108,36 @@ pub(super) fn foreground_outside_with<P: Pixel, const AVX2: bool>(
         if gaps.is_empty() {
             continue;
         }
+        let whole_row = gaps[..] == [(0, w as usize)];
         let (first, step) = rows.first_from(ya);
         for y in (first..yb).step_by(step as usize) {
             let row = img.row(y);
-            if gaps
-                .iter()
-                .any(|&(a, b)| any_at_least::<P, AVX2>(&row[a..b], threshold))
+            // Most rows hold nothing bright anywhere: one test of the whole row settles them
+            // (the gaps between windows are many short pieces, each read apart).
+            if !any_at_least::<P, AVX2>(row, threshold) {
+                continue;
+            }
+            if whole_row
+                || gaps
+                    .iter()
+                    .any(|&(a, b)| any_in::<P, AVX2>(row, a, b, threshold))
             {
                 return true;
             }
         }
     }
     false
+}
+
+/// Whether any of `row[a..b]` is `>= threshold`: a piece shorter than 64 pixels as one mask
+/// read inside the row ([`mask_at`]), a longer one by [`any_at_least`].
+#[inline(always)]
+fn any_in<P: Pixel, const AVX2: bool>(row: &[P], a: usize, b: usize, threshold: u32) -> bool {
+    if b - a >= 64 || row.len() < 64 {
+        any_at_least::<P, AVX2>(&row[a..b], threshold)
+    } else {
+        b > a && mask_at::<P, AVX2>(row, a, b - a, threshold) != 0
+    }
 }
 
 /// Whether any of `pixels` is `>= threshold`: eight 64-pixel chunks at a time (one bounds
