@@ -23,9 +23,9 @@ done
 import json, sys
 rows = [json.load(open(p)) for p in sys.argv[1:]]
 print("\n## Moment worker against OpenCV on the same frames (one thread), ms per frame")
-print("Both on the same %d frames (a second at 120 fps); the same blobs found in every frame (checked: centroids within 0.5 px)." % rows[0]["frames"])
+print("Both on the same %d frames (a second at 120 fps); the same blobs found in every frame (checked: centroids within 0.5 px); both take the threshold from a histogram of the same rows every 30th frame by the same rule (checked: the same threshold from every frame)." % rows[0]["frames"])
 print("Frames from memory: all 120 read in turn, each cold in the cache. Frames just written: each copied into a buffer just before it is timed, as a capture process hands it over (the worker's copy by another thread, OpenCV's by its own).")
-print("| scene | frame | worker (threshold every 30, search every 10, windows) | OpenCV threshold+contours+moments, every frame | OpenCV / worker | worker, frames just written | OpenCV, frames just written | OpenCV / worker, frames just written | blobs matched | worst centroid px |")
+print("| scene | frame | worker (threshold every 30, search every 10, windows) | OpenCV (calcHist + the auto rule every 30; threshold+contours+moments every frame) | OpenCV / worker | worker, frames just written | OpenCV, frames just written | OpenCV / worker, frames just written | blobs matched | worst centroid px |")
 print("|---|---|---|---|---|---|---|---|---|---|")
 for p, r in sorted(zip(sys.argv[1:], rows), key=lambda x: (x[1]["scene"], len(x[1]["frame"]))):
     print("| %s | %s | %.4f | %.4f | %.1f× | %.4f | %.4f | %.1f× | %d | %.3f |" % (r["scene"], r["frame"], r["worker_ms"], r["contours_ms"], r["contours_ms"] / r["worker_ms"], r["worker_ms_delivered"], r["contours_ms_delivered"], r["contours_ms_delivered"] / r["worker_ms_delivered"], r["blobs_matched"], r["worst_centroid_px"]))

@@ -238,9 +238,16 @@ fn worker_fps(
         let scene = if markers { "markers" } else { "targets" };
         let sub = dir.join(format!("worker-{scene}-{w}x{h}"));
         std::fs::create_dir_all(&sub).unwrap();
+        // The threshold the worker's rule takes from each frame's own histogram (the rows it
+        // reads), for the OpenCV side to check its histogram and the same rule against.
+        let rows_step = (h / stereoscope_moments::THRESHOLD_ROWS).max(1);
         let mut per_frame = Vec::new();
         for (k, (f, obs)) in frames.iter().zip(&found).enumerate() {
             let img = stereoscope_vision::GrayImage::from_vec(f.clone(), w, h).unwrap();
+            let own_threshold = stereoscope_vision::Histogram::of_rows(&img.view(), rows_step)
+                .threshold::<u8>(s.threshold)
+                .unwrap()
+                .clamp(1, 255);
             std::fs::write(
                 sub.join(format!("{k:03}.pgm")),
                 stereoscope_imageio::encode_pgm_u8(&img),
@@ -257,7 +264,7 @@ fn worker_fps(
                 })
                 .collect();
             per_frame.push(format!(
-                "{{\"frame\":\"{k:03}\",\"threshold\":{},\"blobs\":[{}]}}",
+                "{{\"frame\":\"{k:03}\",\"threshold\":{},\"own_threshold\":{own_threshold},\"blobs\":[{}]}}",
                 obs.threshold,
                 blobs.join(",")
             ));
@@ -265,8 +272,10 @@ fn worker_fps(
         std::fs::write(
             dir.join(format!("worker-{scene}-{w}x{h}.json")),
             format!(
-                "{{\"ms_per_frame\":{:.6},\"ms_per_frame_delivered\":{delivered_ms:.6},\"frames\":[{}]}}\n",
+                "{{\"ms_per_frame\":{:.6},\"ms_per_frame_delivered\":{delivered_ms:.6},\"threshold_method\":\"{:?}\",\"threshold_every_frames\":{},\"threshold_rows_step\":{rows_step},\"frames\":[{}]}}\n",
                 1e3 / fps,
+                s.threshold,
+                s.threshold_every_frames,
                 per_frame.join(",\n")
             ),
         )

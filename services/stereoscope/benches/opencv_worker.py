@@ -9,6 +9,11 @@ FRAMES_DIR holds the frames the worker was timed on (NNN.pgm, a second of the be
 blob it tracked). OpenCV, one thread, does what a user without the worker would do on every
 frame: threshold at the worker's threshold (pixel >= t, cv2's > t - 1), findContours
 (external, simple) and cv2.moments per contour: area, centroid and second moments per blob.
+It also pays for the threshold as the worker does: on every `threshold_every_frames`-th frame
+(30) a cv2.calcHist of the rows the worker reads (every `threshold_rows_step`-th) and the
+worker's `auto` rule on it (`auto_threshold` below, from services/lib/vision/src/histogram.rs).
+Before timing, the script checks that this gives, on every frame, the threshold the worker's
+own code takes from that frame (`own_threshold`): an outside check of the worker's histogram.
 Before timing, the script checks that both found the same blobs in every frame: the same
 number (contours with an area of at least 4 px, the worker's smallest new object), and each
 worker centroid within 0.5 px of one OpenCV centroid (polygon moments of the contour against
@@ -30,6 +35,40 @@ import numpy as np
 
 MIN_AREA = 4.0
 TOLERANCE_PX = 0.5
+
+
+def auto_threshold(counts):
+    """The worker's `auto` threshold (histogram.rs: the triangle knee from the peak to the
+    brightest level, then halfway to the mean of the levels at or above the knee), clamped to
+    1..255 as the worker clamps it."""
+    h = np.asarray(counts, dtype=np.float64).ravel()
+    nonzero = np.flatnonzero(h)
+    if len(nonzero) == 0:
+        sys.exit("error: an empty histogram")
+    hi = int(nonzero[-1])
+    peak = int(np.argmax(h))  # the first of equal maxima, as the worker's mode
+    if peak >= hi:
+        knee = hi + 1
+    else:
+        x0, y0 = float(peak), h[peak]
+        dx, dy = float(hi + 1) - x0, -y0
+        norm = np.sqrt(dx * dx + dy * dy)
+        levels = np.arange(peak + 1, hi + 1, dtype=np.float64)
+        d = ((levels - x0) * dy - (h[peak + 1:hi + 1] - y0) * dx) / norm
+        best = int(np.argmax(d))
+        knee = (peak + 1 + best if d[best] > -1.0 else peak) + 1
+    above = h[knee:]
+    n = above.sum()
+    if n == 0:
+        t = knee
+    else:
+        bright = float((np.arange(knee, knee + len(above)) * above).sum()) / n
+        t = int(np.floor((knee + bright) / 2.0 + 0.5))  # Rust's round: half away from zero
+    return min(max(t, 1), 255)
+
+
+def frame_threshold(img, rows_step):
+    return auto_threshold(cv2.calcHist([img[::rows_step]], [0], None, [256], [0, 256]))
 
 
 def blobs(img, t):
@@ -55,12 +94,21 @@ def main():
     quick = "--quick" in sys.argv[4:]
     cv2.setNumThreads(1)
     worker = json.loads(worker_json.read_text())
+    if worker["threshold_method"] != "Auto":
+        sys.exit(f"error: the worker's threshold is {worker['threshold_method']}; this script "
+                 "times OpenCV with the `auto` rule only")
+    every = worker["threshold_every_frames"]
+    rows_step = worker["threshold_rows_step"]
     frames = []
     for f in worker["frames"]:
         img = cv2.imread(str(frames_dir / f"{f['frame']}.pgm"), cv2.IMREAD_UNCHANGED)
         if img is None:
             sys.exit(f"error: {frames_dir}/{f['frame']}.pgm: OpenCV cannot read it")
         frames.append((img, f["threshold"], f["blobs"]))
+        ours = frame_threshold(img, rows_step)
+        if ours != f["own_threshold"]:
+            sys.exit(f"frame {f['frame']}: OpenCV's histogram (every {rows_step}th row) and the "
+                     f"auto rule give threshold {ours}, the worker's code {f['own_threshold']}")
     # The same blobs, frame by frame.
     matched = 0
     worst = 0.0
@@ -79,8 +127,13 @@ def main():
             matched += 1
     binary = np.empty_like(frames[0][0])
 
+    # Each side refreshes its threshold on every `every`-th frame. Each frame is binarised at
+    # the worker's threshold for it (so both find the same blobs, checked above); the refresh
+    # is timed, its result (equal to the worker's rule on that frame, checked above) unused.
     def every_frame():
-        for img, t, _ in frames:
+        for i, (img, t, _) in enumerate(frames):
+            if i % every == 0:
+                frame_threshold(img, rows_step)
             cv2.threshold(img, t - 1, 255, cv2.THRESH_BINARY, dst=binary)
             cs, _ = cv2.findContours(binary, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
             for c in cs:
@@ -91,9 +144,11 @@ def main():
     def every_frame_delivered():
         # Each frame just written into one buffer (as a capture hands it over), then timed.
         spent = 0.0
-        for img, t, _ in frames:
+        for i, (img, t, _) in enumerate(frames):
             np.copyto(staging, img)
             t0 = time.perf_counter()
+            if i % every == 0:
+                frame_threshold(staging, rows_step)
             cv2.threshold(staging, t - 1, 255, cv2.THRESH_BINARY, dst=binary)
             cs, _ = cv2.findContours(binary, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
             for c in cs:

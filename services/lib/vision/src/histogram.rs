@@ -56,21 +56,22 @@ impl ThresholdMethod {
 /// Adds each pixel of `rows` to `counts` (one count per level). Eight-bit pixels go to four
 /// tables in turn, summed at the end: a background of one grey level makes every increment of
 /// a single table wait for the one before (the same counter, through memory), while four
-/// tables let four run at once. The counts are the same either way.
+/// tables let four run at once. The counts are the same either way. The row is taken sixteen
+/// pixels a step (four to each table), so the loop's own count and test are paid once per
+/// sixteen increments, not once per four: 2.2 instructions a pixel instead of 2.75.
 fn count_levels<'a, P: Pixel>(counts: &mut [u32], rows: impl Iterator<Item = &'a [P]>) {
     let top = counts.len() - 1;
     if P::BITS <= 8 && counts.len() == 256 {
         let mut t = [[0u32; 256]; 4];
         for row in rows {
-            let mut quads = row.chunks_exact(4);
-            for q in &mut quads {
-                t[0][q[0].value() as usize & 255] += 1;
-                t[1][q[1].value() as usize & 255] += 1;
-                t[2][q[2].value() as usize & 255] += 1;
-                t[3][q[3].value() as usize & 255] += 1;
+            let mut steps = row.chunks_exact(16);
+            for q in &mut steps {
+                for (i, p) in q.iter().enumerate() {
+                    t[i & 3][p.value() as usize & 255] += 1;
+                }
             }
-            for p in quads.remainder() {
-                t[0][p.value() as usize & 255] += 1;
+            for (i, p) in steps.remainder().iter().enumerate() {
+                t[i & 3][p.value() as usize & 255] += 1;
             }
         }
         for (level, c) in counts.iter_mut().enumerate() {
@@ -365,7 +366,7 @@ mod tests {
             c
         }
         let mut rng = SplitMix64::new(7);
-        for w in [1u32, 2, 3, 4, 5, 6, 7, 9, 61] {
+        for w in [1u32, 2, 3, 4, 5, 6, 7, 9, 15, 16, 17, 33, 61] {
             let h = 5u32;
             let d8: Vec<u8> = (0..w * h)
                 .map(|_| (rng.next_u64() % 7) as u8 * 40)
