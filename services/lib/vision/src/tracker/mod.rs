@@ -45,7 +45,7 @@ use stereoscope_numeric::heading::{HeadingConfig, HeadingTracker, HeadingUpdate}
 mod cores;
 pub use cores::{CORE_MARGIN_PX, CoreScan};
 
-/// The periodic search's test reads at least this many rows by default
+/// The periodic search's test reads one row in `height / this` by default, at least every 2nd
 /// ([`TrackerConfig::search_row_step`]).
 pub const SEARCH_ROWS_AT_LEAST: u32 = 540;
 
@@ -63,9 +63,10 @@ pub struct TrackerConfig {
     /// The periodic search's test for foreground outside the windows reads every this many
     /// rows, from a row that moves by one at each search: an object at least this many rows
     /// tall is found at the first search it is in, a shorter one `t` rows tall within
-    /// `step − t + 1` searches. `None`: one row in `height / 540` (every row below 1080 rows,
-    /// every 2nd at 1080p, every 4th at 4K). The frame is still labelled whole when the
-    /// test finds some.
+    /// `step − t + 1` searches. `None`: one row in `height / 540`, at least every 2nd (every
+    /// 2nd up to 1619 rows, every 3rd from 1620, every 4th at 4K): every object of two rows
+    /// or more — any that can start a track but a one-row streak — is found at the first
+    /// search it is in. The frame is still labelled whole when the test finds some.
     pub search_row_step: Option<u32>,
     /// A track lost for more than this many frames is dropped.
     pub drop_after_lost_frames: u32,
@@ -368,7 +369,7 @@ impl Tracker {
         let step = self
             .cfg
             .search_row_step
-            .unwrap_or(height / SEARCH_ROWS_AT_LEAST)
+            .unwrap_or((height / SEARCH_ROWS_AT_LEAST).max(2))
             .max(1);
         let phase = period.wrapping_add(frame % self.cfg.search_every_frames as u64);
         RowSample {
@@ -806,12 +807,12 @@ mod tests {
         assert_eq!(first_found(Some(3), 102..103), Some(30));
         assert_eq!(first_found(Some(3), 100..103), Some(10));
         assert_eq!(first_found(Some(1), 102..103), Some(10));
-        // By default every row below 1080 rows, every 2nd at 1080p, every 4th at 4K.
+        // By default every 2nd row up to 1619 rows, every 3rd from 1620, every 4th at 4K.
         let tr = Tracker::new(TrackerConfig::default(), ExtractConfig::default()).unwrap();
-        let steps = [240, 1079, 1080, 2160].map(|h| tr.search_rows(h, 5, 50));
+        let steps = [1, 240, 1079, 1080, 1620, 2160].map(|h| tr.search_rows(h, 5, 50));
         assert_eq!(
             steps.map(|r| (r.step, r.phase)),
-            [(1, 0), (1, 0), (2, 1), (4, 1)]
+            [(2, 1), (2, 1), (2, 1), (2, 1), (3, 2), (4, 1)]
         );
         let zero = TrackerConfig {
             search_row_step: Some(0),
