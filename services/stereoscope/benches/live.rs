@@ -5,7 +5,7 @@
 //! whole chain (two 640×480 cameras at 120 fps, 4 objects) run as processes by the launcher.
 //!
 //!   cargo bench -p stereoscope --bench live -- [--quick] [--json OUT] [--frames-dir DIR]
-//!       [--worker-only] [--only SCENE-WxH] [--windows-whole]
+//!       [--worker-only] [--only SCENE-WxH] [--windows-whole] [--y16]
 //!
 //! `services/stereoscope/benches/compare-live.sh` runs it with OpenCV timed on the worker's
 //! frames in the same run; results in docs/performance.md.
@@ -203,12 +203,20 @@ fn worker_fps(
         rig_at(w, h, 120.0, None, true)
     };
     let rig = Rig::from_toml(&text).unwrap();
+    // `--y16`: the same scenes rendered as 16-bit frames (Y16 cameras), to time the worker's
+    // 16-bit paths; no frames are written for OpenCV then.
+    let y16 = std::env::args().any(|a| a == "--y16");
+    let (bit_depth, format, bytes) = if y16 {
+        (Some(16), PixelFormat::Gray16, 2)
+    } else {
+        (None, PixelFormat::Gray8, 1)
+    };
     let mut src =
-        SyntheticSource::new(&rig.spec, rig.cameras[0].camera, 0, 120.0, None, None).unwrap();
+        SyntheticSource::new(&rig.spec, rig.cameras[0].camera, 0, 120.0, None, bit_depth).unwrap();
     let n = 120u64;
     let mut frames = Vec::new();
     for k in 0..n {
-        let mut buf = vec![0u8; (w * h) as usize];
+        let mut buf = vec![0u8; (w * h) as usize * bytes];
         src.read(k, 1000.0 + k as f64 / 120.0, &mut buf).unwrap();
         frames.push(buf);
     }
@@ -216,7 +224,7 @@ fn worker_fps(
     // `--windows-whole`: the Eq. 5.1 windows read whole on every frame (no cores), to compare.
     s.tracker.core_scan = !std::env::args().any(|a| a == "--windows-whole");
     let mut worker = Worker::new(s.clone(), "bench", "cam0").unwrap();
-    let mut header = FrameHeader::new("cam0", PixelFormat::Gray8, w, h).unwrap();
+    let mut header = FrameHeader::new("cam0", format, w, h).unwrap();
     let total = if quick { 5 * n } else { 25 * n };
     let mut found = vec![None; frames.len()];
     let t = Instant::now();
@@ -232,9 +240,9 @@ fn worker_fps(
         "worker {w}x{h} {}: cores settled {settled} and widened {widened} of {total} frames",
         if markers { "markers" } else { "targets" }
     );
-    let delivered_ms = worker_delivered_ms(&s, &frames, w, h, total);
+    let delivered_ms = worker_delivered_ms(&s, &frames, format, w, h, total);
     let found: Vec<_> = found.into_iter().flatten().collect();
-    if let Some(dir) = frames_dir {
+    if let Some(dir) = frames_dir.filter(|_| !y16) {
         let scene = if markers { "markers" } else { "targets" };
         let sub = dir.join(format!("worker-{scene}-{w}x{h}"));
         std::fs::create_dir_all(&sub).unwrap();
@@ -296,16 +304,17 @@ fn worker_fps(
 fn worker_delivered_ms(
     settings: &stereoscope_rig::moments::WorkerSettings,
     frames: &[Vec<u8>],
+    format: PixelFormat,
     w: u32,
     h: u32,
     total: u64,
 ) -> f64 {
     let mut worker = Worker::new(settings.clone(), "bench", "cam0").unwrap();
-    let mut header = FrameHeader::new("cam0", PixelFormat::Gray8, w, h).unwrap();
+    let mut header = FrameHeader::new("cam0", format, w, h).unwrap();
     let (free_tx, free_rx) = mpsc::channel::<Vec<u8>>();
     let (full_tx, full_rx) = mpsc::sync_channel::<(u64, Vec<u8>)>(1);
     for _ in 0..2 {
-        free_tx.send(vec![0u8; (w * h) as usize]).unwrap();
+        free_tx.send(vec![0u8; frames[0].len()]).unwrap();
     }
     let mut spent = Duration::ZERO;
     std::thread::scope(|scope| {

@@ -228,6 +228,60 @@ impl Pixel for u16 {
     fn from_u32_saturating(v: u32) -> Self {
         v.min(65535) as u16
     }
+
+    // Sixteen-bit masks: `pixel >= t` is `t -sat pixel == 0` (unsigned saturating subtract,
+    // SSE2 has no unsigned 16-bit compare), each lane's 0 / 0xFFFF packed to bytes for the
+    // byte movemask. A threshold above 65535 takes no pixel.
+    #[cfg(target_arch = "x86_64")]
+    #[inline(always)]
+    fn foreground_mask64(chunk: &[Self], threshold: u32) -> u64 {
+        use std::arch::x86_64::*;
+        let chunk = &chunk[..64];
+        if threshold > 65535 {
+            return 0;
+        }
+        // SAFETY: `chunk` holds 64 pixels (sliced above), so each 8-pixel load at 8k is in
+        // bounds; unaligned loads are allowed; SSE2 is part of the x86_64 baseline.
+        unsafe {
+            let t = _mm_set1_epi16(threshold as u16 as i16);
+            let zero = _mm_setzero_si128();
+            let p = chunk.as_ptr() as *const __m128i;
+            let ge = |k: usize| _mm_cmpeq_epi16(_mm_subs_epu16(t, _mm_loadu_si128(p.add(k))), zero);
+            let mut mask = 0u64;
+            for k in 0..4 {
+                let bytes = _mm_packs_epi16(ge(2 * k), ge(2 * k + 1));
+                mask |= (_mm_movemask_epi8(bytes) as u16 as u64) << (16 * k);
+            }
+            mask
+        }
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[inline(always)]
+    unsafe fn foreground_mask64_avx2(chunk: &[Self], threshold: u32) -> u64 {
+        use std::arch::x86_64::*;
+        let chunk = &chunk[..64];
+        if threshold > 65535 {
+            return 0;
+        }
+        // SAFETY: four 32-byte loads inside the 128-byte slice; the caller guarantees AVX2.
+        unsafe {
+            let t = _mm256_set1_epi16(threshold as u16 as i16);
+            let zero = _mm256_setzero_si256();
+            let p = chunk.as_ptr() as *const __m256i;
+            let mut mask = 0u64;
+            for k in 0..2 {
+                let a = _mm256_loadu_si256(p.add(2 * k));
+                let b = _mm256_loadu_si256(p.add(2 * k + 1));
+                let ga = _mm256_cmpeq_epi16(_mm256_subs_epu16(t, a), zero);
+                let gb = _mm256_cmpeq_epi16(_mm256_subs_epu16(t, b), zero);
+                // The pack works within 128-bit lanes: a0 b0 a1 b1 → a0 a1 b0 b1.
+                let bytes = _mm256_permute4x64_epi64(_mm256_packs_epi16(ga, gb), 0b11_01_10_00);
+                mask |= (_mm256_movemask_epi8(bytes) as u32 as u64) << (32 * k);
+            }
+            mask
+        }
+    }
 }
 
 /// A rectangle of whole pixels, both corners inclusive: it covers the pixels
@@ -459,6 +513,62 @@ impl<P: Pixel> GrayImage<P> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Every vector mask (SSE2, and AVX2 where the CPU has it) of both pixel types equals the
+    /// definition, bit `i` set where `chunk[i] >= threshold`, for values and thresholds at and
+    /// around each other and at both ends of the range (and a threshold past it).
+    #[test]
+    fn vector_masks_equal_the_definition() {
+        fn check<P: Pixel>(chunks: &[Vec<P>], thresholds: &[u32]) {
+            for c in chunks {
+                for &t in thresholds {
+                    let want = c
+                        .iter()
+                        .enumerate()
+                        .fold(0u64, |m, (i, p)| m | ((p.value() >= t) as u64) << i);
+                    assert_eq!(P::foreground_mask64(c, t), want, "{t} {c:?}");
+                    assert_eq!(P::any_foreground64(c, t), want != 0, "{t}");
+                    let four = [&c[..], &c[..], &c[..], &c[..]];
+                    assert_eq!(P::any_foreground64x4(four, t), want != 0, "{t}");
+                    #[cfg(target_arch = "x86_64")]
+                    if std::arch::is_x86_feature_detected!("avx2") {
+                        // SAFETY: AVX2 was just detected.
+                        unsafe {
+                            assert_eq!(P::foreground_mask64_avx2(c, t), want, "avx2 {t}");
+                            assert_eq!(P::any_foreground64x4_avx2(four, t), want != 0, "{t}");
+                        }
+                    }
+                }
+            }
+        }
+        let mut rng = stereoscope_numeric::SplitMix64::new(64);
+        let mut chunks16: Vec<Vec<u16>> = vec![vec![0; 64], vec![65535; 64]];
+        for _ in 0..40 {
+            chunks16.push((0..64).map(|_| rng.next_u64() as u16).collect());
+            // Levels around 1000 and around the top, to meet the thresholds below.
+            chunks16.push((0..64).map(|_| 998 + (rng.next_u64() % 5) as u16).collect());
+            chunks16.push(
+                (0..64)
+                    .map(|_| 65533 + (rng.next_u64() % 3) as u16)
+                    .collect(),
+            );
+        }
+        // One bright pixel at each place.
+        chunks16.extend((0..64).map(|i| (0..64).map(|j| if i == j { 40000 } else { 7 }).collect()));
+        let mut t16 = vec![
+            0, 1, 7, 8, 999, 1000, 1001, 32767, 32768, 39999, 40000, 40001,
+        ];
+        t16.extend([65533, 65534, 65535, 65536, 70000, u32::MAX]);
+        t16.extend((0..8).map(|_| rng.next_u64() as u16 as u32));
+        check(&chunks16, &t16);
+        let chunks8: Vec<Vec<u8>> = chunks16
+            .iter()
+            .map(|c| c.iter().map(|&v| (v >> 8) as u8 ^ v as u8).collect())
+            .collect();
+        // (An 8-bit threshold is at most 255: the extractor refuses a larger one first.)
+        let t8: Vec<u32> = (0..=255).collect();
+        check(&chunks8, &t8);
+    }
 
     #[test]
     fn view_rejects_bad_geometry() {
