@@ -502,7 +502,7 @@ mod tests {
         Some((peak as u32, best_level as u32 + 1))
     }
 
-    /// The mode and knee equal their definition's on histograms of every kind: 8-bit and
+    /// The mode, knee and auto threshold equal their definition's on histograms of every kind: 8-bit and
     /// sparse 16-bit ones of a noisy background and bright targets, flat ones, equal peaks,
     /// a single level, a peak at the top, counts up to `u32::MAX`.
     #[test]
@@ -555,6 +555,22 @@ mod tests {
             let h = Histogram { counts, total };
             let want = by_definition(&h).unwrap();
             assert_eq!((h.mode().unwrap(), h.triangle().unwrap()), want);
+            // The auto threshold: halfway from the knee to the mean level at or above it.
+            let knee = want.1 as usize;
+            let (n, sum) = h
+                .counts
+                .iter()
+                .enumerate()
+                .skip(knee)
+                .fold((0u128, 0u128), |(n, s), (l, &c)| {
+                    (n + c as u128, s + l as u128 * c as u128)
+                });
+            let auto = if n == 0 {
+                knee as u32
+            } else {
+                ((knee as f64 + sum as f64 / n as f64) / 2.0).round() as u32
+            };
+            assert_eq!(h.auto().unwrap(), auto);
         }
         let empty = Histogram::new::<u8>();
         assert!(by_definition(&empty).is_none() && empty.triangle().is_err());
