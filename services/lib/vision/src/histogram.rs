@@ -158,8 +158,9 @@ impl Histogram {
     }
 
     /// The most frequent level (the background level on a dark scene); the lowest of equally
-    /// frequent ones. (The largest count first — a reduction the compiler vectorises — then
-    /// the first level holding it: at 16 bits a fifth of a level-by-level search's work.)
+    /// frequent ones. (The largest count first, then the first level holding it: two plain
+    /// passes without the search's branch, 15.5 k → 9.5 k instructions a frame for a Y16
+    /// worker; the compiler does not vectorise the maximum for the x86-64 baseline.)
     pub fn mode(&self) -> Result<u32, VisionError> {
         self.nonzero_range()?;
         let count = self.counts.iter().copied().max().unwrap_or(0);
