@@ -216,38 +216,30 @@ impl Worker {
             CoreScan::Widened => self.cores_widened += 1,
             CoreScan::Windows => {}
         }
-        let par = self.settings.tracker.par;
         let mut blobs = Vec::new();
         for t in self.tracker.tracks().iter().take(MAX_REPORTED_BLOBS) {
             let w = t.window;
-            let (status, area, moments, bbox, flags) = match &t.blob {
+            let (status, area, bbox, flags) = match &t.blob {
                 Some(b) => {
                     let st = if t.status == TrackStatus::New {
                         TrackState::New
                     } else {
                         TrackState::Tracked
                     };
-                    (
-                        st,
-                        b.area_px() as f64,
-                        Some(b.best_central()),
-                        b.bbox,
-                        b.flags,
-                    )
+                    (st, b.area_px() as f64, b.bbox, b.flags)
                 }
-                None => (
-                    TrackState::Lost,
-                    t.area_px as f64,
-                    None,
-                    w,
-                    BlobFlags::default(),
-                ),
+                None => (TrackState::Lost, t.area_px as f64, w, BlobFlags::default()),
             };
-            let (mu20, mu02, mu11, orientation, roundness) = match moments {
-                Some(c) => {
-                    let shape = c.axis_shape(par);
-                    (c.mu20, c.mu02, c.mu11, shape.angle_deg, shape.roundness())
-                }
+            // The blob's moments and axes as the tracker took its heading from them (the
+            // tracker's `par`, the same setting).
+            let (mu20, mu02, mu11, orientation, roundness) = match &t.shape {
+                Some(s) => (
+                    s.central.mu20,
+                    s.central.mu02,
+                    s.central.mu11,
+                    s.axis.angle_deg,
+                    s.axis.roundness(),
+                ),
                 None => (0.0, 0.0, 0.0, 0.0, 1.0),
             };
             blobs.push(BlobObservation {

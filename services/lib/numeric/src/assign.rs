@@ -18,6 +18,46 @@ pub fn assign_min_cost(cost: &[Vec<f64>]) -> Vec<Option<usize>> {
     a.solve(&flat, rows, cols).to_vec()
 }
 
+/// The first column of `row` with the least finite cost (in `f64::total_cmp`'s order), if any.
+#[inline]
+pub fn cheapest_allowed(row: &[f64]) -> Option<usize> {
+    let mut best = f64::INFINITY;
+    let mut at = None;
+    for (c, &v) in row.iter().enumerate() {
+        if v.is_finite() && v.total_cmp(&best).is_lt() {
+            best = v;
+            at = Some(c);
+        }
+    }
+    at
+}
+
+/// The common case while tracking: no two rows of the `rows × cols` matrix have the same
+/// cheapest allowed column. Each row then takes its own: every row that can have a column has
+/// one, each at its least cost, so no assignment has more pairs or a lower total. Writes that
+/// into `out` (all `None` on entry, left so when this is not the case) and says whether it was.
+fn each_its_cheapest(
+    cost: &[f64],
+    rows: usize,
+    cols: usize,
+    used: &mut Vec<bool>,
+    out: &mut [Option<usize>],
+) -> bool {
+    used.clear();
+    used.resize(cols, false);
+    for r in 0..rows {
+        if let Some(c) = cheapest_allowed(&cost[r * cols..(r + 1) * cols]) {
+            if used[c] {
+                out.fill(None);
+                return false;
+            }
+            used[c] = true;
+            out[r] = Some(c);
+        }
+    }
+    true
+}
+
 /// The assignment solver with its buffers, reusable without allocating per call.
 #[derive(Debug, Default, Clone)]
 pub struct Assigner {
@@ -37,6 +77,8 @@ pub struct Assigner {
     /// One component's cost matrix and its solution.
     sub: Vec<f64>,
     sub_out: Vec<Option<usize>>,
+    /// The Hungarian method's padded square matrix.
+    square: Vec<f64>,
 }
 
 impl Assigner {
@@ -47,30 +89,9 @@ impl Assigner {
         if rows == 0 || cols == 0 || cost.len() < rows * cols {
             return &self.out;
         }
-        // The common case while tracking: no two rows have the same cheapest allowed column.
-        // Each row then takes its own: every row that can have a column has one, each at its
-        // least cost, so no assignment has more pairs or a lower total.
-        self.used.clear();
-        self.used.resize(cols, false);
-        let mut distinct = true;
-        for r in 0..rows {
-            let row = &cost[r * cols..(r + 1) * cols];
-            let cheapest = (0..cols)
-                .filter(|&c| row[c].is_finite())
-                .min_by(|&a, &b| row[a].total_cmp(&row[b]));
-            if let Some(c) = cheapest {
-                if self.used[c] {
-                    distinct = false;
-                    break;
-                }
-                self.used[c] = true;
-                self.out[r] = Some(c);
-            }
-        }
-        if distinct {
+        if each_its_cheapest(cost, rows, cols, &mut self.used, &mut self.out) {
             return &self.out;
         }
-        self.out.fill(None);
         // Rows and columns joined by no allowed pair never compete: each component of the
         // allowed pairs is solved on its own (a frame's tracks and blobs fall apart into small
         // groups, and the method is cubic in its matrix's size). The most pairs, then the
@@ -129,7 +150,19 @@ impl Assigner {
             for &(_, r) in group {
                 sub.extend(cs.iter().map(|&(_, c)| cost[r * cols + c]));
             }
-            self.solve_dense(&sub, group.len(), cs.len());
+            // A component whose rows have distinct cheapest columns (a track alone with its
+            // blob, most of them) needs no more; the others run the general method.
+            self.sub_out.clear();
+            self.sub_out.resize(group.len(), None);
+            if !each_its_cheapest(
+                &sub,
+                group.len(),
+                cs.len(),
+                &mut self.used,
+                &mut self.sub_out,
+            ) {
+                self.solve_dense(&sub, group.len(), cs.len());
+            }
             for (i, &(_, r)) in group.iter().enumerate() {
                 self.out[r] = self.sub_out[i].map(|j| cs[j].1);
             }
@@ -151,14 +184,17 @@ impl Assigner {
             .fold(0.0f64, |a, &c| a.max(c.abs()));
         let n = rows.max(cols);
         let big = (finite_max + 1.0) * (n as f64 + 1.0) * 4.0;
-        let at = |r: usize, c: usize| -> f64 {
-            if r < rows && c < cols {
-                let v = cost[r * cols + c];
-                if v.is_finite() { v } else { big }
-            } else {
-                big
+        // The square `n × n` matrix the method works on, padded and with `big` for "not
+        // allowed", made once so the inner loop reads a plain row.
+        self.square.clear();
+        for r in 0..n {
+            if r < rows {
+                let row = &cost[r * cols..(r + 1) * cols];
+                self.square
+                    .extend(row.iter().map(|&v| if v.is_finite() { v } else { big }));
             }
-        };
+            self.square.resize((r + 1) * n, big);
+        }
         // Potentials u (rows), v (cols); p[c] = row matched to col c (1-based, 0 = none).
         for buf in [&mut self.u, &mut self.v] {
             buf.clear();
@@ -168,32 +204,39 @@ impl Assigner {
             buf.clear();
             buf.resize(n + 1, 0);
         }
+        self.minv.clear();
+        self.minv.resize(n + 1, f64::INFINITY);
+        self.used.clear();
+        self.used.resize(n + 1, false);
         let (u, v, p, way) = (&mut self.u, &mut self.v, &mut self.p, &mut self.way);
+        let (minv, used) = (&mut self.minv, &mut self.used);
         for i in 1..=n {
             p[0] = i;
             let mut j0 = 0usize;
-            self.minv.clear();
-            self.minv.resize(n + 1, f64::INFINITY);
-            self.used.clear();
-            self.used.resize(n + 1, false);
-            let (minv, used) = (&mut self.minv, &mut self.used);
+            minv.fill(f64::INFINITY);
+            used.fill(false);
             loop {
                 used[j0] = true;
                 let i0 = p[j0];
                 let mut delta = f64::INFINITY;
                 let mut j1 = 0usize;
-                for j in 1..=n {
-                    if used[j] {
+                let (row, ui0) = (&self.square[(i0 - 1) * n..i0 * n], u[i0]);
+                let columns = row.iter().zip(&v[1..]).zip(&used[1..]);
+                for (k, (((&c, &vj), &done), (mv, wj))) in columns
+                    .zip(minv[1..].iter_mut().zip(&mut way[1..]))
+                    .enumerate()
+                {
+                    if done {
                         continue;
                     }
-                    let cur = at(i0 - 1, j - 1) - u[i0] - v[j];
-                    if cur < minv[j] {
-                        minv[j] = cur;
-                        way[j] = j0;
+                    let cur = c - ui0 - vj;
+                    if cur < *mv {
+                        *mv = cur;
+                        *wj = j0;
                     }
-                    if minv[j] < delta {
-                        delta = minv[j];
-                        j1 = j;
+                    if *mv < delta {
+                        delta = *mv;
+                        j1 = k + 1;
                     }
                 }
                 for j in 0..=n {
@@ -350,6 +393,32 @@ mod tests {
             );
         }
         assert!(split > 80, "{split} trials reached the components");
+    }
+
+    #[test]
+    fn cheapest_allowed_is_the_first_least_finite_cost() {
+        let mut rng = crate::SplitMix64::new(5);
+        let pool = [
+            f64::INFINITY,
+            f64::NEG_INFINITY,
+            f64::NAN,
+            -0.0,
+            0.0,
+            1.5,
+            1.5,
+            -2.0,
+            3.0,
+        ];
+        for _ in 0..20_000 {
+            let n = (rng.uniform() * 7.0) as usize;
+            let row: Vec<f64> = (0..n)
+                .map(|_| pool[(rng.uniform() * pool.len() as f64) as usize % pool.len()])
+                .collect();
+            let by_definition = (0..n)
+                .filter(|&c| row[c].is_finite())
+                .min_by(|&a, &b| row[a].total_cmp(&row[b]));
+            assert_eq!(cheapest_allowed(&row), by_definition, "{row:?}");
+        }
     }
 
     #[test]

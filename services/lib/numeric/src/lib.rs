@@ -8,5 +8,5 @@ pub mod heading;
 pub mod quantiles;
 pub mod random;
 
-pub use assign::{Assigner, assign_min_cost};
+pub use assign::{Assigner, assign_min_cost, cheapest_allowed};
 pub use random::SplitMix64;

@@ -33,4 +33,4 @@ pub use extract::{
 pub use histogram::{Histogram, ThresholdMethod};
 pub use image::{GrayImage, GrayView, Pixel, PixelRect};
 pub use moments::{CentralMoments, RawMoments};
-pub use tracker::{CoreScan, Track, TrackStatus, Tracker, TrackerConfig};
+pub use tracker::{BlobShape, CoreScan, Track, TrackStatus, Tracker, TrackerConfig};

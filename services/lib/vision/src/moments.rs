@@ -66,6 +66,21 @@ fn to_f64(v: i128) -> f64 {
     }
 }
 
+/// [`to_f64`] for an unsigned sum (the weighted sums): `v as f64`, through the `i64`
+/// conversion when `v` fits.
+#[inline(always)]
+fn unsigned_to_f64(v: u128) -> f64 {
+    #[cold]
+    #[inline(never)]
+    fn wide(v: u128) -> f64 {
+        v as f64
+    }
+    match i64::try_from(v) {
+        Ok(narrow) => narrow as f64,
+        Err(_) => wide(v),
+    }
+}
+
 impl RawMoments {
     /// Adds the run of pixels `x = a..=b` on row `y` (a ≤ b) in closed form.
     ///
@@ -430,8 +445,8 @@ impl WeightedMoments {
         if self.w00 == 0 {
             return None;
         }
-        let w = self.w00 as f64;
-        Some((self.w10 as f64 / w, self.w01 as f64 / w))
+        let w = unsigned_to_f64(self.w00);
+        Some((unsigned_to_f64(self.w10) / w, unsigned_to_f64(self.w01) / w))
     }
 
     /// Weighted central second moments, normalised to the same scale as the binary ones
@@ -446,7 +461,8 @@ impl WeightedMoments {
         let c02 = to_f64(w * self.w02 as i128 - w01 * w01);
         let c11 = to_f64(w * self.w11 as i128 - w10 * w01);
         // Σw(x−x̄)² = c20 / W; scale by area / W so that uniform weights reproduce mu20.
-        let s = area_px as f64 / (self.w00 as f64 * self.w00 as f64);
+        let w00 = unsigned_to_f64(self.w00);
+        let s = area_px as f64 / (w00 * w00);
         CentralMoments {
             mu20: c20 * s,
             mu02: c02 * s,
@@ -458,6 +474,33 @@ impl WeightedMoments {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The narrow conversions round as the wide ones, at and around the `i64` boundary too.
+    #[test]
+    fn conversions_round_as_the_wide_casts() {
+        let mut rng = stereoscope_numeric::SplitMix64::new(23);
+        let mut values: Vec<u128> = vec![0, 1, (1 << 53) + 1, i64::MAX as u128, u64::MAX as u128];
+        values.extend([i64::MAX as u128 + 1, i64::MAX as u128 - 1, u128::MAX]);
+        for shift in 0..128 {
+            let r = ((rng.next_u64() as u128) << 64 | rng.next_u64() as u128) >> shift;
+            values.extend([r, r | 1, r.saturating_add(1 << 10)]);
+        }
+        for v in values {
+            assert_eq!(unsigned_to_f64(v).to_bits(), (v as f64).to_bits(), "{v}");
+            let signed = v as i128;
+            assert_eq!(
+                to_f64(signed).to_bits(),
+                (signed as f64).to_bits(),
+                "{signed}"
+            );
+            let negated = signed.wrapping_neg();
+            assert_eq!(
+                to_f64(negated).to_bits(),
+                (negated as f64).to_bits(),
+                "{signed}"
+            );
+        }
+    }
 
     /// A block of rows gives exactly the sums of its runs added one by one, for runs of any
     /// length, at the edges of the 8192-pixel frame too.

@@ -18,7 +18,7 @@ pub(super) struct Seg {
     pub(super) open_right: bool,
 }
 
-#[derive(Debug, Clone, Copy)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub(super) struct Band {
     pub(super) y0: u32,
     /// Exclusive.
@@ -38,6 +38,8 @@ pub(super) struct Region {
     // Scratch for building.
     pub(super) ys: Vec<u32>,
     pub(super) xs: Vec<u32>,
+    /// The windows over one band: x extent (end exclusive) and threshold.
+    pub(super) active: Vec<(u32, u32, u32)>,
 }
 
 pub(super) fn covers(segs: &[Seg], x0: u32, x1: u32) -> bool {
@@ -142,6 +144,43 @@ impl Region {
         self.segs.clear();
         self.width = width;
         self.height = height;
+        // One window (a tracked marker's cluster, the common case): one band of one segment,
+        // open wherever the frame goes on past it — what the sweep below gives it.
+        if let [win] = windows {
+            let r = win.rect;
+            let (x1, y1) = (r.x1.min(width - 1), r.y1.min(height - 1));
+            self.segs.push(Seg {
+                x0: r.x0,
+                x1,
+                threshold: win.threshold.unwrap_or(threshold),
+                open_left: r.x0 > 0,
+                open_right: x1 + 1 < width,
+            });
+            self.bands.push(Band {
+                y0: r.y0,
+                y1: y1 + 1,
+                segs: (0, 1),
+                check_top: r.y0 > 0,
+                check_bottom: y1 + 1 < height,
+            });
+            return;
+        }
+        self.sweep(windows, width, height, threshold, true);
+    }
+
+    /// [`Region::set_windows`] for any number of windows: the rows where a window starts or
+    /// ends cut the frame into bands, each band's elementary x intervals into segments. With
+    /// `merge_uniform`, a band whose windows all have one threshold takes the union of their
+    /// x extents (what its elementary intervals join into) without cutting it into intervals.
+    /// (`bands` and `segs` start empty.)
+    fn sweep(
+        &mut self,
+        windows: &[Window],
+        width: u32,
+        height: u32,
+        threshold: u32,
+        merge_uniform: bool,
+    ) {
         self.ys.clear();
         for w in windows {
             let r = w.rect;
@@ -150,47 +189,49 @@ impl Region {
         }
         self.ys.sort_unstable();
         self.ys.dedup();
+        let uniform = merge_uniform && {
+            let first = windows.first().map(|w| w.threshold.unwrap_or(threshold));
+            windows
+                .iter()
+                .all(|w| Some(w.threshold.unwrap_or(threshold)) == first)
+        };
         for yi in 0..self.ys.len().saturating_sub(1) {
             let (ya, yb) = (self.ys[yi], self.ys[yi + 1]);
-            // Elementary x intervals of the windows covering row ya.
-            self.xs.clear();
+            // The windows covering row ya: x extent (end exclusive) and threshold.
+            self.active.clear();
             for w in windows {
                 let r = w.rect;
                 if r.y0 <= ya && r.y1 >= ya {
-                    self.xs.push(r.x0);
-                    self.xs.push(r.x1.min(width - 1) + 1);
+                    let xe = r.x1.min(width - 1) + 1;
+                    self.active
+                        .push((r.x0, xe, w.threshold.unwrap_or(threshold)));
                 }
             }
-            if self.xs.is_empty() {
+            if self.active.is_empty() {
                 continue;
             }
-            self.xs.sort_unstable();
-            self.xs.dedup();
             let start = self.segs.len();
-            for xi in 0..self.xs.len() - 1 {
-                let (xa, xb) = (self.xs[xi], self.xs[xi + 1]);
-                let mut thr: Option<u32> = None;
-                for w in windows {
-                    let r = w.rect;
-                    if r.y0 <= ya && r.y1 >= ya && r.x0 <= xa && r.x1.min(width - 1) + 1 >= xb {
-                        let t = w.threshold.unwrap_or(threshold);
-                        thr = Some(thr.map_or(t, |u| u.min(t)));
+            if uniform {
+                // One threshold: the segments are the extents' union, touching extents joined
+                // (contiguous intervals of one threshold join below too).
+                self.active.sort_unstable();
+                for &(x0, xe, thr) in &self.active {
+                    let in_band = self.segs.len() > start;
+                    match self.segs.last_mut() {
+                        Some(last) if in_band && x0 <= last.x1 + 1 => {
+                            last.x1 = last.x1.max(xe - 1);
+                        }
+                        _ => self.segs.push(Seg {
+                            x0,
+                            x1: xe - 1,
+                            threshold: thr,
+                            open_left: false,
+                            open_right: false,
+                        }),
                     }
                 }
-                let Some(thr) = thr else { continue };
-                let in_band = self.segs.len() > start;
-                match self.segs.last_mut() {
-                    Some(last) if in_band && last.x1 + 1 == xa && last.threshold == thr => {
-                        last.x1 = xb - 1;
-                    }
-                    _ => self.segs.push(Seg {
-                        x0: xa,
-                        x1: xb - 1,
-                        threshold: thr,
-                        open_left: false,
-                        open_right: false,
-                    }),
-                }
+            } else {
+                self.band_intervals(start);
             }
             let end = self.segs.len();
             for i in start..end {
@@ -229,6 +270,41 @@ impl Region {
             };
             self.bands[b].check_top = band.y0 > 0 && !above_covers;
             self.bands[b].check_bottom = band.y1 < height && !below_covers;
+        }
+    }
+
+    /// One band's segments from the elementary x intervals of its windows (`active`), each
+    /// at the least threshold of the windows over it, pushed to `segs` from `start`.
+    fn band_intervals(&mut self, start: usize) {
+        self.xs.clear();
+        for &(x0, xe, _) in &self.active {
+            self.xs.push(x0);
+            self.xs.push(xe);
+        }
+        self.xs.sort_unstable();
+        self.xs.dedup();
+        for xi in 0..self.xs.len() - 1 {
+            let (xa, xb) = (self.xs[xi], self.xs[xi + 1]);
+            let mut thr: Option<u32> = None;
+            for &(x0, xe, t) in &self.active {
+                if x0 <= xa && xe >= xb {
+                    thr = Some(thr.map_or(t, |u| u.min(t)));
+                }
+            }
+            let Some(thr) = thr else { continue };
+            let in_band = self.segs.len() > start;
+            match self.segs.last_mut() {
+                Some(last) if in_band && last.x1 + 1 == xa && last.threshold == thr => {
+                    last.x1 = xb - 1;
+                }
+                _ => self.segs.push(Seg {
+                    x0: xa,
+                    x1: xb - 1,
+                    threshold: thr,
+                    open_left: false,
+                    open_right: false,
+                }),
+            }
         }
     }
 
@@ -274,5 +350,74 @@ impl Region {
             }
         }
         false
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn one_window_is_the_band_the_sweep_gives_it() {
+        let mut rng = stereoscope_numeric::SplitMix64::new(11);
+        let (width, height) = (97u32, 61u32);
+        let mut fast = Region::default();
+        for i in 0..5000 {
+            let pick = |rng: &mut stereoscope_numeric::SplitMix64, n: u32| {
+                (rng.uniform() * n as f64) as u32 % n
+            };
+            let (x0, y0) = (pick(&mut rng, width), pick(&mut rng, height));
+            // Windows may reach past the frame's right and bottom edges (clipped).
+            let rect = PixelRect {
+                x0,
+                y0,
+                x1: x0 + pick(&mut rng, width + 10 - x0),
+                y1: y0 + pick(&mut rng, height + 10 - y0),
+            };
+            let threshold = (i % 3 == 0).then_some(7 + i % 5);
+            let win = [Window { rect, threshold }];
+            fast.set_windows(&win, width, height, 100);
+            let mut swept = Region::default();
+            swept.sweep(&win, width, height, 100, false);
+            assert_eq!(fast.segs, swept.segs, "{rect:?}");
+            assert_eq!(fast.bands, swept.bands, "{rect:?}");
+            assert_eq!(fast.pixel_count(), swept.pixel_count());
+        }
+    }
+
+    /// Windows of one threshold (the tracker's, unless per-window thresholds are set) give
+    /// the segments the elementary intervals give: overlapping, touching, apart, clipped.
+    #[test]
+    fn one_threshold_bands_are_the_union_the_intervals_give() {
+        let mut rng = stereoscope_numeric::SplitMix64::new(29);
+        let (width, height) = (80u32, 50u32);
+        let pick = |rng: &mut stereoscope_numeric::SplitMix64, n: u32| {
+            (rng.uniform() * n as f64) as u32 % n
+        };
+        let mut merged_bands = 0;
+        for i in 0..4000 {
+            let n = 2 + i % 6;
+            let windows: Vec<Window> = (0..n)
+                .map(|_| {
+                    let (x0, y0) = (pick(&mut rng, width), pick(&mut rng, height));
+                    let rect = PixelRect {
+                        x0,
+                        y0,
+                        x1: x0 + pick(&mut rng, 30),
+                        y1: y0 + pick(&mut rng, 25),
+                    };
+                    // Some with the frame's threshold written out, some left to it.
+                    let threshold = (pick(&mut rng, 2) == 0).then_some(40);
+                    Window { rect, threshold }
+                })
+                .collect();
+            let (mut merged, mut intervals) = (Region::default(), Region::default());
+            merged.sweep(&windows, width, height, 40, true);
+            intervals.sweep(&windows, width, height, 40, false);
+            assert_eq!(merged.segs, intervals.segs, "{windows:?}");
+            assert_eq!(merged.bands, intervals.bands, "{windows:?}");
+            merged_bands += merged.bands.len();
+        }
+        assert!(merged_bands > 4000);
     }
 }

@@ -7,6 +7,7 @@
 use super::{Track, Tracker, round_half_away};
 use crate::extract::Window;
 use crate::image::PixelRect;
+use stereoscope_numeric::cheapest_allowed;
 
 /// The windowed step's reading of the cores
 /// ([`TrackerConfig::core_scan`](super::TrackerConfig::core_scan)).
@@ -104,11 +105,7 @@ impl Tracker {
         self.nearest_taken.resize(n, false);
         for (i, t) in self.tracks.iter().enumerate() {
             let row = &self.cost[i * n..(i + 1) * n];
-            let nearest = row
-                .iter()
-                .enumerate()
-                .filter(|(_, c)| c.is_finite())
-                .min_by(|a, b| a.1.total_cmp(b.1));
+            let nearest = cheapest_allowed(row).map(|j| (j, &row[j]));
             let core = self.core_rects[i];
             let Some((j, &cost)) = nearest else {
                 // A track read in its whole window may stay lost; one read in its core not.

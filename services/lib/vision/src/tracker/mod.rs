@@ -38,7 +38,7 @@ use crate::extract::{
 };
 use crate::histogram::{Histogram, ThresholdMethod};
 use crate::image::{GrayView, Pixel, PixelRect};
-use crate::moments::{directed_angle_deg, validate_par};
+use crate::moments::{AxisShape, CentralMoments, directed_angle_deg, validate_par};
 use stereoscope_numeric::Assigner;
 use stereoscope_numeric::heading::{HeadingConfig, HeadingTracker, HeadingUpdate};
 
@@ -174,9 +174,20 @@ pub struct Track {
     pub lost_frames: u32,
     /// This frame's blob, when found.
     pub blob: Option<Blob>,
+    /// That blob's central moments and axes ([`Blob::best_central`], Eq. 3.44 at the
+    /// tracker's `par`), as the heading took them: `Some` exactly when `blob` is.
+    pub shape: Option<BlobShape>,
     /// Continuous heading 0–360°.
     pub heading: HeadingUpdate,
     heading_tracker: HeadingTracker,
+}
+
+/// A blob's second moments and the axes they give (Eq. 3.41–3.44), computed once a step for
+/// the heading and kept for whoever reports the blob.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct BlobShape {
+    pub central: CentralMoments,
+    pub axis: AxisShape,
 }
 
 impl Track {
@@ -393,17 +404,21 @@ impl Tracker {
                 .iter()
                 .map(|&(x, y)| self.mask.iter().any(|m| m.contains(x, y))),
         );
-        for t in &self.tracks {
+        let n = self.centroids.len();
+        if n == 0 {
+            return;
+        }
+        // Row by row into a matrix made whole first (no per-element growth checks).
+        self.cost.resize(self.tracks.len() * n, f64::INFINITY);
+        for (t, row) in self.tracks.iter().zip(self.cost.chunks_exact_mut(n)) {
             let (px, py) = t.predicted();
-            let masked = &self.taken;
-            self.cost
-                .extend(self.centroids.iter().zip(masked).map(|(&(bx, by), &m)| {
-                    if !m && t.window.contains(bx, by) {
-                        (bx - px).powi(2) + (by - py).powi(2)
-                    } else {
-                        f64::INFINITY
-                    }
-                }));
+            let win = t.window;
+            for ((cost, &(bx, by)), &masked) in row.iter_mut().zip(&self.centroids).zip(&self.taken)
+            {
+                if !masked && win.contains(bx, by) {
+                    *cost = (bx - px).powi(2) + (by - py).powi(2);
+                }
+            }
         }
     }
 
@@ -517,7 +532,9 @@ impl Tracker {
                     t.area_px = b.area_px();
                     t.lost_frames = 0;
                     t.status = TrackStatus::Tracked;
-                    t.heading = heading_of(&mut t.heading_tracker, &b, par, skew);
+                    let (heading, shape) = heading_of(&mut t.heading_tracker, &b, par, skew);
+                    t.heading = heading;
+                    t.shape = Some(shape);
                     t.blob = Some(b);
                     step.tracked += 1;
                 }
@@ -525,6 +542,7 @@ impl Tracker {
                     t.lost_frames += 1;
                     t.status = TrackStatus::Lost;
                     t.blob = None;
+                    t.shape = None;
                     step.lost += 1;
                 }
             }
@@ -590,7 +608,7 @@ impl Tracker {
                 let b = blobs[j];
                 let (bx, by) = b.best_centroid_px();
                 let mut ht = HeadingTracker::new(self.cfg.heading);
-                let heading = heading_of(&mut ht, &b, par, skew);
+                let (heading, shape) = heading_of(&mut ht, &b, par, skew);
                 self.tracks.push(Track {
                     id: self.next_id,
                     status: TrackStatus::New,
@@ -604,6 +622,7 @@ impl Tracker {
                     window: PixelRect::full(w, h),
                     lost_frames: 0,
                     blob: Some(b),
+                    shape: Some(shape),
                     heading,
                     heading_tracker: ht,
                 });
@@ -615,8 +634,15 @@ impl Tracker {
     }
 }
 
-fn heading_of(ht: &mut HeadingTracker, b: &Blob, par: f64, min_skew: Option<f64>) -> HeadingUpdate {
-    let shape = b.best_central().axis_shape(par);
+/// The blob's heading update and its shape (which the heading is taken from).
+fn heading_of(
+    ht: &mut HeadingTracker,
+    b: &Blob,
+    par: f64,
+    min_skew: Option<f64>,
+) -> (HeadingUpdate, BlobShape) {
+    let central = b.best_central();
+    let shape = central.axis_shape(par);
     let roundness = shape.roundness();
     // A round blob's heading is held, so its direction is not worth the third moments.
     let directed = if roundness > ht.config().max_roundness {
@@ -624,7 +650,14 @@ fn heading_of(ht: &mut HeadingTracker, b: &Blob, par: f64, min_skew: Option<f64>
     } else {
         min_skew.and_then(|s| directed_angle_deg(&b.moments, &shape, par, s))
     };
-    ht.update(shape.angle_deg, roundness, directed)
+    let update = ht.update(shape.angle_deg, roundness, directed);
+    (
+        update,
+        BlobShape {
+            central,
+            axis: shape,
+        },
+    )
 }
 
 #[cfg(test)]
@@ -962,6 +995,7 @@ mod tests {
             window: PixelRect::full(1, 1),
             lost_frames: 0,
             blob: None,
+            shape: None,
             heading: HeadingUpdate {
                 heading_deg: 0.0,
                 step_deg: 0.0,
@@ -1016,6 +1050,12 @@ mod tests {
                 assert!(!step.full_frame, "frame {f} should be windowed");
                 assert_eq!(step.tracked, 3, "frame {f}");
             }
+            // Each blob's shape is kept as the heading took it, for the worker to report.
+            for k in tr.tracks() {
+                let c = k.blob.as_ref().unwrap().best_central();
+                let axis = c.axis_shape(tr.config().par);
+                assert_eq!(k.shape, Some(BlobShape { central: c, axis }), "frame {f}");
+            }
             for (o, id) in objs.iter().zip(&ids_at_start) {
                 let k = tr.tracks().iter().find(|k| k.id == *id).unwrap();
                 assert!(
@@ -1050,6 +1090,11 @@ mod tests {
         for _ in 0..4 {
             let s = tr.step(empty.view(), 110).unwrap();
             assert_eq!(tr.tracks()[0].status, TrackStatus::Lost);
+            assert_eq!(
+                tr.tracks()[0].shape,
+                None,
+                "a lost track has no blob's shape"
+            );
             widths.push(tr.tracks()[0].window.width());
             went_full |= s.full_frame;
         }
