@@ -67,6 +67,13 @@ pub trait Pixel: Copy + Default + Send + Sync + PartialOrd + std::fmt::Debug + '
         Self::any_foreground64x4(chunks, threshold)
     }
 
+    /// The pixels as bytes, for 8-bit pixels (the byte-wise vector paths); `None` otherwise.
+    #[inline(always)]
+    fn as_bytes(row: &[Self]) -> Option<&[u8]> {
+        let _ = row;
+        None
+    }
+
     /// A run's weight sums `(Σw, Σw·x, Σw·x²)` over `row[a..b]`, `w = min(pixel − bg, cap)`
     /// (Eq. 3.1 weights), `x` the pixel's index in `row` (`crate::weights`).
     #[inline(always)]
@@ -100,6 +107,10 @@ impl Pixel for u8 {
     #[inline(always)]
     fn from_u32_saturating(v: u32) -> Self {
         v.min(255) as u8
+    }
+    #[inline(always)]
+    fn as_bytes(row: &[Self]) -> Option<&[u8]> {
+        Some(row)
     }
 
     #[cfg(target_arch = "x86_64")]
