@@ -422,13 +422,14 @@ impl WeightedMoments {
     /// Adds a run's per-row partial sums: Σw, Σw·x, Σw·x² over the run, on row `y`.
     #[inline]
     pub fn add_row_sums(&mut self, sw: u64, swx: u64, swxx: u64, y: u32) {
-        let y = y as u128;
+        // Each product one 64 × 64 → 128-bit multiply: `y²` fits in 64 bits (y < 2³²).
+        let (y, y2) = (y as u64, y as u64 * y as u64);
         self.w00 += sw as u128;
         self.w10 += swx as u128;
-        self.w01 += sw as u128 * y;
+        self.w01 += sw as u128 * y as u128;
         self.w20 += swxx as u128;
-        self.w11 += swx as u128 * y;
-        self.w02 += sw as u128 * y * y;
+        self.w11 += swx as u128 * y as u128;
+        self.w02 += sw as u128 * y2 as u128;
     }
 
     pub fn merge(&mut self, o: &WeightedMoments) {
@@ -474,6 +475,26 @@ impl WeightedMoments {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A row's weighted sums are added as their definition in `u128`, for any sums and row.
+    #[test]
+    fn row_sums_add_as_their_definition() {
+        let mut rng = stereoscope_numeric::SplitMix64::new(31);
+        for i in 0..10_000u64 {
+            let (sw, swx, swxx) = (rng.next_u64(), rng.next_u64() >> (i % 64), rng.next_u64());
+            let y = match i {
+                0 => u32::MAX,
+                1 => 0,
+                _ => (rng.next_u64() >> (i % 33)) as u32,
+            };
+            let mut w = WeightedMoments::default();
+            w.add_row_sums(sw, swx, swxx, y);
+            let (s, yy) = (sw as u128, y as u128);
+            assert_eq!((w.w00, w.w10, w.w20), (s, swx as u128, swxx as u128));
+            assert_eq!((w.w01, w.w11), (s * yy, swx as u128 * yy), "{sw} {y}");
+            assert_eq!(w.w02, s * yy * yy, "{sw} {y}");
+        }
+    }
 
     /// The narrow conversions round as the wide ones, at and around the `i64` boundary too.
     #[test]
