@@ -173,10 +173,9 @@ impl Assigner {
         &self.out
     }
 
-    /// The Hungarian method on a whole `rows × cols` matrix, into `sub_out`.
+    /// The Hungarian method on a whole `rows × cols` matrix, into `sub_out` (`rows` entries,
+    /// all `None` on entry: the caller's shortcut leaves it so when it does not apply).
     fn solve_dense(&mut self, cost: &[f64], rows: usize, cols: usize) {
-        self.sub_out.clear();
-        self.sub_out.resize(rows, None);
         // Finite stand-in for "not allowed", larger than any sum of allowed costs.
         let finite_max = cost
             .iter()
