@@ -20,8 +20,9 @@
 //! window has grown to the frame, and every `search_every_frames` frames while fewer than
 //! `max_objects` are tracked. A search (periodic, or a lost object's) first reads the frame for
 //! any foreground pixel outside the other windows ([`crate::extract::any_foreground_outside`],
-//! about a tenth of the cost of labelling it, and of every `search_row_step`-th row only, from
-//! a row that moves at each search); with none, the windows' union holds every blob of the
+//! about a tenth of the cost of labelling it, and of every `search_row_step`-th row only — a
+//! lost object's search, on every frame, of every other of those — from a row that moves at
+//! each search); with none, the windows' union holds every blob of the
 //! frame, so the windowed step stands for the search (new objects are taken from it) and the
 //! frame is not labelled whole.
 //!
@@ -67,6 +68,14 @@ pub struct TrackerConfig {
     /// 2nd up to 1619 rows, every 3rd from 1620, every 4th at 4K): every object of two rows
     /// or more — any that can start a track but a one-row streak — is found at the first
     /// search it is in. The frame is still labelled whole when the test finds some.
+    ///
+    /// A lost object's search, which runs on every frame while its window covers the frame,
+    /// reads every `2 × step`-th row from a row that moves by one each frame: two frames
+    /// read as many rows as one periodic search. An object `2 × step` rows tall (4 by
+    /// default: a marker of 13 px or more) is found at the first frame it shows, a shorter
+    /// one `t` rows tall within `2 × step − t + 1` frames; a hidden object (two markers
+    /// crossing, one inside the other's blob) costs half the reads on each frame it stays
+    /// hidden.
     pub search_row_step: Option<u32>,
     /// A track lost for more than this many frames is dropped.
     pub drop_after_lost_frames: u32,
@@ -375,13 +384,20 @@ impl Tracker {
     /// The rows the search of frame `frame` (in period `period`) tests, in a frame `height`
     /// rows high: the phase is `period + frame % search_every_frames`, one on from the last
     /// search's both for the periodic searches (on each period's first frame) and for a lost
-    /// object's on consecutive frames, and the same for trackers fed the same frames.
-    fn search_rows(&self, height: u32, period: u64, frame: u64) -> RowSample {
+    /// object's on consecutive frames, and the same for trackers fed the same frames. A lost
+    /// object's search alone (`lost_only`: not a periodic one) reads every other row of the
+    /// periodic search's step ([`TrackerConfig::search_row_step`]).
+    fn search_rows(&self, height: u32, period: u64, frame: u64, lost_only: bool) -> RowSample {
         let step = self
             .cfg
             .search_row_step
             .unwrap_or((height / SEARCH_ROWS_AT_LEAST).max(2))
             .max(1);
+        let step = if lost_only {
+            step.saturating_mul(2)
+        } else {
+            step
+        };
         let phase = period.wrapping_add(frame % self.cfg.search_every_frames as u64);
         RowSample {
             step,
@@ -480,7 +496,7 @@ impl Tracker {
                 &img,
                 threshold,
                 &self.searched_or_masked(),
-                self.search_rows(h, period, frame),
+                self.search_rows(h, period, frame, !searching),
             );
         let full_frame = (needs_full || searching) && !searched_in_windows;
         if full_frame {
@@ -842,10 +858,16 @@ mod tests {
         assert_eq!(first_found(Some(1), 102..103), Some(10));
         // By default every 2nd row up to 1619 rows, every 3rd from 1620, every 4th at 4K.
         let tr = Tracker::new(TrackerConfig::default(), ExtractConfig::default()).unwrap();
-        let steps = [1, 240, 1079, 1080, 1620, 2160].map(|h| tr.search_rows(h, 5, 50));
+        let steps = [1, 240, 1079, 1080, 1620, 2160].map(|h| tr.search_rows(h, 5, 50, false));
         assert_eq!(
             steps.map(|r| (r.step, r.phase)),
             [(2, 1), (2, 1), (2, 1), (2, 1), (3, 2), (4, 1)]
+        );
+        // A lost object's own searches read every other row of those.
+        let lost = [1, 240, 1080, 1620, 2160].map(|h| tr.search_rows(h, 5, 53, true));
+        assert_eq!(
+            lost.map(|r| (r.step, r.phase)),
+            [(4, 0), (4, 0), (4, 0), (6, 2), (8, 0)]
         );
         let zero = TrackerConfig {
             search_row_step: Some(0),
@@ -901,8 +923,52 @@ mod tests {
         assert!((b.x_px - 40.0).abs() < 0.5 && (b.y_px - 200.0).abs() < 0.5);
         // At 1080p (every 2nd row by default) the searches of frames 11, 12 read rows of
         // either phase.
-        let rows = [11, 12].map(|f| tr.search_rows(1080, f / 10, f).phase);
+        let rows = [11, 12].map(|f| tr.search_rows(1080, f / 10, f, true).phase);
         assert_ne!(rows[0], rows[1]);
+    }
+
+    /// A lost object's search reads every 4th row by default (twice the periodic search's
+    /// step), from a row one on each frame: a lost object that shows again 4 rows tall is
+    /// found at the first frame, wherever it lies; one a single row tall within 4 frames,
+    /// later where the rows read miss it (so the reads are really halved), and under its id.
+    #[test]
+    fn a_lost_objects_search_reads_every_4th_row_and_finds_a_thin_one_in_turn() {
+        let a = (100.0, 120.0, 5.0);
+        // Frames from the one where the object (rows `y..y + tall` of columns 200..208) shows
+        // again until it is tracked.
+        let frames_to_find = |y: usize, tall: usize| {
+            let mut tr = Tracker::new(TrackerConfig::default(), ExtractConfig::default()).unwrap();
+            for f in 0..5 {
+                tr.step_frame(frame(&[a, (204.0, 60.0, 4.0)]).view(), 100, f)
+                    .unwrap();
+            }
+            let b_id = tr.tracks()[1].id;
+            // Lost until its window has covered the frame for a while (frames 11 to 19 hold
+            // no periodic search: they are the lost object's alone).
+            for f in 5..13 {
+                tr.step_frame(frame(&[a]).view(), 100, f).unwrap();
+            }
+            let b = &tr.tracks()[1];
+            assert_eq!((b.window.width(), b.window.height()), (320, 240));
+            (13..19u64)
+                .find(|&f| {
+                    let mut img = frame(&[a]);
+                    for row in y..y + tall {
+                        img.as_mut_slice()[row * 320 + 200..row * 320 + 208].fill(210);
+                    }
+                    tr.step_frame(img.view(), 100, f).unwrap();
+                    let b = &tr.tracks()[1];
+                    assert_eq!(b.id, b_id);
+                    b.status != TrackStatus::Lost
+                })
+                .map(|f| f - 13 + 1)
+        };
+        for y in 180..184 {
+            assert_eq!(frames_to_find(y, 4), Some(1), "4 rows from row {y}");
+        }
+        let thin: Vec<_> = (180..184).map(|y| frames_to_find(y, 1)).collect();
+        assert!(thin.iter().all(|f| f.is_some_and(|f| f <= 4)), "{thin:?}");
+        assert!(thin.iter().any(|&f| f > Some(2)), "{thin:?}");
     }
 
     #[test]
