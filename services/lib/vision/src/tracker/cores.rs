@@ -6,7 +6,7 @@
 
 use super::{Track, Tracker, round_half_away};
 use crate::extract::Window;
-use crate::image::PixelRect;
+use crate::image::{GrayView, Pixel, PixelRect};
 use stereoscope_numeric::cheapest_allowed;
 
 /// The windowed step's reading of the cores
@@ -92,6 +92,21 @@ impl Tracker {
                 .map(|(core, win)| core.map_or(*win, Window::new)),
         );
         self.core_rects.iter().any(Option::is_some)
+    }
+
+    /// Asks the CPU for every line of the cores' rows before any is read: a core's rows lie
+    /// a frame's stride apart, each its own miss when the frame is not in the cache (a
+    /// frame just written by another process, or read after others), and asked for
+    /// together their fetches overlap instead of each waiting for the last (live bench,
+    /// 640 × 480, 9 alternations: 4 % less time a frame with the markers, 12 % with the
+    /// targets, from memory). The windows of a search are not asked for: no gain measured.
+    pub(super) fn prefetch_cores<P: Pixel>(&self, img: &GrayView<'_, P>) {
+        for c in &self.cores {
+            let r = c.rect;
+            for y in r.y0..=r.y1 {
+                img.prefetch_span(y, r.x0, r.x1);
+            }
+        }
     }
 
     /// Whether the cores just read settle the frame ([`CoreScan`]), from the costs of their

@@ -509,6 +509,7 @@ impl Tracker {
             && self.cfg.window_threshold.is_none()
             && self.set_cores()
         {
+            self.prefetch_cores(&img);
             self.extractor.extract(img, threshold, &self.cores)?;
             self.fill_costs();
             cores = if self.cores_settle(w, h) {
