@@ -23,12 +23,14 @@ use stereoscope_numeric::cheapest_allowed;
 /// nearer its object's prediction than any edge of its core inside the frame. A blob outside
 /// the cores has its pixels, and so its centroid, beyond those edges — unless it wraps round a
 /// core on opposite sides without touching it, the one case the windows would see and the
-/// cores not. Otherwise the windows are read as without cores. The periodic and lost objects'
-/// searches, and per-window thresholds, read the windows.
+/// cores not. Otherwise the windows are read as without cores. A search (periodic, or a lost
+/// object's) reads the cores when its test finds nothing bright outside them (every blob
+/// there is then in them, in the rows it reads), and they settle its frame when no region
+/// touches a core's edge inside the frame. Per-window thresholds read the windows.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub enum CoreScan {
-    /// The windows were read (a search, a lost object only, per-window thresholds, or
-    /// `core_scan` off).
+    /// The windows were read (a search that found something outside the cores, a lost
+    /// object only, per-window thresholds, or `core_scan` off).
     #[default]
     Windows,
     /// The cores settled the frame; the windows were not read.
@@ -79,18 +81,24 @@ fn core_rect(t: &Track) -> Option<PixelRect> {
 }
 
 impl Tracker {
-    /// Each track's core, or its window for a track without one; `true` when at least one
-    /// track has a core.
-    pub(super) fn set_cores(&mut self) -> bool {
+    /// Each track's core, or its window for a track without one (none for a lost track
+    /// whose window covers the `w × h` frame: that is what a search reads); `true` when at
+    /// least one track has a core.
+    pub(super) fn set_cores(&mut self, w: u32, h: u32) -> bool {
         self.core_rects.clear();
         self.core_rects.extend(self.tracks.iter().map(core_rect));
         self.cores.clear();
-        self.cores.extend(
-            self.core_rects
-                .iter()
-                .zip(&self.windows)
-                .map(|(core, win)| core.map_or(*win, Window::new)),
-        );
+        self.cores
+            .extend(
+                self.core_rects
+                    .iter()
+                    .zip(&self.tracks)
+                    .filter_map(|(core, t)| match core {
+                        Some(c) => Some(Window::new(*c)),
+                        None if t.window.width() == w && t.window.height() == h => None,
+                        None => Some(Window::new(t.window)),
+                    }),
+            );
         self.core_rects.iter().any(Option::is_some)
     }
 
@@ -228,6 +236,7 @@ mod tests {
             )
             .unwrap();
             let (mut settled, mut widened, mut lost) = (0, 0, 0);
+            let mut settled_in_search = 0;
             for f in 0..90 {
                 let img = frame(&scene(f));
                 let a = cored.step_frame(img.view(), 110, f).unwrap();
@@ -246,7 +255,12 @@ mod tests {
                 match a.cores {
                     CoreScan::Settled => {
                         settled += 1;
-                        assert!(a.extract.pixels_scanned * 2 < b.extract.pixels_scanned);
+                        // Less than half the pixels, but for a lost object's window (read
+                        // whole in either, growing).
+                        let (pa, pb) = (a.extract.pixels_scanned, b.extract.pixels_scanned);
+                        assert!(pa <= pb, "frame {f}: {a:?} {b:?}");
+                        assert!(a.lost > 0 || pa * 2 < pb, "frame {f}: {a:?} {b:?}");
+                        settled_in_search += usize::from(a.full_frame);
                     }
                     CoreScan::Widened => widened += 1,
                     CoreScan::Windows => {}
@@ -257,7 +271,66 @@ mod tests {
             assert!(lost > 0, "the scene loses objects");
             assert!(settled >= 50, "{settled} frames settled");
             assert!(widened >= 3, "{widened} frames widened");
+            // Searches that found nothing outside the cores read only those.
+            assert!(
+                settled_in_search >= 5,
+                "{settled_in_search} searches settled"
+            );
         }
+    }
+
+    /// A search that finds nothing outside the cores reads only them, but not when a blob
+    /// reaches a core's edge: a streak from a marker down past its core, out of it only on a
+    /// row the search does not read, makes the step read the windows, which find it whole.
+    #[test]
+    fn a_search_in_the_cores_widens_for_a_blob_a_core_cuts() {
+        let cfg = TrackerConfig {
+            max_objects: 4,
+            search_every_frames: 10,
+            ..TrackerConfig::default()
+        };
+        let mut tested = 0;
+        for y in [100.0, 101.0] {
+            let discs = [(100.0, y, 5.0), (300.0, 300.0, 5.0)];
+            let mut cored = Tracker::new(cfg, ExtractConfig::default()).unwrap();
+            let mut whole = Tracker::new(
+                TrackerConfig {
+                    core_scan: false,
+                    ..cfg
+                },
+                ExtractConfig::default(),
+            )
+            .unwrap();
+            for f in 0..10 {
+                cored.step_frame(frame(&discs).view(), 110, f).unwrap();
+                whole.step_frame(frame(&discs).view(), 110, f).unwrap();
+            }
+            // Frame 10's search reads the odd rows (period 1, every 2nd row at 480 rows).
+            let core = core_rect(&cored.tracks()[0]).unwrap();
+            let below = core.y1 as usize + 1;
+            if below % 2 == 1 {
+                continue;
+            }
+            let mut img = frame(&discs);
+            for row in y as usize..=below {
+                img.as_mut_slice()[row * 640 + 100] = 220;
+            }
+            let a = cored.step_frame(img.view(), 110, 10).unwrap();
+            let b = whole.step_frame(img.view(), 110, 10).unwrap();
+            assert!(a.full_frame && b.full_frame);
+            assert_eq!(a.cores, CoreScan::Widened);
+            assert_eq!(
+                format!("{:?}", cored.tracks()),
+                format!("{:?}", whole.tracks())
+            );
+            // The same frame without the streak's last row: the cores settle it.
+            img.as_mut_slice()[below * 640 + 100] = 12;
+            let a = cored.step_frame(img.view(), 110, 20).unwrap();
+            assert!(a.full_frame);
+            assert_eq!(a.cores, CoreScan::Settled);
+            tested += 1;
+        }
+        assert_eq!(tested, 1);
     }
 
     /// Each way the cores may fail to settle a frame, alone: a blob cut by a core's edge,

@@ -19,10 +19,11 @@
 //! only from full-frame searches, which run while no object is tracked, when a lost object's
 //! window has grown to the frame, and every `search_every_frames` frames while fewer than
 //! `max_objects` are tracked. A search (periodic, or a lost object's) first reads the frame for
-//! any foreground pixel outside the other windows ([`crate::extract::any_foreground_outside`],
+//! any foreground pixel outside the cores, then outside the other windows
+//! ([`crate::extract::any_foreground_outside`],
 //! about a tenth of the cost of labelling it, and of every `search_row_step`-th row only — a
 //! lost object's search, on every frame, of every other of those — from a row that moves at
-//! each search); with none, the windows' union holds every blob of the
+//! each search); with none, the cores' (or the windows') union holds every blob of the
 //! frame, so the windowed step stands for the search (new objects are taken from it) and the
 //! frame is not labelled whole.
 //!
@@ -372,6 +373,16 @@ impl Tracker {
         self.step_frame(img, threshold, frame)
     }
 
+    /// The cores and the mask: what a search finding no foreground pixel outside of reads
+    /// only the cores ([`CoreScan`]).
+    fn cores_or_masked(&self) -> Vec<PixelRect> {
+        self.cores
+            .iter()
+            .map(|w| w.rect)
+            .chain(self.mask.iter().copied())
+            .collect()
+    }
+
     /// The windows and the mask: what a foreground pixel outside of needs a full search.
     fn searched_or_masked(&self) -> Vec<PixelRect> {
         self.windows
@@ -490,29 +501,37 @@ impl Tracker {
             // A window grown to the frame is what the test searches, not a window to scan.
             self.windows.retain(|win| !covers_frame(&win.rect));
         }
-        let searched_in_windows = tested
-            && !self.windows.is_empty()
-            && !any_foreground_outside(
-                &img,
-                threshold,
-                &self.searched_or_masked(),
-                self.search_rows(h, period, frame, !searching),
-            );
+        // The cores (each object found in the last frame read where its blob must be): on a
+        // frame with no search, where they may settle it; on a search's, when the test finds
+        // nothing bright outside them either, so their blobs are the frame's.
+        let core_scan =
+            self.cfg.core_scan && self.cfg.window_threshold.is_none() && self.set_cores(w, h);
+        let rows = self.search_rows(h, period, frame, !searching);
+        let mut searched_in_cores = false;
+        let searched_in_windows = tested && !self.windows.is_empty() && {
+            searched_in_cores = core_scan
+                && !any_foreground_outside(&img, threshold, &self.cores_or_masked(), rows);
+            searched_in_cores
+                || !any_foreground_outside(&img, threshold, &self.searched_or_masked(), rows)
+        };
         let full_frame = (needs_full || searching) && !searched_in_windows;
         if full_frame {
             self.windows.clear();
         }
         // The cores first, where they may settle the frame; else (or then) the windows.
         let mut cores = CoreScan::Windows;
-        if self.cfg.core_scan
-            && !(searching || needs_full)
-            && self.cfg.window_threshold.is_none()
-            && self.set_cores()
-        {
+        if core_scan && (searched_in_cores || !(searching || needs_full)) {
             self.prefetch_cores(&img);
             self.extractor.extract(img, threshold, &self.cores)?;
             self.fill_costs();
-            cores = if self.cores_settle(w, h) {
+            // After a search that found nothing outside the cores, every blob the windows
+            // hold is in the cores: whole when none touches a core's edge.
+            let settled = if searched_in_cores {
+                self.extractor.stats().clipped_regions == 0
+            } else {
+                self.cores_settle(w, h)
+            };
+            cores = if settled {
                 CoreScan::Settled
             } else {
                 CoreScan::Widened
