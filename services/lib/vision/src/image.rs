@@ -413,25 +413,36 @@ impl<'a, P: Pixel> GrayView<'a, P> {
         unsafe { self.data.get_unchecked(start..start + 64) }
     }
 
-    /// Asks the CPU to fetch pixels `x0..=x1` of row `y` (their 64-byte lines) into the cache
-    /// ahead of a read. Nothing outside the image; a hint only elsewhere than x86-64.
-    #[inline(always)]
-    pub fn prefetch_span(&self, y: u32, x0: u32, x1: u32) {
-        if y >= self.height || x0 > x1 || x1 >= self.width {
+    /// Asks the CPU to fetch the pixels of `rect` (the 64-byte lines of each of its rows)
+    /// into the cache ahead of a read. The part outside the image is left out; a hint only
+    /// elsewhere than x86-64.
+    #[inline]
+    pub fn prefetch_rect(&self, rect: PixelRect) {
+        let (x1, y1) = (
+            rect.x1.min(self.width.saturating_sub(1)),
+            rect.y1.min(self.height.saturating_sub(1)),
+        );
+        if rect.x0 > x1 || rect.y0 > y1 {
             return;
         }
         #[cfg(target_arch = "x86_64")]
         {
             use std::arch::x86_64::{_MM_HINT_T0, _mm_prefetch};
-            let row = self.row(y);
             let size = std::mem::size_of::<P>();
+            let row = self.row(rect.y0);
             let base = row.as_ptr() as usize;
-            let (a, b) = (base + x0 as usize * size, base + x1 as usize * size);
-            let mut line = a & !63;
-            while line <= b {
-                // SAFETY: a prefetch never faults.
-                unsafe { _mm_prefetch::<_MM_HINT_T0>(line as *const i8) };
-                line += 64;
+            let stride_bytes = self.stride * size;
+            // The first and last byte of the rect's first row; the same plus a stride a row.
+            let (mut a, mut b) = (base + rect.x0 as usize * size, base + x1 as usize * size);
+            for _ in rect.y0..=y1 {
+                let mut line = a & !63;
+                while line <= b {
+                    // SAFETY: a prefetch never faults (and these lines hold the image).
+                    unsafe { _mm_prefetch::<_MM_HINT_T0>(line as *const i8) };
+                    line += 64;
+                }
+                a += stride_bytes;
+                b += stride_bytes;
             }
         }
     }
@@ -547,6 +558,26 @@ impl<P: Pixel> GrayImage<P> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A prefetch of a rect in, across or past the image's edges (and of a strided view's)
+    /// reads nothing and panics nowhere.
+    #[test]
+    fn prefetching_a_rect_anywhere_is_harmless() {
+        let data = vec![7u16; 100 * 37];
+        let img = GrayView::new(&data, 90, 37, 100).unwrap();
+        let r = |x0, y0, x1, y1| PixelRect { x0, y0, x1, y1 };
+        for rect in [
+            r(0, 0, 89, 36),
+            r(80, 30, 200, 90),
+            r(90, 0, 95, 5),
+            r(0, 37, 10, 40),
+            r(5, 5, 4, 9),
+            r(u32::MAX, u32::MAX, u32::MAX, u32::MAX),
+        ] {
+            img.prefetch_rect(rect);
+        }
+        assert_eq!(img.row(36)[89], 7);
+    }
 
     /// Every vector mask (SSE2, and AVX2 where the CPU has it) of both pixel types equals the
     /// definition, bit `i` set where `chunk[i] >= threshold`, for values and thresholds at and

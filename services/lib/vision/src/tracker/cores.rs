@@ -110,10 +110,7 @@ impl Tracker {
     /// targets, from memory). The windows of a search are not asked for: no gain measured.
     pub(super) fn prefetch_cores<P: Pixel>(&self, img: &GrayView<'_, P>) {
         for c in &self.cores {
-            let r = c.rect;
-            for y in r.y0..=r.y1 {
-                img.prefetch_span(y, r.x0, r.x1);
-            }
+            img.prefetch_rect(c.rect);
         }
     }
 
