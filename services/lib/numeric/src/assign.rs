@@ -1,4 +1,4 @@
-//! Minimum-cost one-to-one assignment (the Hungarian method, O(n²·m)).
+//! Minimum-cost one-to-one assignment (the Hungarian method's shortest augmenting paths).
 //!
 //! Not a thesis equation: the thesis tracked one object per window and never had to decide
 //! which blob belongs to which track. Several targets need a global assignment — a greedy
@@ -61,25 +61,27 @@ fn each_its_cheapest(
 /// The assignment solver with its buffers, reusable without allocating per call.
 #[derive(Debug, Default, Clone)]
 pub struct Assigner {
+    /// Potentials of the rows and of the columns (real `0..cols`, then each row's own
+    /// "unassigned" column).
     u: Vec<f64>,
     v: Vec<f64>,
-    p: Vec<usize>,
-    way: Vec<usize>,
-    minv: Vec<f64>,
+    /// Per column: its shortest distance in this search, the row it was reached from, whether
+    /// it is settled, and the row assigned to it.
+    dist: Vec<f64>,
+    from: Vec<usize>,
+    done: Vec<bool>,
+    col_row: Vec<usize>,
+    /// Per row: its column.
+    row_col: Vec<usize>,
+    /// Columns reached in this search (settled or not), and those not yet settled.
+    touched: Vec<usize>,
+    reached: Vec<usize>,
     used: Vec<bool>,
     out: Vec<Option<usize>>,
-    /// Union-find over rows `0..rows` and columns `rows..rows + cols`: the components of the
-    /// allowed pairs.
-    parent: Vec<usize>,
-    /// (component, row) and (component, column), sorted by component.
-    members_r: Vec<(usize, usize)>,
-    members_c: Vec<(usize, usize)>,
-    /// One component's cost matrix and its solution.
-    sub: Vec<f64>,
-    sub_out: Vec<Option<usize>>,
-    /// The Hungarian method's padded square matrix.
-    square: Vec<f64>,
 }
+
+/// No row or column.
+const NONE: usize = usize::MAX;
 
 impl Assigner {
     /// Solves for a row-major `rows × cols` cost matrix (`INFINITY` = not allowed).
@@ -89,181 +91,138 @@ impl Assigner {
         if rows == 0 || cols == 0 || cost.len() < rows * cols {
             return &self.out;
         }
-        if each_its_cheapest(cost, rows, cols, &mut self.used, &mut self.out) {
-            return &self.out;
+        if !each_its_cheapest(cost, rows, cols, &mut self.used, &mut self.out) {
+            self.solve_sparse(cost, rows, cols);
         }
-        // Rows and columns joined by no allowed pair never compete: each component of the
-        // allowed pairs is solved on its own (a frame's tracks and blobs fall apart into small
-        // groups, and the method is cubic in its matrix's size). The most pairs, then the
-        // least cost, of the whole is the union of each component's.
-        self.parent.clear();
-        self.parent.extend(0..rows + cols);
-        fn root(parent: &mut [usize], mut i: usize) -> usize {
-            while parent[i] != i {
-                parent[i] = parent[parent[i]];
-                i = parent[i];
-            }
-            i
-        }
-        for r in 0..rows {
-            for c in 0..cols {
-                if cost[r * cols + c].is_finite() {
-                    let (a, b) = (root(&mut self.parent, r), root(&mut self.parent, rows + c));
-                    if a != b {
-                        self.parent[a.max(b)] = a.min(b);
-                    }
-                }
-            }
-        }
-        self.members_r.clear();
-        self.members_c.clear();
-        for r in 0..rows {
-            let k = root(&mut self.parent, r);
-            self.members_r.push((k, r));
-        }
-        for c in 0..cols {
-            let k = root(&mut self.parent, rows + c);
-            self.members_c.push((k, c));
-        }
-        self.members_r.sort_unstable();
-        self.members_c.sort_unstable();
-        let (members_r, members_c) = (
-            std::mem::take(&mut self.members_r),
-            std::mem::take(&mut self.members_c),
-        );
-        let mut sub = std::mem::take(&mut self.sub);
-        let mut ci = 0;
-        for group in members_r.chunk_by(|a, b| a.0 == b.0) {
-            let k = group[0].0;
-            while ci < members_c.len() && members_c[ci].0 < k {
-                ci += 1;
-            }
-            let c_start = ci;
-            while ci < members_c.len() && members_c[ci].0 == k {
-                ci += 1;
-            }
-            let cs = &members_c[c_start..ci];
-            if cs.is_empty() {
-                continue; // a row with no allowed column
-            }
-            sub.clear();
-            for &(_, r) in group {
-                sub.extend(cs.iter().map(|&(_, c)| cost[r * cols + c]));
-            }
-            // A component whose rows have distinct cheapest columns (a track alone with its
-            // blob, most of them) needs no more; the others run the general method.
-            self.sub_out.clear();
-            self.sub_out.resize(group.len(), None);
-            if !each_its_cheapest(
-                &sub,
-                group.len(),
-                cs.len(),
-                &mut self.used,
-                &mut self.sub_out,
-            ) {
-                self.solve_dense(&sub, group.len(), cs.len());
-            }
-            for (i, &(_, r)) in group.iter().enumerate() {
-                self.out[r] = self.sub_out[i].map(|j| cs[j].1);
-            }
-        }
-        self.members_r = members_r;
-        self.members_c = members_c;
-        self.sub = sub;
         &self.out
     }
 
-    /// The Hungarian method on a whole `rows × cols` matrix, into `sub_out` (`rows` entries,
-    /// all `None` on entry: the caller's shortcut leaves it so when it does not apply).
-    fn solve_dense(&mut self, cost: &[f64], rows: usize, cols: usize) {
-        // Finite stand-in for "not allowed", larger than any sum of allowed costs.
+    /// The general case, into `out` (all `None` on entry): the Hungarian method's shortest
+    /// augmenting paths (Dijkstra's search on costs reduced by potentials), each row also
+    /// having a column of its own at a cost `big` above any sum of allowed costs — taking it
+    /// is leaving the row unassigned. So the most rows are assigned, then the least total
+    /// cost, as on the textbook method's padded square matrix. Two things make it cheap on
+    /// tracking's matrices, where it runs when two tracks want one blob (two markers merged
+    /// in the image, a lost track's window grown over the others'): it starts from each row at
+    /// its cheapest column where no earlier row took that column (row potentials at each
+    /// row's least cost make those pairs tight and no reduced cost negative, so the method's
+    /// invariant holds), and searches only from the rows left, one or two; and a search
+    /// follows only allowed pairs from the columns it settles.
+    fn solve_sparse(&mut self, cost: &[f64], rows: usize, cols: usize) {
         let finite_max = cost
             .iter()
             .filter(|c| c.is_finite())
             .fold(0.0f64, |a, &c| a.max(c.abs()));
         let n = rows.max(cols);
         let big = (finite_max + 1.0) * (n as f64 + 1.0) * 4.0;
-        // The square `n × n` matrix the method works on, padded and with `big` for "not
-        // allowed", made once so the inner loop reads a plain row.
-        self.square.clear();
-        for r in 0..n {
-            if r < rows {
-                let row = &cost[r * cols..(r + 1) * cols];
-                self.square
-                    .extend(row.iter().map(|&v| if v.is_finite() { v } else { big }));
+        // Columns 0..cols, then row r's own at cols + r.
+        let all = cols + rows;
+        self.v.clear();
+        self.v.resize(all, 0.0);
+        self.col_row.clear();
+        self.col_row.resize(all, NONE);
+        self.row_col.clear();
+        self.row_col.resize(rows, NONE);
+        self.dist.clear();
+        self.dist.resize(all, f64::INFINITY);
+        self.from.clear();
+        self.from.resize(all, NONE);
+        self.done.clear();
+        self.done.resize(all, false);
+        // Each row's least cost (its own column's `big` when it has no allowed one) as its
+        // potential, and its cheapest column taken when still free.
+        self.u.clear();
+        for r in 0..rows {
+            let row = &cost[r * cols..(r + 1) * cols];
+            let (c, least) = match cheapest_allowed(row) {
+                Some(c) if row[c] < big => (c, row[c]),
+                _ => (cols + r, big),
+            };
+            self.u.push(least);
+            if self.col_row[c] == NONE {
+                self.col_row[c] = r;
+                self.row_col[r] = c;
             }
-            self.square.resize((r + 1) * n, big);
         }
-        // Potentials u (rows), v (cols); p[c] = row matched to col c (1-based, 0 = none).
-        for buf in [&mut self.u, &mut self.v] {
-            buf.clear();
-            buf.resize(n + 1, 0.0);
-        }
-        for buf in [&mut self.p, &mut self.way] {
-            buf.clear();
-            buf.resize(n + 1, 0);
-        }
-        self.minv.clear();
-        self.minv.resize(n + 1, f64::INFINITY);
-        self.used.clear();
-        self.used.resize(n + 1, false);
-        let (u, v, p, way) = (&mut self.u, &mut self.v, &mut self.p, &mut self.way);
-        let (minv, used) = (&mut self.minv, &mut self.used);
-        for i in 1..=n {
-            p[0] = i;
-            let mut j0 = 0usize;
-            minv.fill(f64::INFINITY);
-            used.fill(false);
-            loop {
-                used[j0] = true;
-                let i0 = p[j0];
-                let mut delta = f64::INFINITY;
-                let mut j1 = 0usize;
-                let (row, ui0) = (&self.square[(i0 - 1) * n..i0 * n], u[i0]);
-                let columns = row.iter().zip(&v[1..]).zip(&used[1..]);
-                for (k, (((&c, &vj), &done), (mv, wj))) in columns
-                    .zip(minv[1..].iter_mut().zip(&mut way[1..]))
-                    .enumerate()
-                {
-                    if done {
+        for start in 0..rows {
+            if self.row_col[start] != NONE {
+                continue;
+            }
+            self.reached.clear();
+            self.touched.clear();
+            // The columns of a row `r` whose own distance is `d`, relaxed.
+            let relax = |r: usize, d: f64, s: &mut Self| {
+                let ur = s.u[r];
+                let row = &cost[r * cols..(r + 1) * cols];
+                let own = cols + r;
+                for (c, &cv) in row.iter().enumerate().chain([(own, &big)]) {
+                    if !cv.is_finite() || s.done[c] {
                         continue;
                     }
-                    let cur = c - ui0 - vj;
-                    if cur < *mv {
-                        *mv = cur;
-                        *wj = j0;
-                    }
-                    if *mv < delta {
-                        delta = *mv;
-                        j1 = k + 1;
-                    }
-                }
-                for j in 0..=n {
-                    if used[j] {
-                        u[p[j]] += delta;
-                        v[j] -= delta;
-                    } else {
-                        minv[j] -= delta;
+                    let nd = d + (cv - ur - s.v[c]);
+                    if nd < s.dist[c] {
+                        if s.dist[c] == f64::INFINITY {
+                            s.reached.push(c);
+                            s.touched.push(c);
+                        }
+                        s.dist[c] = nd;
+                        s.from[c] = r;
                     }
                 }
-                j0 = j1;
-                if p[j0] == 0 {
-                    break;
+            };
+            relax(start, 0.0, self);
+            // Settle the nearest reached column until a free one (the start row's own column
+            // is always free, so one is found).
+            let mut end = NONE;
+            let mut delta = 0.0;
+            while let Some((k, &c)) = self
+                .reached
+                .iter()
+                .enumerate()
+                .min_by(|a, b| self.dist[*a.1].total_cmp(&self.dist[*b.1]))
+            {
+                self.reached.swap_remove(k);
+                self.done[c] = true;
+                let d = self.dist[c];
+                match self.col_row[c] {
+                    NONE => {
+                        (end, delta) = (c, d);
+                        break;
+                    }
+                    r => relax(r, d, self),
                 }
             }
-            loop {
-                let j1 = way[j0];
-                p[j0] = p[j1];
-                j0 = j1;
-                if j0 == 0 {
-                    break;
+            if end == NONE {
+                break;
+            }
+            // Potentials: settled columns and their rows by how much nearer than the end they
+            // are (the path's pairs become tight, no reduced cost negative).
+            self.u[start] += delta;
+            for &c in &self.touched {
+                if self.done[c] && c != end {
+                    let gain = delta - self.dist[c];
+                    self.v[c] -= gain;
+                    self.u[self.col_row[c]] += gain;
                 }
+            }
+            // Flip the path.
+            let mut c = end;
+            while c != NONE {
+                let r = self.from[c];
+                let next = self.row_col[r];
+                self.row_col[r] = c;
+                self.col_row[c] = r;
+                c = if r == start { NONE } else { next };
+            }
+            // Reset what this search touched.
+            for &c in &self.touched {
+                self.dist[c] = f64::INFINITY;
+                self.done[c] = false;
             }
         }
-        for j in 1..=n {
-            let i = p[j];
-            if i >= 1 && i <= rows && j <= cols && cost[(i - 1) * cols + (j - 1)].is_finite() {
-                self.sub_out[i - 1] = Some(j - 1);
+        for (r, &c) in self.row_col.iter().enumerate() {
+            if c < cols && cost[r * cols + c].is_finite() {
+                self.out[r] = Some(c);
             }
         }
     }
@@ -342,10 +301,10 @@ mod tests {
         }
     }
 
-    /// Sparse matrices, as tracking makes them (most pairs gated out): they fall apart into
-    /// components, each solved on its own; the whole must still be the optimum.
+    /// Sparse matrices, as tracking makes them (most pairs gated out), small enough for
+    /// brute force: the general method's answer is the optimum.
     #[test]
-    fn components_solved_apart_give_the_optimum() {
+    fn sparse_matrices_get_the_optimum() {
         let mut rng = crate::SplitMix64::new(11);
         let mut split = 0;
         for trial in 0..400 {
@@ -364,8 +323,8 @@ mod tests {
                         .collect()
                 })
                 .collect();
-            // Two rows with the same cheapest column make the components (and the general
-            // method) run rather than the shortcut.
+            // Two rows with the same cheapest column make the general method run rather than
+            // the shortcut.
             let cheapest: Vec<usize> = cost
                 .iter()
                 .filter_map(|row| {
@@ -391,7 +350,151 @@ mod tests {
                 "trial {trial}: {total} vs {best}"
             );
         }
-        assert!(split > 80, "{split} trials reached the components");
+        assert!(split > 80, "{split} trials reached the general method");
+    }
+
+    /// The textbook Hungarian method on the padded square matrix (the solver before the
+    /// sparse search), for the tests to check the sparse one's totals against at sizes
+    /// brute force cannot reach.
+    fn dense_reference(cost: &[f64], rows: usize, cols: usize) -> Vec<Option<usize>> {
+        let finite_max = cost
+            .iter()
+            .filter(|c| c.is_finite())
+            .fold(0.0f64, |a, &c| a.max(c.abs()));
+        let n = rows.max(cols);
+        let big = (finite_max + 1.0) * (n as f64 + 1.0) * 4.0;
+        let mut square = vec![big; n * n];
+        for r in 0..rows {
+            for c in 0..cols {
+                if cost[r * cols + c].is_finite() {
+                    square[r * n + c] = cost[r * cols + c];
+                }
+            }
+        }
+        let (mut u, mut v) = (vec![0.0; n + 1], vec![0.0; n + 1]);
+        let (mut p, mut way) = (vec![0usize; n + 1], vec![0usize; n + 1]);
+        for i in 1..=n {
+            p[0] = i;
+            let mut j0 = 0usize;
+            let mut minv = vec![f64::INFINITY; n + 1];
+            let mut used = vec![false; n + 1];
+            loop {
+                used[j0] = true;
+                let i0 = p[j0];
+                let (mut delta, mut j1) = (f64::INFINITY, 0usize);
+                for j in 1..=n {
+                    if used[j] {
+                        continue;
+                    }
+                    let cur = square[(i0 - 1) * n + j - 1] - u[i0] - v[j];
+                    if cur < minv[j] {
+                        minv[j] = cur;
+                        way[j] = j0;
+                    }
+                    if minv[j] < delta {
+                        delta = minv[j];
+                        j1 = j;
+                    }
+                }
+                for j in 0..=n {
+                    if used[j] {
+                        u[p[j]] += delta;
+                        v[j] -= delta;
+                    } else {
+                        minv[j] -= delta;
+                    }
+                }
+                j0 = j1;
+                if p[j0] == 0 {
+                    break;
+                }
+            }
+            loop {
+                let j1 = way[j0];
+                p[j0] = p[j1];
+                j0 = j1;
+                if j0 == 0 {
+                    break;
+                }
+            }
+        }
+        let mut out = vec![None; rows];
+        for j in 1..=n {
+            let i = p[j];
+            if i >= 1 && i <= rows && j <= cols && cost[(i - 1) * cols + (j - 1)].is_finite() {
+                out[i - 1] = Some(j - 1);
+            }
+        }
+        out
+    }
+
+    /// (pairs, total cost) of an assignment, checking no column is used twice.
+    fn score(cost: &[f64], cols: usize, got: &[Option<usize>]) -> (usize, f64) {
+        let mut seen = std::collections::HashSet::new();
+        let (mut pairs, mut total) = (0, 0.0);
+        for (r, c) in got.iter().enumerate() {
+            if let Some(c) = c {
+                assert!(seen.insert(*c), "column {c} used twice");
+                assert!(cost[r * cols + c].is_finite(), "a pair not allowed");
+                pairs += 1;
+                total += cost[r * cols + c];
+            }
+        }
+        (pairs, total)
+    }
+
+    /// Tracking's matrices at tracking's sizes: up to 16 tracks, each allowed its own blob and
+    /// sometimes a neighbour's, lost tracks allowed every blob, blobs missing (two markers
+    /// merged) or extra, ties now and then: the sparse search gives as many pairs and the
+    /// same total as the textbook method on the padded square matrix.
+    #[test]
+    fn the_sparse_search_equals_the_textbook_method_on_tracking_matrices() {
+        let mut rng = crate::SplitMix64::new(23);
+        let mut general = 0;
+        for trial in 0..3000 {
+            let rows = 1 + trial % 16;
+            let cols = (rows as i64 + (trial / 16 % 5) as i64 - 2).max(1) as usize;
+            let mut cost = vec![f64::INFINITY; rows * cols];
+            for r in 0..rows {
+                let lost = rng.uniform() < 0.15;
+                for c in 0..cols {
+                    let allowed = lost
+                        || c == r
+                        || (c as i64 - r as i64).abs() == 1 && rng.uniform() < 0.3
+                        || rng.uniform() < 0.03;
+                    if allowed {
+                        cost[r * cols + c] = if rng.uniform() < 0.1 {
+                            4.0
+                        } else {
+                            rng.range(0.0, 30.0).powi(2)
+                        };
+                    }
+                }
+            }
+            let mut a = Assigner::default();
+            let mut out = vec![None; rows];
+            let mut used = Vec::new();
+            general += !each_its_cheapest(&cost, rows, cols, &mut used, &mut out) as usize;
+            let got = a.solve(&cost, rows, cols).to_vec();
+            let want = dense_reference(&cost, rows, cols);
+            let (gp, gt) = score(&cost, cols, &got);
+            let (wp, wt) = score(&cost, cols, &want);
+            assert_eq!(gp, wp, "trial {trial}: pairs");
+            assert!(
+                (gt - wt).abs() <= 1e-9 * wt.abs().max(1.0),
+                "trial {trial}: {gt} vs {wt}"
+            );
+            // The same solver again (its buffers reused) gives the same.
+            assert_eq!(
+                a.solve(&cost, rows, cols),
+                &got[..],
+                "trial {trial}: reused"
+            );
+        }
+        assert!(
+            general > 1000,
+            "{general} trials reached the general method"
+        );
     }
 
     #[test]
