@@ -225,10 +225,11 @@ fn main() {
             } else {
                 None
             };
-            // The moment worker's threshold histogram: every k-th row, at least 270 rows (its
-            // rule). OpenCV's `calcHist` counts the same rows in `opencv_bench.py`, which checks
-            // that the counts are equal.
-            let step = (h / 270).max(1);
+            // The moment worker's threshold histogram: every k-th row, at least 240 rows (its
+            // rule, `stereoscope_moments::THRESHOLD_ROWS`; 270 until 2026-12-06). OpenCV's
+            // `calcHist` counts the same rows in `opencv_bench.py`, which checks that the
+            // counts are equal.
+            let step = (h / 240).max(1);
             let counts = Histogram::of_rows(&img.view(), step).counts().to_vec();
             let hist = time_ms(batches, min_batch, || {
                 black_box(Histogram::of_rows(&img.view(), step).total());
