@@ -39,7 +39,7 @@ def main():
               f"{win_s} | {o['contours_ms'] / r['full_1t_ms']:.1f}× faster | "
               f"{r['full_1t_ms'] / o['threshold_ms']:.2f}× its time | "
               f"{ratio_s} |")
-    print("\nThe moment worker's threshold histogram (every k-th row, at least 270 rows), the same "
+    print("\nThe moment worker's threshold histogram (every k-th row, at least 240 rows), the same "
           "counts from both (checked by opencv_bench.py):\n")
     print("| frame | blobs | rows | ours ms | OpenCV calcHist ms | OpenCV / ours |")
     print("|---|---|---|---|---|---|")
