@@ -58,6 +58,16 @@ fn each_its_cheapest(
     true
 }
 
+/// The cost of leaving a row unassigned in a `rows × cols` matrix: above any sum of its
+/// allowed costs, so the most pairs come before the least total.
+fn unassigned_cost(cost: &[f64], rows: usize, cols: usize) -> f64 {
+    let finite_max = cost
+        .iter()
+        .filter(|c| c.is_finite())
+        .fold(0.0f64, |a, &c| a.max(c.abs()));
+    (finite_max + 1.0) * (rows.max(cols) as f64 + 1.0) * 4.0
+}
+
 /// The assignment solver with its buffers, reusable without allocating per call.
 #[derive(Debug, Default, Clone)]
 pub struct Assigner {
@@ -109,12 +119,7 @@ impl Assigner {
     /// invariant holds), and searches only from the rows left, one or two; and a search
     /// follows only allowed pairs from the columns it settles.
     fn solve_sparse(&mut self, cost: &[f64], rows: usize, cols: usize) {
-        let finite_max = cost
-            .iter()
-            .filter(|c| c.is_finite())
-            .fold(0.0f64, |a, &c| a.max(c.abs()));
-        let n = rows.max(cols);
-        let big = (finite_max + 1.0) * (n as f64 + 1.0) * 4.0;
+        let big = unassigned_cost(cost, rows, cols);
         // Columns 0..cols, then row r's own at cols + r.
         let all = cols + rows;
         self.v.clear();
@@ -135,8 +140,8 @@ impl Assigner {
         for r in 0..rows {
             let row = &cost[r * cols..(r + 1) * cols];
             let (c, least) = match cheapest_allowed(row) {
-                Some(c) if row[c] < big => (c, row[c]),
-                _ => (cols + r, big),
+                Some(c) => (c, row[c]),
+                None => (cols + r, big),
             };
             self.u.push(least);
             if self.col_row[c] == NONE {
@@ -357,12 +362,8 @@ mod tests {
     /// sparse search), for the tests to check the sparse one's totals against at sizes
     /// brute force cannot reach.
     fn dense_reference(cost: &[f64], rows: usize, cols: usize) -> Vec<Option<usize>> {
-        let finite_max = cost
-            .iter()
-            .filter(|c| c.is_finite())
-            .fold(0.0f64, |a, &c| a.max(c.abs()));
         let n = rows.max(cols);
-        let big = (finite_max + 1.0) * (n as f64 + 1.0) * 4.0;
+        let big = unassigned_cost(cost, rows, cols);
         let mut square = vec![big; n * n];
         for r in 0..rows {
             for c in 0..cols {

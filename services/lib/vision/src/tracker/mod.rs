@@ -373,19 +373,11 @@ impl Tracker {
         self.step_frame(img, threshold, frame)
     }
 
-    /// The cores and the mask: what a search finding no foreground pixel outside of reads
-    /// only the cores ([`CoreScan`]).
-    fn cores_or_masked(&self) -> Vec<PixelRect> {
-        self.cores
-            .iter()
-            .map(|w| w.rect)
-            .chain(self.mask.iter().copied())
-            .collect()
-    }
-
-    /// The windows and the mask: what a foreground pixel outside of needs a full search.
-    fn searched_or_masked(&self) -> Vec<PixelRect> {
-        self.windows
+    /// The rects of `windows` and the mask: what a search's test looks outside of — the
+    /// windows (nothing there: the windowed step stands for the search) or the cores (nothing
+    /// there: the cores do, [`CoreScan`]).
+    fn with_mask(&self, windows: &[Window]) -> Vec<PixelRect> {
+        windows
             .iter()
             .map(|w| w.rect)
             .chain(self.mask.iter().copied())
@@ -510,9 +502,9 @@ impl Tracker {
         let mut searched_in_cores = false;
         let searched_in_windows = tested && !self.windows.is_empty() && {
             searched_in_cores = core_scan
-                && !any_foreground_outside(&img, threshold, &self.cores_or_masked(), rows);
+                && !any_foreground_outside(&img, threshold, &self.with_mask(&self.cores), rows);
             searched_in_cores
-                || !any_foreground_outside(&img, threshold, &self.searched_or_masked(), rows)
+                || !any_foreground_outside(&img, threshold, &self.with_mask(&self.windows), rows)
         };
         let full_frame = (needs_full || searching) && !searched_in_windows;
         if full_frame {
