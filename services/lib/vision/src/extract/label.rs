@@ -108,6 +108,29 @@ impl Scratch {
         self.wacc[label as usize].add_row_sums(sw, swx, swxx, y);
     }
 
+    /// A new blob whose first run is `x0..=x1` of row `y` (its sums still empty), with
+    /// weighted sums when `weighted`: its label.
+    #[inline(always)]
+    fn new_label(&mut self, x0: u32, x1: u32, y: u32, weighted: bool) -> u32 {
+        let label = self.parent.len() as u32;
+        self.parent.push(label);
+        self.acc.push(Acc {
+            m: RawMoments::default(),
+            bbox: PixelRect {
+                x0,
+                y0: y,
+                x1,
+                y1: y,
+            },
+            first: (y, x0),
+            flags: BlobFlags::default(),
+        });
+        if weighted {
+            self.wacc.push(WeightedMoments::default());
+        }
+        label
+    }
+
     pub(super) fn reset(&mut self) {
         self.prev.clear();
         self.cur.clear();
@@ -307,28 +330,37 @@ impl Scratch {
                     break;
                 }
                 // The common row of a tracked blob: one run, continuing the one run of the row
-                // above — no labels to join, so it goes straight into that blob's sums. Taken
-                // when the band is one segment: narrow (its rows read as a mask, above) or wide
-                // (at least 64 pixels, read chunk by chunk).
+                // above — no labels to join, so it goes straight into that blob's sums — or
+                // starting a blob (nothing in the row above), which it labels. Taken when the
+                // band is one segment: narrow (its rows read as a mask, above) or wide (at least
+                // 64 pixels, read chunk by chunk).
+                let above = if prev_y == Some(y.wrapping_sub(1)) && y > 0 {
+                    self.prev.len()
+                } else {
+                    0
+                };
                 if let Some(seg) = one_seg
                     && y != ya
                     && y + 1 != yb
-                    && prev_y == Some(y - 1)
-                    && self.prev.len() == 1
+                    && above <= 1
                 {
                     let first = match row {
                         Some(row) => single_run_of_row::<P, AVX2>(row, &seg),
                         None => single_run_of_mask(narrow_mask, &seg),
                     };
-                    let p = self.prev[0];
+                    let continues =
+                        |p: &RunRef, (x0, x1): (u32, u32)| p.x0 <= x1 + k && p.x1 + k >= x0;
                     if let Some((x0, x1)) = first
-                        && p.x0 <= x1 + k
-                        && p.x1 + k >= x0
+                        && (above == 0 || continues(&self.prev[0], (x0, x1)))
                     {
                         let hclip = |(r0, r1): (u32, u32)| {
                             (r0 == seg.x0 && seg.open_left) || (r1 == seg.x1 && seg.open_right)
                         };
-                        let label = find(&mut self.parent, p.label);
+                        let label = if above == 0 {
+                            self.new_label(x0, x1, y, background.is_some())
+                        } else {
+                            find(&mut self.parent, self.prev[0].label)
+                        };
                         let edge_row = (band.check_top && y == band.y0)
                             || (band.check_bottom && y + 1 == band.y1);
                         let mut clipped = hclip((x0, x1))
@@ -374,11 +406,12 @@ impl Scratch {
                         if clipped {
                             a.flags.insert(BlobFlags::CLIPPED);
                         }
-                        self.prev[0] = RunRef {
+                        self.prev.clear();
+                        self.prev.push(RunRef {
                             x0: run.0,
                             x1: run.1,
                             label,
-                        };
+                        });
                         self.runs += (yy - y) as usize;
                         prev_y = Some(yy - 1);
                         y = yy;
@@ -422,22 +455,7 @@ impl Scratch {
                         (band.check_top && y == band.y0) || (band.check_bottom && y + 1 == band.y1);
                     let clipped = hclip || (edge_row && region.vertically_clipped(bi, y, x0, x1));
                     if label == u32::MAX {
-                        label = self.parent.len() as u32;
-                        self.parent.push(label);
-                        self.acc.push(Acc {
-                            m: RawMoments::default(),
-                            bbox: PixelRect {
-                                x0,
-                                y0: y,
-                                x1,
-                                y1: y,
-                            },
-                            first: (y, x0),
-                            flags: BlobFlags::default(),
-                        });
-                        if background.is_some() {
-                            self.wacc.push(WeightedMoments::default());
-                        }
+                        label = self.new_label(x0, x1, y, background.is_some());
                     }
                     self.add_run::<P, AVX2>(label, x0, x1, y, clipped, background, img);
                     self.cur.push(RunRef { x0, x1, label });
