@@ -2,13 +2,27 @@
 # The live system's benchmark with OpenCV timed on the moment worker's frames in the same run
 # (the table in docs/performance.md, "Live system").
 #
-#   services/stereoscope/benches/compare-live.sh [--quick]
+#   services/stereoscope/benches/compare-live.sh [--quick] [--rounds N]
+#
+# With --rounds N, N paired rounds follow the report: in each, every scene's worker and then
+# OpenCV on the same frames, one right after the other, and the report adds each scene's
+# median ratio of the rounds and their range. This machine's speed moves within minutes; a
+# ratio of two figures taken seconds apart moves with it far less than one of figures taken
+# minutes apart (the main table's: the worker's four scenes first, then OpenCV's).
 set -euo pipefail
 here=$(cd "$(dirname "$0")" && pwd)
 root=$(cd "$here/../../.." && pwd)
 out="$root/target/bench-live"
 quick=()
-[ "${1:-}" = "--quick" ] && quick=(--quick)
+rounds=0
+while [ $# -gt 0 ]; do
+  case "$1" in
+    --quick) quick=(--quick) ;;
+    --rounds) rounds="${2:?--rounds needs a count}"; shift ;;
+    *) echo "usage: $0 [--quick] [--rounds N]" >&2; exit 2 ;;
+  esac
+  shift
+done
 rm -rf "$out" && mkdir -p "$out/frames"
 . "$root/services/lib/vision/benches/opencv-venv.sh"
 cd "$root"
@@ -30,3 +44,42 @@ print("|---|---|---|---|---|---|---|---|---|---|")
 for p, r in sorted(zip(sys.argv[1:], rows), key=lambda x: (x[1]["scene"], len(x[1]["frame"]))):
     print("| %s | %s | %.4f | %.4f | %.1f× | %.4f | %.4f | %.1f× | %d | %.3f |" % (r["scene"], r["frame"], r["worker_ms"], r["contours_ms"], r["contours_ms"] / r["worker_ms"], r["worker_ms_delivered"], r["contours_ms_delivered"], r["contours_ms_delivered"] / r["worker_ms_delivered"], r["blobs_matched"], r["worst_centroid_px"]))
 PY
+
+# Paired rounds: the worker (its median pass, as in the main table) and OpenCV on the same
+# scene back to back, each round's two ratios kept.
+if [ "$rounds" -gt 0 ]; then
+  pairs="$out/paired.tsv"
+  : > "$pairs"
+  for r in $(seq "$rounds"); do
+    for scene in targets markers; do
+      for size in 640x480 1920x1080; do
+        row=$(cargo bench -q -p stereoscope --bench live -- --worker-only --only "$scene-$size" 2>/dev/null | grep "^| $scene ")
+        "$venv/bin/python" "$here/opencv_worker.py" "$out/frames/worker-$scene-$size" "$out/frames/worker-$scene-$size.json" "$out/paired-opencv.json" >/dev/null
+        "$venv/bin/python" - "$out/paired-opencv.json" "$row" "$r" >> "$pairs" <<'PY'
+import json, sys
+o = json.load(open(sys.argv[1]))
+cells = [c.strip() for c in sys.argv[2].strip().strip("|").split("|")]
+worker_ms, worker_written_ms = float(cells[2]), float(cells[3])
+print("\t".join([sys.argv[3], o["scene"], o["frame"], "%.4f" % worker_ms, "%.4f" % o["contours_ms"], "%.4f" % worker_written_ms, "%.4f" % o["contours_ms_delivered"]]))
+PY
+      done
+    done
+  done
+  "$venv/bin/python" - "$pairs" "$rounds" <<'PY' | tee -a "$out/report.md"
+import statistics, sys
+rows = [l.split("\t") for l in open(sys.argv[1]).read().splitlines() if l]
+print("\n## Paired rounds: the worker and OpenCV on each scene back to back, %s rounds" % sys.argv[2])
+print("Each round runs each scene's worker (median pass, frames from memory and just written) and then OpenCV on the same frames; the ratio is taken within the round. Median of the rounds' ratios, and their range.")
+print("| scene | frame | OpenCV / worker (median) | range | worker ms (median) | OpenCV ms (median) | OpenCV / worker, frames just written (median) | range |")
+print("|---|---|---|---|---|---|---|---|")
+keys = sorted({(r[1], r[2]) for r in rows}, key=lambda k: (k[0], len(k[1])))
+for scene, frame in keys:
+    rs = [r for r in rows if (r[1], r[2]) == (scene, frame)]
+    mem = [float(r[4]) / float(r[3]) for r in rs]
+    written = [float(r[6]) / float(r[5]) for r in rs]
+    print("| %s | %s | %.1f× | %.1f–%.1f× | %.4f | %.4f | %.1f× | %.1f–%.1f× |" % (
+        scene, frame, statistics.median(mem), min(mem), max(mem),
+        statistics.median(float(r[3]) for r in rs), statistics.median(float(r[4]) for r in rs),
+        statistics.median(written), min(written), max(written)))
+PY
+fi
