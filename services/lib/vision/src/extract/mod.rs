@@ -227,6 +227,8 @@ pub struct Extractor {
     region: Region,
     scratch: Vec<Scratch>,
     blobs: Vec<Blob>,
+    /// The blobs' labels in their order (scratch of [`emit_blobs`]).
+    keys: Vec<((u32, u32), u32)>,
     stats: ExtractStats,
     // Joining bands.
     gparent: Vec<u32>,
@@ -274,6 +276,7 @@ impl Extractor {
             region: Region::default(),
             scratch: Vec::new(),
             blobs: Vec::new(),
+            keys: Vec::new(),
             stats: ExtractStats::default(),
             gparent: Vec::new(),
             gacc: Vec::new(),
@@ -498,6 +501,7 @@ impl Extractor {
                 &self.cfg,
                 (width, height),
                 stats,
+                &mut self.keys,
                 &mut self.blobs,
             );
             return;
@@ -557,13 +561,18 @@ impl Extractor {
             &self.cfg,
             (width, height),
             stats,
+            &mut self.keys,
             &mut self.blobs,
         );
     }
 }
 
 /// The roots of `parent` (labels that are their own parent) as blobs: area filter, border flag,
-/// capacity (largest kept), raster order of first pixels.
+/// capacity (largest kept), raster order of first pixels. The kept labels are put in order
+/// first (`keys`, scratch) and each blob is made once, in place: a blob is some 250 bytes, and
+/// sorting the blobs themselves (regions scanned one by one, such as the tracker's cores, give
+/// them out of raster order) moved each several times.
+#[allow(clippy::too_many_arguments)]
 fn emit_blobs(
     parent: &[u32],
     acc: &[Acc],
@@ -571,9 +580,10 @@ fn emit_blobs(
     cfg: &ExtractConfig,
     (width, height): (u32, u32),
     mut stats: ExtractStats,
+    keys: &mut Vec<((u32, u32), u32)>,
     blobs: &mut Vec<Blob>,
 ) -> ExtractStats {
-    blobs.clear();
+    keys.clear();
     for (l, a) in acc.iter().enumerate() {
         if parent[l] as usize != l {
             continue;
@@ -586,35 +596,41 @@ fn emit_blobs(
             stats.below_min_area += 1;
             continue;
         }
+        keys.push((a.first, l as u32));
+    }
+    if keys.len() > cfg.max_blobs {
+        stats.dropped_over_capacity = keys.len() - cfg.max_blobs;
+        // Keep the largest; ties by raster order.
+        keys.sort_unstable_by(|&(p_first, p), &(q_first, q)| {
+            acc[q as usize]
+                .m
+                .m00
+                .cmp(&acc[p as usize].m.m00)
+                .then(p_first.cmp(&q_first))
+        });
+        keys.truncate(cfg.max_blobs);
+    }
+    // Labels are made in raster order and a merge keeps the older, so the labels of one region
+    // come sorted already (not after the capacity cut). First pixels are distinct.
+    if !keys.is_sorted_by_key(|&(first, _)| first) {
+        keys.sort_unstable_by_key(|&(first, _)| first);
+    }
+    blobs.clear();
+    blobs.extend(keys.iter().map(|&(first, l)| {
+        let a = &acc[l as usize];
         let mut flags = a.flags;
         let b = a.bbox;
         if b.x0 == 0 || b.y0 == 0 || b.x1 + 1 == width || b.y1 + 1 == height {
             flags.insert(BlobFlags::TOUCHES_BORDER);
         }
-        blobs.push(Blob {
+        Blob {
             moments: a.m,
             bbox: b,
             flags,
-            weighted: wacc.map(|w| w[l]),
-            first_pixel: a.first,
-        });
-    }
-    if blobs.len() > cfg.max_blobs {
-        stats.dropped_over_capacity = blobs.len() - cfg.max_blobs;
-        // Keep the largest; ties by raster order.
-        blobs.sort_unstable_by(|p, q| {
-            q.moments
-                .m00
-                .cmp(&p.moments.m00)
-                .then(p.first_pixel.cmp(&q.first_pixel))
-        });
-        blobs.truncate(cfg.max_blobs);
-    }
-    // Labels are made in raster order and a merge keeps the older, so the blobs usually come
-    // sorted already (not after the capacity cut).
-    if !blobs.is_sorted_by_key(|b| b.first_pixel) {
-        blobs.sort_unstable_by_key(|b| b.first_pixel);
-    }
+            weighted: wacc.map(|w| w[l as usize]),
+            first_pixel: first,
+        }
+    }));
     stats
 }
 
@@ -1384,6 +1400,9 @@ mod tests {
         assert_eq!(blobs.len(), 3);
         assert_eq!(blobs[0].area_px(), 10, "largest kept, raster order");
         assert!(blobs[0].flags.contains(BlobFlags::TOUCHES_BORDER));
+        // Of the three of area 4, the first two in raster order are kept (ties at the cut).
+        let kept: Vec<_> = blobs[1..].iter().map(|b| b.first_pixel).collect();
+        assert_eq!(kept, [(20, 10), (20, 18)]);
         let s = ex.stats();
         assert_eq!(s.regions, 10);
         assert_eq!(s.below_min_area, 6);
