@@ -348,10 +348,10 @@ impl Scratch {
                         Some(row) => single_run_of_row::<P, AVX2>(row, &seg),
                         None => single_run_of_mask(narrow_mask, &seg),
                     };
-                    let continues =
-                        |p: &RunRef, (x0, x1): (u32, u32)| p.x0 <= x1 + k && p.x1 + k >= x0;
+                    // Whether run `b` joins run `a` of the row above (touching by `k`).
+                    let joins = |a: (u32, u32), b: (u32, u32)| a.0 <= b.1 + k && a.1 + k >= b.0;
                     if let Some((x0, x1)) = first
-                        && (above == 0 || continues(&self.prev[0], (x0, x1)))
+                        && (above == 0 || joins((self.prev[0].x0, self.prev[0].x1), (x0, x1)))
                     {
                         let hclip = |(r0, r1): (u32, u32)| {
                             (r0 == seg.x0 && seg.open_left) || (r1 == seg.x1 && seg.open_right)
@@ -385,7 +385,7 @@ impl Scratch {
                             let Some((r0, r1)) = one_run(yy, &seg) else {
                                 break;
                             };
-                            if !(run.0 <= r1 + k && run.1 + k >= r0) {
+                            if !joins(run, (r0, r1)) {
                                 break;
                             }
                             clipped |= hclip((r0, r1));
