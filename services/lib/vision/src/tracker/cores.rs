@@ -82,8 +82,8 @@ fn core_rect(t: &Track) -> Option<PixelRect> {
 
 impl Tracker {
     /// Each track's core, or its window for a track without one (none for a lost track
-    /// whose window covers the `w × h` frame: that is what a search reads); `true` when at
-    /// least one track has a core.
+    /// whose window covers the `w × h` frame: that is what a search reads; none for a
+    /// resting one); `true` when at least one track has a core.
     pub(super) fn set_cores(&mut self, w: u32, h: u32) -> bool {
         self.core_rects.clear();
         self.core_rects.extend(self.tracks.iter().map(core_rect));
@@ -95,6 +95,7 @@ impl Tracker {
                     .zip(&self.tracks)
                     .filter_map(|(core, t)| match core {
                         Some(c) => Some(Window::new(*c)),
+                        None if t.resting => None,
                         None if t.window.width() == w && t.window.height() == h => None,
                         None => Some(Window::new(t.window)),
                     }),

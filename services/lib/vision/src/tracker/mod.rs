@@ -27,6 +27,15 @@
 //! frame, so the windowed step stands for the search (new objects are taken from it) and the
 //! frame is not labelled whole.
 //!
+//! A lost object inside another's merged blob (two markers whose images joined: it is there,
+//! not anywhere else) rests instead: no window of its own is read and the frame is not searched
+//! for it but on each search period's first frame, as for new objects; on the frames between
+//! it takes back the blob nearest its prediction of those in the other's window that no track
+//! took — its image come out of the merged one — so it is followed again from the first frame
+//! the two images part, under its id. (Searching the frame for it on every frame cost the
+//! live bench's markers more than all else: one of 12 was inside another's blob on 26 of 120
+//! frames, docs/performance.md.)
+//!
 //! The windowed step reads each object found in the last frame in its core first (its last box
 //! moved by its motion, widened), and the whole windows only when the cores do not settle the
 //! frame: the same tracks for a fifth of the reads ([`CoreScan`]).
@@ -179,6 +188,15 @@ pub struct Track {
     /// This frame's blob holds another object's image too (`MERGE_AREA_RATIO`): its centroid
     /// is between the two and is not a measurement of either.
     pub merged: bool,
+    /// Lost inside the merged blob of the track with this id ([`Track::merged`]: that blob
+    /// holds the place where this one was last seen or is predicted): its image is there,
+    /// joined to the other's. Its window is read, and the frame searched for it, on the first
+    /// frame of each search period only; between, it may take back only a blob in that
+    /// track's window that no track took (its image come out of the merged one), module docs.
+    pub inside_merged: Option<u32>,
+    /// This step left the track out of the windows and the assignment (inside a merged blob
+    /// and no search due).
+    resting: bool,
     /// The window searched this frame.
     pub window: PixelRect,
     pub lost_frames: u32,
@@ -204,6 +222,31 @@ impl Track {
     fn predicted(&self) -> (f64, f64) {
         let k = (self.lost_frames + 1) as f64;
         (self.x_px + self.vx_px * k, self.y_px + self.vy_px * k)
+    }
+
+    /// Found this frame in blob `b` (centroid `(bx, by)`): the motion (Eq. 5.3, over the
+    /// frames it was lost), its place, area and heading.
+    fn take(&mut self, b: &Blob, (bx, by): (f64, f64), par: f64, skew: Option<f64>) {
+        let k = (self.lost_frames + 1) as f64;
+        self.vx_px = (bx - self.x_px) / k;
+        self.vy_px = (by - self.y_px) / k;
+        self.x_px = bx;
+        self.y_px = by;
+        self.area_px = b.area_px();
+        self.lost_frames = 0;
+        self.status = TrackStatus::Tracked;
+        let (heading, shape) = heading_of(&mut self.heading_tracker, b, par, skew);
+        self.heading = heading;
+        self.shape = Some(shape);
+        self.blob = Some(*b);
+    }
+
+    /// Not found this frame.
+    fn lose(&mut self) {
+        self.lost_frames += 1;
+        self.status = TrackStatus::Lost;
+        self.blob = None;
+        self.shape = None;
     }
 }
 
@@ -430,6 +473,9 @@ impl Tracker {
         // Row by row into a matrix made whole first (no per-element growth checks).
         self.cost.resize(self.tracks.len() * n, f64::INFINITY);
         for (t, row) in self.tracks.iter().zip(self.cost.chunks_exact_mut(n)) {
+            if t.resting {
+                continue;
+            }
             let (px, py) = t.predicted();
             let win = t.window;
             for ((cost, &(bx, by)), &masked) in row.iter_mut().zip(&self.centroids).zip(&self.taken)
@@ -455,6 +501,10 @@ impl Tracker {
         let (w, h) = (img.width(), img.height());
         let limit = w.max(h);
         let covers_frame = |r: &PixelRect| r.width() == w && r.height() == h;
+        let every = self.cfg.search_every_frames as u64;
+        let period = frame / every;
+        let new_period = self.last_frame.is_none_or(|l| period != l / every);
+        self.last_frame = Some(frame);
         // Steps 1–5: a window per track around its prediction.
         self.windows.clear();
         let mut needs_full = self.tracks.is_empty();
@@ -463,10 +513,18 @@ impl Tracker {
             let (px, py) = t.predicted();
             let half = self.half_width(t, limit);
             let rect = clamp_window(px, py, half, w, h);
+            // A lost object inside a merged blob is where that blob is: its window is read (and
+            // the frame searched for it) on each search period's first frame, as new objects
+            // are looked for; between, the other track's window is where it comes back out.
+            let resting = t.inside_merged.is_some() && !new_period;
+            self.tracks[i].resting = resting;
+            self.tracks[i].window = rect;
+            if resting {
+                continue;
+            }
             if covers_frame(&rect) {
                 needs_full = true;
             }
-            self.tracks[i].window = rect;
             let thr = match self.cfg.window_threshold {
                 Some(m) => Some(Histogram::of_rect(&img, rect).threshold::<P>(m)?),
                 None => None,
@@ -476,10 +534,6 @@ impl Tracker {
                 threshold: thr,
             });
         }
-        let every = self.cfg.search_every_frames as u64;
-        let period = frame / every;
-        let new_period = self.last_frame.is_none_or(|l| period != l / every);
-        self.last_frame = Some(frame);
         let searching = self.tracks.len() < self.cfg.max_objects && new_period;
         // A search — the periodic one, or a lost object's once its window has grown to the
         // frame — first tests the frame outside the other windows: with nothing bright there,
@@ -546,31 +600,58 @@ impl Tracker {
             .solve(&self.cost, self.tracks.len(), blobs.len());
         let par = self.cfg.par;
         let skew = self.cfg.direction_min_skewness;
+        let mut resting = false;
         for (t, a) in self.tracks.iter_mut().zip(assignment) {
             match a {
                 Some(j) => {
-                    let b = blobs[*j];
                     self.taken[*j] = true;
-                    let (bx, by) = self.centroids[*j];
-                    let k = (t.lost_frames + 1) as f64;
-                    t.vx_px = (bx - t.x_px) / k;
-                    t.vy_px = (by - t.y_px) / k;
-                    t.x_px = bx;
-                    t.y_px = by;
-                    t.area_px = b.area_px();
-                    t.lost_frames = 0;
-                    t.status = TrackStatus::Tracked;
-                    let (heading, shape) = heading_of(&mut t.heading_tracker, &b, par, skew);
-                    t.heading = heading;
-                    t.shape = Some(shape);
-                    t.blob = Some(b);
+                    t.take(&blobs[*j], self.centroids[*j], par, skew);
+                    step.tracked += 1;
+                }
+                None if t.resting => resting = true,
+                None => {
+                    t.lose();
+                    step.lost += 1;
+                }
+            }
+        }
+        // A resting track (inside a merged blob) takes back the blob nearest its prediction of
+        // those in the merged track's window that no track took: its image come out of the
+        // merged one (a blob that touches no core's edge, when the cores settled the frame).
+        for i in (0..self.tracks.len()).filter(|_| resting) {
+            if !self.tracks[i].resting {
+                continue;
+            }
+            let host = self.tracks[i].inside_merged;
+            let window = self
+                .tracks
+                .iter()
+                .find(|t| Some(t.id) == host)
+                .map(|t| t.window);
+            let (px, py) = self.tracks[i].predicted();
+            let nearest = window.and_then(|win| {
+                (0..blobs.len())
+                    .filter(|&j| {
+                        let (x, y) = self.centroids[j];
+                        !self.taken[j] && win.contains(x, y)
+                    })
+                    .min_by(|&a, &b| {
+                        let d = |j: usize| {
+                            let (x, y) = self.centroids[j];
+                            (x - px).powi(2) + (y - py).powi(2)
+                        };
+                        d(a).total_cmp(&d(b))
+                    })
+            });
+            let t = &mut self.tracks[i];
+            match nearest {
+                Some(j) => {
+                    self.taken[j] = true;
+                    t.take(&blobs[j], self.centroids[j], par, skew);
                     step.tracked += 1;
                 }
                 None => {
-                    t.lost_frames += 1;
-                    t.status = TrackStatus::Lost;
-                    t.blob = None;
-                    t.shape = None;
+                    t.lose();
                     step.lost += 1;
                 }
             }
@@ -599,10 +680,7 @@ impl Tracker {
             t.merged = usual > 0.0
                 && (still
                     || lost.iter().any(|&(x, y, lost_area)| {
-                        x >= r.x0 as f64 - 2.0
-                            && x <= r.x1 as f64 + 2.0
-                            && y >= r.y0 as f64 - 2.0
-                            && y <= r.y1 as f64 + 2.0
+                        near_box(&r, x, y)
                             && (area >= MERGE_AREA_RATIO * usual
                                 || area >= usual + MERGE_SHARE * lost_area)
                     }));
@@ -613,6 +691,32 @@ impl Tracker {
                     area
                 };
             }
+        }
+        // Lost objects inside a merged blob (at the places above).
+        for i in 0..self.tracks.len() {
+            let t = &self.tracks[i];
+            let places = [(t.x_px, t.y_px), t.predicted()];
+            // Inside while the blob it went into stays merged (its own prediction runs on
+            // past it meanwhile), or newly inside one at its last or predicted place.
+            let inside = (t.status == TrackStatus::Lost)
+                .then(|| {
+                    let merged = |m: &&Track| m.merged && m.blob.is_some();
+                    let stays = self
+                        .tracks
+                        .iter()
+                        .filter(merged)
+                        .find(|m| Some(m.id) == t.inside_merged);
+                    stays.or_else(|| {
+                        self.tracks.iter().filter(merged).find(|m| {
+                            m.blob.as_ref().is_some_and(|b| {
+                                places.iter().any(|&(x, y)| near_box(&b.bbox, x, y))
+                            })
+                        })
+                    })
+                })
+                .flatten()
+                .map(|m| m.id);
+            self.tracks[i].inside_merged = inside;
         }
         let before = self.tracks.len();
         let drop_after = self.cfg.drop_after_lost_frames;
@@ -647,6 +751,8 @@ impl Tracker {
                     area_px: b.area_px(),
                     usual_area_px: b.area_px() as f64,
                     merged: false,
+                    inside_merged: None,
+                    resting: false,
                     window: PixelRect::full(w, h),
                     lost_frames: 0,
                     blob: Some(b),
@@ -660,6 +766,15 @@ impl Tracker {
         }
         Ok(step)
     }
+}
+
+/// Whether `(x, y)` lies in box `r` widened by 2 pixels: a lost track's place inside a blob
+/// (merged images).
+fn near_box(r: &PixelRect, x: f64, y: f64) -> bool {
+    x >= r.x0 as f64 - 2.0
+        && x <= r.x1 as f64 + 2.0
+        && y >= r.y0 as f64 - 2.0
+        && y <= r.y1 as f64 + 2.0
 }
 
 /// The blob's heading update and its shape (which the heading is taken from).
@@ -1070,6 +1185,8 @@ mod tests {
             area_px: 400,
             usual_area_px: 400.0,
             merged: false,
+            inside_merged: None,
+            resting: false,
             window: PixelRect::full(1, 1),
             lost_frames: 0,
             blob: None,
@@ -1400,5 +1517,77 @@ mod tests {
         let flags: Vec<bool> = merged_frames(&frames).iter().map(|f| f.0).collect();
         assert!(!flags[..5].iter().any(|f| *f), "{flags:?}");
         assert!(flags[5..].iter().all(|f| *f), "{flags:?}");
+    }
+
+    /// A marker whose image merges into another's rests while it is inside the merged blob:
+    /// no window of its own is read and the frame is not searched for it except on each
+    /// search period's first frame (as for new objects); the first frame the two images are
+    /// apart it takes its blob back under its id, with no new object made.
+    #[test]
+    fn a_marker_inside_a_merged_blob_rests_and_comes_back_out_under_its_id() {
+        let (w, h) = (320u64, 240u64);
+        let a = (100.0, 120.0, 5.0);
+        // The second marker comes in from the right, overlaps the first 6 px from its centre
+        // (one blob of about 1.7 times the area) on frames 4 to 16, and leaves again.
+        let bx = |f: u64| match f {
+            0..4 => 140.0 - 10.0 * f as f64,
+            4..17 => 106.0,
+            _ => 106.0 + 8.0 * (f - 16) as f64,
+        };
+        let mut tr = Tracker::new(TrackerConfig::default(), ExtractConfig::default()).unwrap();
+        let mut ids = Vec::new();
+        let mut rested = 0;
+        for f in 0..18u64 {
+            let resting_before = tr.tracks().iter().any(|t| t.inside_merged.is_some());
+            let step = tr
+                .step_frame(frame(&[a, (bx(f), 120.0, 5.0)]).view(), 100, f)
+                .unwrap();
+            if f == 3 {
+                ids = tr.tracks().iter().map(|t| t.id).collect();
+                assert_eq!(ids.len(), 2);
+            }
+            if (5..17).contains(&f) {
+                // One track on the merged blob, the other lost inside it.
+                let lost: Vec<_> = tr
+                    .tracks()
+                    .iter()
+                    .filter(|t| t.status == TrackStatus::Lost)
+                    .collect();
+                assert_eq!(lost.len(), 1, "frame {f}");
+                let host = tr.tracks().iter().find(|t| t.merged).map(|t| t.id);
+                assert!(host.is_some(), "frame {f}");
+                assert_eq!(lost[0].inside_merged, host, "frame {f}");
+                assert!(resting_before, "frame {f}");
+                if f % 10 == 0 {
+                    // The search period's first frame searches the frame for it.
+                    assert!(step.full_frame, "frame {f}");
+                } else {
+                    assert!(!step.full_frame, "frame {f}");
+                    assert!(
+                        step.extract.pixels_scanned < w * h / 50,
+                        "frame {f}: {step:?}"
+                    );
+                    rested += 1;
+                }
+            }
+            if f == 17 {
+                // The first frame with the two images apart (16 px between centres), and not a
+                // search's: both are followed again, under their ids, at their discs.
+                assert_eq!(tr.tracks().len(), 2);
+                for t in tr.tracks() {
+                    assert_eq!(t.status, TrackStatus::Tracked);
+                    assert!(t.inside_merged.is_none());
+                }
+                let mut now: Vec<u32> = tr.tracks().iter().map(|t| t.id).collect();
+                now.sort();
+                ids.sort();
+                assert_eq!(now, ids);
+                let mut xs: Vec<f64> = tr.tracks().iter().map(|t| t.x_px).collect();
+                xs.sort_by(f64::total_cmp);
+                assert!((xs[0] - 100.0).abs() < 0.5, "{xs:?}");
+                assert!((xs[1] - bx(f)).abs() < 0.5, "{xs:?}");
+            }
+        }
+        assert_eq!(rested, 11);
     }
 }
