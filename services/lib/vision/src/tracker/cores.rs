@@ -116,7 +116,8 @@ impl Tracker {
     }
 
     /// Whether the cores just read settle the frame ([`CoreScan`]), from the costs of their
-    /// blobs in a `w × h` frame.
+    /// blobs in a `w × h` frame; each track's nearest blob goes into `nearest` (complete when
+    /// this is true: the step's assignment then).
     pub(super) fn cores_settle(&mut self, w: u32, h: u32) -> bool {
         if self.extractor.stats().clipped_regions > 0 {
             return false;
@@ -124,9 +125,11 @@ impl Tracker {
         let n = self.centroids.len();
         self.nearest_taken.clear();
         self.nearest_taken.resize(n, false);
+        self.nearest.clear();
         for (i, t) in self.tracks.iter().enumerate() {
             let row = &self.cost[i * n..(i + 1) * n];
             let nearest = cheapest_allowed(row).map(|j| (j, &row[j]));
+            self.nearest.push(nearest.map(|(j, _)| j));
             let core = self.core_rects[i];
             let Some((j, &cost)) = nearest else {
                 // A track read in its whole window may stay lost; one read in its core not.

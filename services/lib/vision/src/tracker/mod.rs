@@ -298,6 +298,9 @@ pub struct Tracker {
     cores: Vec<Window>,
     /// The blobs already some track's nearest, while the cores are checked.
     nearest_taken: Vec<bool>,
+    /// Each track's nearest blob, as the cores' check found them: the assignment itself when
+    /// they settle the frame ([`Tracker::cores_settle`]).
+    nearest: Vec<Option<usize>>,
     cost: Vec<f64>,
     /// This step's blob centroids, for the costs.
     centroids: Vec<(f64, f64)>,
@@ -357,6 +360,7 @@ impl Tracker {
             core_rects: Vec::new(),
             cores: Vec::new(),
             nearest_taken: Vec::new(),
+            nearest: Vec::new(),
             cost: Vec::new(),
             centroids: Vec::new(),
             assigner: Assigner::default(),
@@ -566,6 +570,10 @@ impl Tracker {
         }
         // The cores first, where they may settle the frame; else (or then) the windows.
         let mut cores = CoreScan::Windows;
+        // Whether the cores' check settled the frame: then each track's nearest blob is the
+        // minimum-cost assignment (it found no two tracks with the same nearest, and that is
+        // the assignment's own first case), and the solver is not asked again.
+        let mut nearest_assigned = false;
         if core_scan && (searched_in_cores || !(searching || needs_full)) {
             self.prefetch_cores(&img);
             self.extractor.extract(img, threshold, &self.cores)?;
@@ -575,7 +583,8 @@ impl Tracker {
             let settled = if searched_in_cores {
                 self.extractor.stats().clipped_regions == 0
             } else {
-                self.cores_settle(w, h)
+                nearest_assigned = self.cores_settle(w, h);
+                nearest_assigned
             };
             cores = if settled {
                 CoreScan::Settled
@@ -595,9 +604,12 @@ impl Tracker {
             cores,
             ..Default::default()
         };
-        let assignment = self
-            .assigner
-            .solve(&self.cost, self.tracks.len(), blobs.len());
+        let assignment = if nearest_assigned {
+            &self.nearest[..]
+        } else {
+            self.assigner
+                .solve(&self.cost, self.tracks.len(), blobs.len())
+        };
         let par = self.cfg.par;
         let skew = self.cfg.direction_min_skewness;
         let mut resting = false;
