@@ -291,3 +291,48 @@ pub(super) fn single_run_of_row<P: Pixel, const AVX2: bool>(
     let start = start?;
     Some((start as u32, stop.unwrap_or(end) as u32 - 1))
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The one run of a mask, bit by bit: `None` for none or several.
+    fn reference(mask: u128) -> Option<(u32, u32)> {
+        let ones: Vec<u32> = (0..128).filter(|&i| mask >> i & 1 == 1).collect();
+        let (&a, &b) = (ones.first()?, ones.last()?);
+        (b - a + 1 == ones.len() as u32).then_some((a, b))
+    }
+
+    /// Every run of every length at every place (touching bit 0, bit 127 or both), with a
+    /// second run or a lone bit anywhere beside it, and random masks: the carry test says what
+    /// counting the bits says.
+    #[test]
+    fn the_single_run_of_a_mask_is_found_and_two_are_told_apart() {
+        let seg = Seg {
+            x0: 5,
+            x1: 132,
+            threshold: 1,
+            open_left: false,
+            open_right: false,
+        };
+        let run = |a: u32, b: u32| (u128::MAX >> (127 - b)) & (u128::MAX << a);
+        let mut masks = vec![0u128, u128::MAX, 1, 1 << 127, 1 | 1 << 127];
+        for a in 0..128 {
+            for b in a..128 {
+                let m = run(a, b);
+                masks.push(m);
+                for lone in [0u32, 1, 63, 64, 126, 127] {
+                    masks.push(m | 1 << lone);
+                }
+            }
+        }
+        let mut rng = stereoscope_numeric::SplitMix64::new(7);
+        for _ in 0..2000 {
+            masks.push((rng.next_u64() as u128) << 64 | rng.next_u64() as u128);
+        }
+        for m in masks {
+            let want = reference(m).map(|(a, b)| (seg.x0 + a, seg.x0 + b));
+            assert_eq!(single_run_of_mask(m, &seg), want, "{m:#034x}");
+        }
+    }
+}
