@@ -5,7 +5,7 @@
 //! whole chain (two 640×480 cameras at 120 fps, 4 objects) run as processes by the launcher.
 //!
 //!   cargo bench -p stereoscope --bench live -- [--quick] [--json OUT] [--frames-dir DIR]
-//!       [--worker-only] [--only SCENE-WxH] [--windows-whole] [--y16]
+//!       [--worker-only] [--only SCENE-WxH] [--windows-whole] [--y16] [--by-frame]
 //!
 //! `services/stereoscope/benches/compare-live.sh` runs it with OpenCV timed on the worker's
 //! frames in the same run; results in docs/performance.md.
@@ -228,6 +228,10 @@ fn worker_fps(
     let mut header = FrameHeader::new("cam0", format, w, h).unwrap();
     let total = if quick { 5 * n } else { 25 * n };
     let mut found = vec![None; frames.len()];
+    // `--by-frame`: each frame also timed alone (two clock reads a frame more), to tell where
+    // the time goes (below).
+    let by_frame = std::env::args().any(|a| a == "--by-frame");
+    let mut frame_ms: Vec<(u64, f64)> = Vec::new();
     // Timed a pass over the frames at a time, the median pass taken: the statistic the OpenCV
     // side takes of its passes (opencv_worker.py), robust alike to this machine's bursts.
     let mut passes_ms = Vec::new();
@@ -235,7 +239,11 @@ fn worker_fps(
     for i in 0..total {
         let k = ping_pong(i, frames.len());
         header.sequence = i;
+        let t0 = by_frame.then(Instant::now);
         let obs = std::hint::black_box(worker.process_frame(&header, &frames[k]).unwrap());
+        if let Some(t0) = t0 {
+            frame_ms.push((i, t0.elapsed().as_secs_f64() * 1e3));
+        }
         found[k] = Some(obs);
         if (i + 1) % n == 0 {
             passes_ms.push(t.elapsed().as_secs_f64() * 1e3 / n as f64);
@@ -243,6 +251,14 @@ fn worker_fps(
         }
     }
     let fps = 1e3 / median(&mut passes_ms);
+    if by_frame {
+        print_by_frame(
+            &format!("{w}x{h} {}", if markers { "markers" } else { "targets" }),
+            &frame_ms,
+            &found,
+            &s,
+        );
+    }
     let (settled, widened) = worker.core_scans();
     eprintln!(
         "worker {w}x{h} {}: cores settled {settled} and widened {widened} of {total} frames",
@@ -302,6 +318,69 @@ fn worker_fps(
         delivered_ms,
         found.last().map(|o| o.blobs.len()).unwrap_or(0),
     )
+}
+
+/// `--by-frame`: the frames timed one by one after the first pass (warm-up), grouped by what
+/// the worker does on them — the threshold's histogram (and that frame's search), the
+/// periodic search alone, neither — and the last group by frame of the loop, marking the
+/// frames where a track is lost (a lost object's search, or one inside a merged blob).
+fn print_by_frame(
+    scene: &str,
+    frame_ms: &[(u64, f64)],
+    found: &[Option<stereoscope_proto::messages::Observation>],
+    s: &stereoscope_rig::moments::WorkerSettings,
+) {
+    let n = found.len() as u64;
+    let (te, se) = (
+        s.threshold_every_frames as u64,
+        s.tracker.search_every_frames as u64,
+    );
+    let mut kinds: [Vec<f64>; 3] = Default::default();
+    let mut by_k = vec![Vec::new(); found.len()];
+    for &(i, ms) in frame_ms.iter().filter(|(i, _)| *i >= n) {
+        let kind = if i % te == 0 {
+            0
+        } else if i % se == 0 {
+            1
+        } else {
+            2
+        };
+        kinds[kind].push(ms);
+        if kind == 2 {
+            by_k[ping_pong(i, found.len())].push(ms);
+        }
+    }
+    for (name, v) in [
+        "threshold (and search) frames",
+        "search frames",
+        "other frames",
+    ]
+    .iter()
+    .zip(kinds.iter_mut())
+    {
+        let mean = v.iter().sum::<f64>() / v.len() as f64;
+        eprintln!(
+            "by frame, {scene}: {name}: {} frames, median {:.4} ms, mean {mean:.4} ms",
+            v.len(),
+            median(v)
+        );
+    }
+    let lost = |k: usize| {
+        found[k].as_ref().is_some_and(|o| {
+            o.blobs
+                .iter()
+                .any(|b| b.status == stereoscope_proto::messages::TrackState::Lost)
+        })
+    };
+    let line: Vec<String> = by_k
+        .iter_mut()
+        .enumerate()
+        .map(|(k, v)| format!("{:.1}{}", median(v) * 1e3, if lost(k) { "*" } else { "" }))
+        .collect();
+    eprintln!(
+        "by frame, {scene}: other frames by frame of the loop, median µs (* a track lost): {}",
+        line.join(" ")
+    );
 }
 
 /// Milliseconds a frame of the worker's own work on the same frames handed over as a capture
