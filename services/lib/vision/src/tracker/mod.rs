@@ -54,7 +54,9 @@ use stereoscope_numeric::Assigner;
 use stereoscope_numeric::heading::{HeadingConfig, HeadingTracker, HeadingUpdate};
 
 mod cores;
+mod merged;
 pub use cores::{CORE_MARGIN_PX, CoreScan};
+pub use merged::{MERGE_AREA_RATIO, MERGE_KEEP_RATIO, MERGE_SHARE};
 
 /// The periodic search's test reads one row in `height / this` by default, at least every 2nd
 /// ([`TrackerConfig::search_row_step`]).
@@ -249,18 +251,6 @@ impl Track {
         self.shape = None;
     }
 }
-
-/// A blob this many times its track's usual area, with another track lost inside it the same
-/// frame, holds both objects' images (two markers whose images merged in this view).
-pub const MERGE_AREA_RATIO: f64 = 1.6;
-
-/// A blob grown by this share of a lost track's usual area, with that track inside it, holds
-/// the lost track's image too.
-pub const MERGE_SHARE: f64 = 0.5;
-
-/// A merged blob stays merged while its area is at least this many times its track's usual
-/// area.
-pub const MERGE_KEEP_RATIO: f64 = 1.3;
 
 /// What one tracking step did.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
@@ -627,109 +617,10 @@ impl Tracker {
                 }
             }
         }
-        // A resting track (inside a merged blob) takes back the blob nearest its prediction of
-        // those in the merged track's window that no track took: its image come out of the
-        // merged one (a blob that touches no core's edge, when the cores settled the frame).
-        for i in (0..self.tracks.len()).filter(|_| resting) {
-            if !self.tracks[i].resting {
-                continue;
-            }
-            let host = self.tracks[i].inside_merged;
-            let window = self
-                .tracks
-                .iter()
-                .find(|t| Some(t.id) == host)
-                .map(|t| t.window);
-            let (px, py) = self.tracks[i].predicted();
-            let nearest = window.and_then(|win| {
-                (0..blobs.len())
-                    .filter(|&j| {
-                        let (x, y) = self.centroids[j];
-                        !self.taken[j] && win.contains(x, y)
-                    })
-                    .min_by(|&a, &b| {
-                        let d = |j: usize| {
-                            let (x, y) = self.centroids[j];
-                            (x - px).powi(2) + (y - py).powi(2)
-                        };
-                        d(a).total_cmp(&d(b))
-                    })
-            });
-            let t = &mut self.tracks[i];
-            match nearest {
-                Some(j) => {
-                    self.taken[j] = true;
-                    t.take(&blobs[j], self.centroids[j], par, skew);
-                    step.tracked += 1;
-                }
-                None => {
-                    t.lose();
-                    step.lost += 1;
-                }
-            }
+        if resting {
+            self.take_back_resting(&mut step);
         }
-        // Merged images: a blob with another track lost inside it, grown by at least half
-        // that track's usual area (a small marker swallowed by a big blob moves its centroid
-        // as much as two alike), or far above its own usual area. A merged blob stays merged
-        // while it stays above its usual area (the lost track's last place falls behind as
-        // the pair moves on). Such a track keeps its usual area (a merge is not growth).
-        // (Where a lost track was last seen, where it was predicted to be, and its area.)
-        let lost: Vec<(f64, f64, f64)> = self
-            .tracks
-            .iter()
-            .filter(|t| t.status == TrackStatus::Lost)
-            .flat_map(|t| {
-                let (px, py) = t.predicted();
-                [(t.x_px, t.y_px, t.usual_area_px), (px, py, t.usual_area_px)]
-            })
-            .collect();
-        for t in &mut self.tracks {
-            let Some(b) = &t.blob else { continue };
-            let area = b.area_px() as f64;
-            let usual = t.usual_area_px;
-            let r = b.bbox;
-            let still = t.merged && area >= MERGE_KEEP_RATIO * usual;
-            t.merged = usual > 0.0
-                && (still
-                    || lost.iter().any(|&(x, y, lost_area)| {
-                        near_box(&r, x, y)
-                            && (area >= MERGE_AREA_RATIO * usual
-                                || area >= usual + MERGE_SHARE * lost_area)
-                    }));
-            if !t.merged {
-                t.usual_area_px = if t.usual_area_px > 0.0 {
-                    0.7 * t.usual_area_px + 0.3 * area
-                } else {
-                    area
-                };
-            }
-        }
-        // Lost objects inside a merged blob (at the places above).
-        for i in 0..self.tracks.len() {
-            let t = &self.tracks[i];
-            let places = [(t.x_px, t.y_px), t.predicted()];
-            // Inside while the blob it went into stays merged (its own prediction runs on
-            // past it meanwhile), or newly inside one at its last or predicted place.
-            let inside = (t.status == TrackStatus::Lost)
-                .then(|| {
-                    let merged = |m: &&Track| m.merged && m.blob.is_some();
-                    let stays = self
-                        .tracks
-                        .iter()
-                        .filter(merged)
-                        .find(|m| Some(m.id) == t.inside_merged);
-                    stays.or_else(|| {
-                        self.tracks.iter().filter(merged).find(|m| {
-                            m.blob.as_ref().is_some_and(|b| {
-                                places.iter().any(|&(x, y)| near_box(&b.bbox, x, y))
-                            })
-                        })
-                    })
-                })
-                .flatten()
-                .map(|m| m.id);
-            self.tracks[i].inside_merged = inside;
-        }
+        self.flag_merged();
         let before = self.tracks.len();
         let drop_after = self.cfg.drop_after_lost_frames;
         self.tracks.retain(|t| t.lost_frames <= drop_after);
@@ -737,6 +628,7 @@ impl Tracker {
 
         // New objects, only from full-frame searches: largest unclaimed, whole blobs first.
         if (full_frame || searched_in_windows) && self.tracks.len() < self.cfg.max_objects {
+            let blobs = self.extractor.blobs();
             let mut fresh: Vec<usize> = (0..blobs.len())
                 .filter(|&j| {
                     !self.taken[j]
@@ -778,15 +670,6 @@ impl Tracker {
         }
         Ok(step)
     }
-}
-
-/// Whether `(x, y)` lies in box `r` widened by 2 pixels: a lost track's place inside a blob
-/// (merged images).
-fn near_box(r: &PixelRect, x: f64, y: f64) -> bool {
-    x >= r.x0 as f64 - 2.0
-        && x <= r.x1 as f64 + 2.0
-        && y >= r.y0 as f64 - 2.0
-        && y <= r.y1 as f64 + 2.0
 }
 
 /// The blob's heading update and its shape (which the heading is taken from).
