@@ -392,6 +392,18 @@ impl<'a, P: Pixel> GrayView<'a, P> {
         self.stride
     }
 
+    /// The same view of 8-bit pixels as bytes (the byte-wise vector paths); `None` for other
+    /// pixel types.
+    #[inline(always)]
+    pub(crate) fn as_u8(&self) -> Option<GrayView<'a, u8>> {
+        P::as_bytes(self.data).map(|data| GrayView {
+            data,
+            width: self.width,
+            height: self.height,
+            stride: self.stride,
+        })
+    }
+
     /// Row `y`, exactly `width` pixels. `y` must be below `height` (checked).
     #[inline(always)]
     pub fn row(&self, y: u32) -> &'a [P] {

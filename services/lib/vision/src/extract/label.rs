@@ -200,6 +200,8 @@ impl Scratch {
             Connectivity::Four => 0u32,
         };
         let background = cfg.weighting.levels();
+        // The frame as bytes for the 8-bit vector block (`block`).
+        let bytes = if AVX2 { img.as_u8() } else { None };
         let mut prev_y: Option<u32> = None;
         for (bi, band) in region.bands.iter().enumerate() {
             let (y0, y1) = (band.y0.max(ya), band.y1.min(yb));
@@ -365,6 +367,45 @@ impl Scratch {
                             || (band.check_bottom && y + 1 == band.y1);
                         let mut clipped = hclip((x0, x1))
                             || (edge_row && region.vertically_clipped(bi, y, x0, x1));
+                        let mut stop = y1.min(yb - 1);
+                        if band.check_bottom {
+                            stop = stop.min(band.y1 - 1);
+                        }
+                        // 8-bit pixels with AVX2 in a narrow window: the rows in vectors
+                        // (`block`), the same sums as the loop below.
+                        #[cfg(target_arch = "x86_64")]
+                        if let (true, Some(bytes), Some(_)) = (AVX2, &bytes, narrow)
+                            && narrow_block_fits(&seg, img.width())
+                        {
+                            // SAFETY: `AVX2` is instantiated only on a CPU with AVX2; the
+                            // segment fits (checked); `y < y1 <= height`, `stop <= y1`; row
+                            // `y`'s only run in the segment is `x0..=x1` (found above).
+                            let b =
+                                unsafe { narrow_block_avx2(bytes, &seg, y, stop, k, background) };
+                            let (bx0, bx1) = b.x_span;
+                            clipped |= hclip((bx0, bx1));
+                            let a = &mut self.acc[label as usize];
+                            a.m.merge(&b.moments);
+                            a.bbox.x0 = a.bbox.x0.min(bx0);
+                            a.bbox.x1 = a.bbox.x1.max(bx1);
+                            a.bbox.y1 = b.end_y - 1;
+                            if clipped {
+                                a.flags.insert(BlobFlags::CLIPPED);
+                            }
+                            if background.is_some() {
+                                self.wacc[label as usize].merge(&b.weighted);
+                            }
+                            self.prev.clear();
+                            self.prev.push(RunRef {
+                                x0: b.last.0,
+                                x1: b.last.1,
+                                label,
+                            });
+                            self.runs += (b.end_y - y) as usize;
+                            prev_y = Some(b.end_y - 1);
+                            y = b.end_y;
+                            continue;
+                        }
                         // The blob's next rows, while each is again one run continuing the
                         // one above: summed relative to this row in u64 and added once. The
                         // loop stops before the part's last row (recorded for the joins) and
@@ -376,10 +417,6 @@ impl Scratch {
                         }
                         let (mut bx0, mut bx1) = (x0, x1);
                         let mut run = (x0, x1);
-                        let mut stop = y1.min(yb - 1);
-                        if band.check_bottom {
-                            stop = stop.min(band.y1 - 1);
-                        }
                         let mut yy = y + 1;
                         while yy < stop {
                             let Some((r0, r1)) = one_run(yy, &seg) else {

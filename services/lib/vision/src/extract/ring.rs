@@ -90,6 +90,18 @@ fn add_edge_ring<P: Pixel, const AVX2: bool>(
         return;
     };
     let (a, e) = (x0 as usize, x1 as usize + 1);
+    // 8-bit pixels with AVX2, a box up to 128 pixels wide: in vectors (`block::ring_avx2`).
+    #[cfg(target_arch = "x86_64")]
+    if AVX2
+        && let Some(bytes) = img.as_u8()
+        && ring_fits((x0, x1 + 1), w)
+    {
+        // SAFETY: `AVX2` is instantiated only on a CPU with AVX2; the columns fit (checked);
+        // `y0 <= y1 < h`.
+        let sums = unsafe { ring_avx2(&bytes, (x0, x1 + 1), (y0, y1), top, background) };
+        wm.merge(&sums);
+        return;
+    }
     for y in y0..=y1 {
         let row = img.row(y);
         let mut sums = (0u64, 0u64, 0u64);
