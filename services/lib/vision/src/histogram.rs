@@ -90,6 +90,9 @@ const VECTOR_COUNT_FROM_PX: usize = 16 * 1024;
 /// takes the band of levels it counts in vectors from those rows ([`count_bytes_avx2`]).
 const BAND_SAMPLE_ROWS: usize = 32;
 
+/// Rows ahead of the count that [`count_bytes_avx2`] asks the CPU to fetch.
+const PREFETCH_ROWS: usize = 2;
+
 fn add_tables(counts: &mut [u32], t: &[[u32; 256]; 4]) {
     for (level, c) in counts.iter_mut().enumerate() {
         *c += t[0][level] + t[1][level] + t[2][level] + t[3][level];
@@ -116,12 +119,13 @@ fn count_bytes(t: &mut [[u32; 256]; 4], row: &[u8]) {
 
 /// [`count_bytes`] of many rows, most of whose pixels lie in one band of 16 levels (a
 /// camera's dark background and its noise): 32 pixels at a time whose levels all lie in the
-/// band are counted in vectors — one compare and one subtract for each level of the band but
-/// its lowest, into byte counters per lane, added up every 255 blocks — and any other block,
-/// and each row's last partial block, by the tables. The band is the densest of the rows
-/// counted first by the tables alone (every [`BAND_SAMPLE_ROWS`]-th); wherever it lies, the
-/// counts are exact. Once more blocks have fallen outside the band than in it (a frame full
-/// of bright blobs), the remaining rows go to the tables whole.
+/// band are counted in vectors — each pixel's level in the band made one bit of a byte by a
+/// table lookup (`pshufb`; levels 0–7 of the band in one vector, 8–15 in another), the bits
+/// of each position counted over all bytes by [`BitPositions`] — and any other block, and
+/// each row's last partial block, by the tables. The band is the densest of the rows counted
+/// first by the tables alone (every [`BAND_SAMPLE_ROWS`]-th); wherever it lies, the counts
+/// are exact. Once more blocks have fallen outside the band than in it (a frame full of
+/// bright blobs), the remaining rows go to the tables whole.
 ///
 /// # Safety
 /// The CPU must support AVX2.
@@ -150,15 +154,42 @@ unsafe fn count_bytes_avx2<'a>(
     let zero = _mm256_setzero_si256();
     let base_v = _mm256_set1_epi8(base as u8 as i8);
     let last = _mm256_set1_epi8(BAND as i8 - 1);
-    // Byte counters per lane of the band's levels 1..16 (level 0 is what the others leave of
-    // the blocks' pixels): each block adds at most one to a lane's counter of one level, so
-    // they are added up every 255 blocks. Fifteen of them stay in registers with the block.
-    let mut acc = [zero; BAND - 1];
-    let mut blocks = 0u32;
+    // A level `d` of the band (0–15) as bit `d` of the low vector's byte or bit `d − 8` of the
+    // high one's (the lookup reads the low four bits; each 128-bit half holds the table).
+    let one_hot = |d: usize| -> [i8; 32] {
+        std::array::from_fn(|l| {
+            if l % 16 / 8 == d {
+                1u8.wrapping_shl(l as u32 % 8) as i8
+            } else {
+                0
+            }
+        })
+    };
+    let (lo_table, hi_table) = (one_hot(0), one_hot(1));
+    // SAFETY: each table is 32 bytes; unaligned loads are allowed.
+    let (lo_table, hi_table) = unsafe {
+        (
+            _mm256_loadu_si256(lo_table.as_ptr() as *const __m256i),
+            _mm256_loadu_si256(hi_table.as_ptr() as *const __m256i),
+        )
+    };
+    let (mut lo, mut hi) = (BitPositions::new(), BitPositions::new());
+    // The bits of the last in-band blocks, sixteen at a time to the adders.
+    let (mut lo_bits, mut hi_bits) = ([zero; 16], [zero; 16]);
+    let mut pending = 0usize;
     // Blocks counted in vectors and by the tables: once most go to the tables (a frame full of
     // bright blobs), the rest of the rows go straight to them.
     let (mut in_band, mut off_band) = (0usize, 0usize);
+    // The rows PREFETCH_ROWS ahead, asked for while this one is counted: a frame coming from
+    // memory (not just written) otherwise keeps the count waiting on each load.
+    let mut ahead = rows.clone().skip(PREFETCH_ROWS);
     for (i, row) in rows.enumerate() {
+        if let Some(next) = ahead.next() {
+            for line in next.chunks(64) {
+                // SAFETY: a prefetch never faults.
+                _mm_prefetch::<_MM_HINT_T0>(line.as_ptr() as *const i8);
+            }
+        }
         if i % BAND_SAMPLE_ROWS == 0 {
             continue; // counted above
         }
@@ -179,42 +210,159 @@ unsafe fn count_bytes_avx2<'a>(
                 continue;
             }
             in_band += 1;
-            for (k, a) in acc.iter_mut().enumerate() {
-                let hit = _mm256_cmpeq_epi8(d, _mm256_set1_epi8(k as i8 + 1));
-                *a = _mm256_sub_epi8(*a, hit);
-            }
-            blocks += 1;
-            if blocks == 255 {
-                add_band(&mut acc, blocks, &mut t[0][base..base + BAND]);
-                blocks = 0;
+            lo_bits[pending] = _mm256_shuffle_epi8(lo_table, d);
+            hi_bits[pending] = _mm256_shuffle_epi8(hi_table, d);
+            pending += 1;
+            if pending == 16 {
+                lo.add16(&lo_bits);
+                hi.add16(&hi_bits);
+                pending = 0;
             }
         }
         count_bytes(t, &row[32 * whole..]);
     }
-    add_band(&mut acc, blocks, &mut t[0][base..base + BAND]);
+    // The last blocks, the rest of the sixteen empty.
+    lo_bits[pending..].fill(zero);
+    hi_bits[pending..].fill(zero);
+    lo.add16(&lo_bits);
+    hi.add16(&hi_bits);
+    let counts = &mut t[0][base..base + BAND];
+    for (c, n) in counts
+        .iter_mut()
+        .zip(lo.finish().into_iter().chain(hi.finish()))
+    {
+        // At most the pixels counted: they came in `u32` tables.
+        *c += n as u32;
+    }
 }
 
-/// Adds the band's counts of `blocks` blocks of 32 pixels to `counts` (its 16 levels): level
-/// `k` ≥ 1 from its byte counters (`acc[k − 1]`, one per lane), level 0 the rest of the
-/// blocks' pixels; clears the counters (AVX2: called only from [`count_bytes_avx2`]).
+/// How many bytes of the vectors fed in have each of their 8 bits set: a carry-save adder
+/// tree (Harley–Seal) takes sixteen vectors at a time into bit-sliced counters (`ones`,
+/// `twos`, `fours`, `eights`: bit `k` of each byte its own counter) whose carry, the
+/// `sixteens`, is added into byte counters per bit position, and those are summed out
+/// before they can overflow (AVX2: made only in [`count_bytes_avx2`]).
 #[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
-#[inline]
-fn add_band(acc: &mut [std::arch::x86_64::__m256i], blocks: u32, counts: &mut [u32]) {
-    use std::arch::x86_64::*;
-    let zero = _mm256_setzero_si256();
-    let mut others = 0u32;
-    for (a, c) in acc.iter_mut().zip(&mut counts[1..]) {
-        let s = _mm256_sad_epu8(*a, zero);
-        let lanes = (_mm256_extract_epi64::<0>(s)
-            + _mm256_extract_epi64::<1>(s)
-            + _mm256_extract_epi64::<2>(s)
-            + _mm256_extract_epi64::<3>(s)) as u32;
-        *c += lanes;
-        others += lanes;
-        *a = zero;
+struct BitPositions {
+    ones: std::arch::x86_64::__m256i,
+    twos: std::arch::x86_64::__m256i,
+    fours: std::arch::x86_64::__m256i,
+    eights: std::arch::x86_64::__m256i,
+    /// Per bit position, per byte lane: the sixteens since the last sum.
+    sixteens: [std::arch::x86_64::__m256i; 8],
+    /// Groups added into `sixteens` since the last sum (each adds at most one a lane).
+    groups: u32,
+    counts: [u64; 8],
+}
+
+#[cfg(target_arch = "x86_64")]
+impl BitPositions {
+    #[inline(always)]
+    fn new() -> Self {
+        use std::arch::x86_64::*;
+        // SAFETY: AVX, part of the AVX2 every caller is compiled with.
+        let zero = unsafe { _mm256_setzero_si256() };
+        BitPositions {
+            ones: zero,
+            twos: zero,
+            fours: zero,
+            eights: zero,
+            sixteens: [zero; 8],
+            groups: 0,
+            counts: [0; 8],
+        }
     }
-    counts[0] += 32 * blocks - others;
+
+    /// Adds sixteen vectors.
+    #[inline(always)]
+    fn add16(&mut self, v: &[std::arch::x86_64::__m256i; 16]) {
+        use std::arch::x86_64::*;
+        // A full adder on each bit: `(carry, sum)` of `a + b + c`.
+        #[inline(always)]
+        fn csa(a: __m256i, b: __m256i, c: __m256i) -> (__m256i, __m256i) {
+            // SAFETY: AVX2, as every caller is compiled with.
+            unsafe {
+                let u = _mm256_xor_si256(a, b);
+                (
+                    _mm256_or_si256(_mm256_and_si256(a, b), _mm256_and_si256(u, c)),
+                    _mm256_xor_si256(u, c),
+                )
+            }
+        }
+        let mut eights = [self.eights; 2];
+        for (half, eights_out) in eights.iter_mut().enumerate() {
+            let v = &v[8 * half..8 * half + 8];
+            let (twos_a, ones) = csa(self.ones, v[0], v[1]);
+            let (twos_b, ones) = csa(ones, v[2], v[3]);
+            let (fours_a, twos) = csa(self.twos, twos_a, twos_b);
+            let (twos_a, ones) = csa(ones, v[4], v[5]);
+            let (twos_b, ones) = csa(ones, v[6], v[7]);
+            let (fours_b, twos) = csa(twos, twos_a, twos_b);
+            let (eights_c, fours) = csa(self.fours, fours_a, fours_b);
+            (self.ones, self.twos, self.fours) = (ones, twos, fours);
+            *eights_out = eights_c;
+        }
+        let (sixteens, eights) = csa(self.eights, eights[0], eights[1]);
+        self.eights = eights;
+        // SAFETY: AVX2, as every caller is compiled with.
+        unsafe {
+            let one = _mm256_set1_epi8(1);
+            for (k, s) in self.sixteens.iter_mut().enumerate() {
+                let bit =
+                    _mm256_and_si256(_mm256_srl_epi16(sixteens, _mm_cvtsi32_si128(k as i32)), one);
+                *s = _mm256_add_epi8(*s, bit);
+            }
+        }
+        self.groups += 1;
+        if self.groups == 255 {
+            self.sum_sixteens();
+        }
+    }
+
+    /// Moves the sixteens' byte counters into `counts`.
+    #[inline(always)]
+    fn sum_sixteens(&mut self) {
+        use std::arch::x86_64::*;
+        for (s, c) in self.sixteens.iter_mut().zip(&mut self.counts) {
+            *c += 16 * bytes_sum(*s);
+            // SAFETY: AVX, part of the AVX2 every caller is compiled with.
+            *s = unsafe { _mm256_setzero_si256() };
+        }
+        self.groups = 0;
+    }
+
+    /// The counts of each bit position.
+    #[inline(always)]
+    fn finish(mut self) -> [u64; 8] {
+        use std::arch::x86_64::*;
+        self.sum_sixteens();
+        for (weight, v) in [
+            (1, self.ones),
+            (2, self.twos),
+            (4, self.fours),
+            (8, self.eights),
+        ] {
+            for (k, c) in self.counts.iter_mut().enumerate() {
+                // SAFETY: AVX2, as every caller is compiled with.
+                let bit = unsafe {
+                    _mm256_and_si256(
+                        _mm256_srl_epi16(v, _mm_cvtsi32_si128(k as i32)),
+                        _mm256_set1_epi8(1),
+                    )
+                };
+                *c += weight * bytes_sum(bit);
+            }
+        }
+        self.counts
+    }
+}
+
+/// The 32 bytes of `v` added (AVX2: called only from [`BitPositions`]).
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+fn bytes_sum(v: std::arch::x86_64::__m256i) -> u64 {
+    use std::arch::x86_64::*;
+    // SAFETY: AVX2, as every caller is compiled with.
+    unsafe { crate::weights::sum_u64_lanes(_mm256_sad_epu8(v, _mm256_setzero_si256())) }
 }
 
 impl Histogram {

@@ -60,12 +60,25 @@ fn move_to_x(
 }
 
 #[cfg(target_arch = "x86_64")]
-pub(crate) use simd::u8_sums;
+pub(crate) use simd::{sum_u64_lanes, u8_sums};
 
 #[cfg(target_arch = "x86_64")]
 mod simd {
     use super::move_to_x;
     use std::arch::x86_64::*;
+
+    /// The four 64-bit lanes of `v` added (wrapping).
+    ///
+    /// # Safety
+    /// The CPU must have AVX2; the caller is compiled with it for this to be inlined.
+    #[inline(always)]
+    pub(crate) unsafe fn sum_u64_lanes(v: __m256i) -> u64 {
+        // SAFETY: the caller's contract.
+        unsafe {
+            let s = _mm_add_epi64(_mm256_castsi256_si128(v), _mm256_extracti128_si256(v, 1));
+            (_mm_cvtsi128_si64(s) as u64).wrapping_add(_mm_extract_epi64(s, 1) as u64)
+        }
+    }
 
     /// Pixels in a piece: `i < 128`, so `i²` fits a signed 16-bit lane and a piece's `Σw·i²`
     /// per 32-bit lane stays below 2³¹ (at most 8 steps of two multiply-adds of 2·255·127²).

@@ -242,16 +242,8 @@ impl LaneSums {
     }
 }
 
-/// The four 64-bit lanes of `v` added.
 #[cfg(target_arch = "x86_64")]
-#[inline(always)]
-unsafe fn sum64(v: __m256i) -> u64 {
-    // SAFETY: AVX2, as every caller is compiled with.
-    unsafe {
-        let s = _mm_add_epi64(_mm256_castsi256_si128(v), _mm256_extracti128_si256(v, 1));
-        (_mm_cvtsi128_si64(s) as u64).wrapping_add(_mm_extract_epi64(s, 1) as u64)
-    }
-}
+use crate::weights::sum_u64_lanes as sum64;
 
 /// The eight 32-bit lanes of `v`, read as unsigned, added in 64 bits.
 #[cfg(target_arch = "x86_64")]
