@@ -338,17 +338,20 @@ impl<const NV: usize> Columns<NV> {
     ) -> ([__m256i; NV], [__m256i; NV], [u64; 2]) {
         // SAFETY: the caller's contract.
         unsafe {
-            let v: [__m256i; NV] =
-                std::array::from_fn(|j| _mm256_loadu_si256(p.add(32 * j) as *const __m256i));
+            // Loops, not `array::from_fn`: its closures are not always inlined, and one not
+            // inlined is compiled without AVX2 (each intrinsic a call).
+            let zero = _mm256_setzero_si256();
+            let (mut v, mut at_or_above) = ([zero; NV], [zero; NV]);
             let mut bits = [0u64; 2];
-            let at_or_above: [__m256i; NV] = std::array::from_fn(|j| {
-                let m = _mm256_and_si256(
+            for j in 0..NV {
+                v[j] = _mm256_loadu_si256(p.add(32 * j) as *const __m256i);
+                at_or_above[j] = _mm256_and_si256(
                     _mm256_cmpeq_epi8(_mm256_max_epu8(v[j], level), v[j]),
                     self.inside[j],
                 );
-                bits[j / 2] |= (_mm256_movemask_epi8(m) as u32 as u64) << (32 * (j % 2));
-                m
-            });
+                bits[j / 2] |=
+                    (_mm256_movemask_epi8(at_or_above[j]) as u32 as u64) << (32 * (j % 2));
+            }
             (v, at_or_above, bits)
         }
     }
@@ -454,9 +457,11 @@ unsafe fn block<const NV: usize, const W: bool>(
                 }
             }
             if W {
-                let w: [__m256i; NV] = std::array::from_fn(|j| {
-                    _mm256_and_si256(_mm256_min_epu8(_mm256_subs_epu8(v[j], bgv), capv), fg[j])
-                });
+                let mut w = fg;
+                for j in 0..NV {
+                    w[j] =
+                        _mm256_and_si256(_mm256_min_epu8(_mm256_subs_epu8(v[j], bgv), capv), fg[j]);
+                }
                 columns.add_row(w, &mut lanes);
                 if yy + 1 - flush_y == FLUSH_ROWS {
                     lanes.flush(seg.x0, flush_y, FLUSH_ROWS, &mut weighted);
@@ -563,7 +568,8 @@ unsafe fn ring<const NV: usize>(
                 }
             };
             let (fv, lv) = (_mm256_set1_epi8(first as i8), _mm256_set1_epi8(last as i8));
-            let w: [__m256i; NV] = std::array::from_fn(|j| {
+            let mut w = v;
+            for j in 0..NV {
                 let outside = _mm256_and_si256(
                     _mm256_or_si256(
                         _mm256_cmpgt_epi8(fv, lane[j]),
@@ -571,8 +577,8 @@ unsafe fn ring<const NV: usize>(
                     ),
                     columns.inside[j],
                 );
-                _mm256_and_si256(_mm256_subs_epu8(v[j], bgv), outside)
-            });
+                w[j] = _mm256_and_si256(_mm256_subs_epu8(v[j], bgv), outside);
+            }
             columns.add_row(w, &mut lanes);
             if y + 1 - flush_y == FLUSH_ROWS {
                 lanes.flush(a, flush_y, FLUSH_ROWS, &mut sums);
