@@ -23,12 +23,12 @@ use std::num::Wrapping;
 #[cfg(target_arch = "x86_64")]
 const FLUSH_ROWS: u32 = 32;
 
-/// `POWER_SUMS[p][j] = Σ_{i<j} i^p` for the columns `i` of a window of up to 128 (the largest,
-/// `Σi³` below 128, is 66 064 384).
-const POWER_SUMS: [[u32; 129]; 4] = {
-    let mut t = [[0u32; 129]; 4];
+/// `POWER_SUMS[p][j] = Σ_{i<j} i^p` for the columns `i` of a window of up to 256 (the largest,
+/// `Σi³` below 256, is 1 065 369 600).
+const POWER_SUMS: [[u32; 257]; 4] = {
+    let mut t = [[0u32; 257]; 4];
     let mut j = 1;
-    while j <= 128 {
+    while j <= 256 {
         let i = (j - 1) as u32;
         t[0][j] = t[0][j - 1] + 1;
         t[1][j] = t[1][j - 1] + i;
@@ -100,11 +100,11 @@ pub(super) struct NarrowBlock {
     pub(super) weighted: WeightedMoments,
 }
 
-/// Whether [`narrow_block_avx2`] can read the segment: at most 128 pixels, whole 32-pixel
+/// Whether [`narrow_block_avx2`] can read the segment: at most 256 pixels, whole 32-pixel
 /// vectors from its first column inside the row.
 pub(super) fn narrow_block_fits(seg: &Seg, width: u32) -> bool {
     let n = seg.x1 - seg.x0 + 1;
-    n <= 128 && seg.x0 + 32 * n.div_ceil(32) <= width
+    n <= 256 && seg.x0 + 32 * n.div_ceil(32) <= width
 }
 
 /// The rows from `y` of the blob whose run on row `y` is the segment's only run: row `y` and
@@ -130,15 +130,24 @@ pub(super) unsafe fn narrow_block_avx2(
     let vectors = (seg.x1 - seg.x0 + 1).div_ceil(32);
     // SAFETY: the caller's contract, passed on.
     unsafe {
+        let args = (img, seg, y, stop, k, levels);
         match (vectors, levels.is_some()) {
-            (1, false) => block::<1, false>(img, seg, y, stop, k, levels),
-            (1, true) => block::<1, true>(img, seg, y, stop, k, levels),
-            (2, false) => block::<2, false>(img, seg, y, stop, k, levels),
-            (2, true) => block::<2, true>(img, seg, y, stop, k, levels),
-            (3, false) => block::<3, false>(img, seg, y, stop, k, levels),
-            (3, true) => block::<3, true>(img, seg, y, stop, k, levels),
-            (_, false) => block::<4, false>(img, seg, y, stop, k, levels),
-            (_, true) => block::<4, true>(img, seg, y, stop, k, levels),
+            (1, false) => block::<1, 0, false>(args),
+            (1, true) => block::<1, 0, true>(args),
+            (2, false) => block::<2, 0, false>(args),
+            (2, true) => block::<2, 0, true>(args),
+            (3, false) => block::<3, 0, false>(args),
+            (3, true) => block::<3, 0, true>(args),
+            (4, false) => block::<4, 0, false>(args),
+            (4, true) => block::<4, 0, true>(args),
+            (5, false) => block::<4, 1, false>(args),
+            (5, true) => block::<4, 1, true>(args),
+            (6, false) => block::<4, 2, false>(args),
+            (6, true) => block::<4, 2, true>(args),
+            (7, false) => block::<4, 3, false>(args),
+            (7, true) => block::<4, 3, true>(args),
+            (_, false) => block::<4, 4, false>(args),
+            (_, true) => block::<4, 4, true>(args),
         }
     }
 }
@@ -386,28 +395,67 @@ impl<const NV: usize> Columns<NV> {
     }
 }
 
-/// [`narrow_block_avx2`] for a segment of `NV` 32-pixel vectors, with weights when `W`.
+/// A row's one run in a segment of up to 256 columns held as two 128-column masks: columns
+/// `t..e` from the segment's first, or `None` when the row holds no run or several (a run of
+/// ones shifted down is one less than a power of two).
+#[inline(always)]
+fn one_run(m0: u128, m1: u128) -> Option<(u32, u32)> {
+    let ones_from_bit_0 = |r: u128| r & r.wrapping_add(1) == 0;
+    if m0 != 0 {
+        let t = m0.trailing_zeros();
+        let r = m0 >> t;
+        if !ones_from_bit_0(r) {
+            return None;
+        }
+        let e = t + r.wrapping_add(1).trailing_zeros();
+        if e < 128 {
+            return (m1 == 0).then_some((t, e));
+        }
+        // The run reaches the first mask's last column: it goes on through the second's first
+        // columns, if any, and nothing after.
+        ones_from_bit_0(m1).then(|| (t, 128 + m1.wrapping_add(1).trailing_zeros()))
+    } else if m1 != 0 {
+        let t = m1.trailing_zeros();
+        let r = m1 >> t;
+        ones_from_bit_0(r).then(|| (128 + t, 128 + t + r.wrapping_add(1).trailing_zeros()))
+    } else {
+        None
+    }
+}
+
+/// [`narrow_block_avx2`]'s arguments, passed on.
+type BlockArgs<'v, 'a> = (
+    &'a GrayView<'v, u8>,
+    &'a Seg,
+    u32,
+    u32,
+    u32,
+    Option<(u32, u32)>,
+);
+
+/// [`narrow_block_avx2`] for a segment of `A` 32-pixel vectors in its first 128 columns and
+/// `B` in the next 128, with weights when `W`.
 #[cfg(target_arch = "x86_64")]
 #[inline(always)]
-unsafe fn block<const NV: usize, const W: bool>(
-    img: &GrayView<'_, u8>,
-    seg: &Seg,
-    y: u32,
-    stop: u32,
-    k: u32,
-    levels: Option<(u32, u32)>,
+unsafe fn block<const A: usize, const B: usize, const W: bool>(
+    (img, seg, y, stop, k, levels): BlockArgs<'_, '_>,
 ) -> NarrowBlock {
     let n = seg.x1 - seg.x0 + 1;
     let (bg, cap) = levels.unwrap_or((0, 0));
-    // SAFETY: AVX2 (the caller's contract); every load reads the 32·NV pixels from `seg.x0`
-    // of a row below the height, inside the row (`narrow_block_fits`).
+    // SAFETY: AVX2 (the caller's contract); every load reads the 32·(A + B) pixels from
+    // `seg.x0` of a row below the height, inside the row (`narrow_block_fits`).
     unsafe {
         let thr = _mm256_set1_epi8(seg.threshold.min(255) as u8 as i8);
         let bgv = _mm256_set1_epi8(bg.min(255) as u8 as i8);
         let capv = _mm256_set1_epi8(cap.min(255) as u8 as i8);
-        let columns = Columns::<NV>::new(n);
+        // The first 128 columns and the next (none when `B = 0`), each its own lane sums (the
+        // lanes' column products fit 16 bits within 128 columns).
+        let (c0, c1) = (
+            Columns::<A>::new(n.min(128)),
+            Columns::<B>::new(n.saturating_sub(128)),
+        );
+        let (mut l0, mut l1) = (LaneSums::zero(), LaneSums::zero());
         let mut weighted = WeightedMoments::default();
-        let mut lanes = LaneSums::zero();
         let mut flush_y = y;
         // Running sums of each row's Σi^p over its run (`weigh_rows`).
         let mut c = [[0u64; 4]; 4];
@@ -416,21 +464,24 @@ unsafe fn block<const NV: usize, const W: bool>(
         let mut yy = y;
         loop {
             let p = img.row(yy).as_ptr().add(seg.x0 as usize);
-            let (v, fg, bits) = columns.read(p, thr);
+            let (v0, fg0, b0) = c0.read(p, thr);
+            // (No read at all in a piece of no vectors, `B = 0`.)
+            let (v1, fg1, b1) = c1.read(p.wrapping_add(128), thr);
             // The row's one run, if it holds exactly one: columns `t..e` from the segment's
-            // first (a run of ones shifted down is one less than a power of two).
-            let run = if NV <= 2 {
-                let m = bits[0];
+            // first.
+            let run = if A <= 2 && B == 0 {
+                let m = b0[0];
                 let t = m.trailing_zeros();
                 let r = m >> t.min(63);
                 (m != 0 && r & r.wrapping_add(1) == 0)
                     .then(|| (t, t + r.wrapping_add(1).trailing_zeros()))
             } else {
-                let m = bits[0] as u128 | (bits[1] as u128) << 64;
-                let t = m.trailing_zeros();
-                let r = m >> t.min(127);
-                (m != 0 && r & r.wrapping_add(1) == 0)
-                    .then(|| (t, t + r.wrapping_add(1).trailing_zeros()))
+                let m1 = if B == 0 {
+                    0
+                } else {
+                    b1[0] as u128 | (b1[1] as u128) << 64
+                };
+                one_run(b0[0] as u128 | (b0[1] as u128) << 64, m1)
             };
             let Some((t, e)) = run else {
                 break;
@@ -444,11 +495,11 @@ unsafe fn block<const NV: usize, const W: bool>(
             span = (span.0.min(a), span.1.max(b));
             prev = Some((a, b));
             // Σi^p over the run, from the tables.
-            debug_assert!(t < e && e <= n && n <= 128);
+            debug_assert!(t < e && e <= n && n <= 256);
             for (q, cq) in c.iter_mut().enumerate() {
                 let table = &POWER_SUMS[q];
-                // SAFETY: `t < e <= n <= 128` (the mask's bits past the segment's `n` columns
-                // are cleared by `inside`), and the tables hold 129 entries.
+                // SAFETY: `t < e <= n <= 256` (the masks' bits past the segment's `n` columns
+                // are cleared by `inside`), and the tables hold 257 entries.
                 let sp =
                     (*table.get_unchecked(e as usize) - *table.get_unchecked(t as usize)) as u64;
                 cq[0] += sp;
@@ -457,14 +508,29 @@ unsafe fn block<const NV: usize, const W: bool>(
                 }
             }
             if W {
-                let mut w = fg;
-                for j in 0..NV {
-                    w[j] =
-                        _mm256_and_si256(_mm256_min_epu8(_mm256_subs_epu8(v[j], bgv), capv), fg[j]);
+                let mut w0 = fg0;
+                for j in 0..A {
+                    w0[j] = _mm256_and_si256(
+                        _mm256_min_epu8(_mm256_subs_epu8(v0[j], bgv), capv),
+                        fg0[j],
+                    );
                 }
-                columns.add_row(w, &mut lanes);
+                c0.add_row(w0, &mut l0);
+                if B > 0 {
+                    let mut w1 = fg1;
+                    for j in 0..B {
+                        w1[j] = _mm256_and_si256(
+                            _mm256_min_epu8(_mm256_subs_epu8(v1[j], bgv), capv),
+                            fg1[j],
+                        );
+                    }
+                    c1.add_row(w1, &mut l1);
+                }
                 if yy + 1 - flush_y == FLUSH_ROWS {
-                    lanes.flush(seg.x0, flush_y, FLUSH_ROWS, &mut weighted);
+                    l0.flush(seg.x0, flush_y, FLUSH_ROWS, &mut weighted);
+                    if B > 0 {
+                        l1.flush(seg.x0 + 128, flush_y, FLUSH_ROWS, &mut weighted);
+                    }
                     flush_y = yy + 1;
                 }
             }
@@ -474,7 +540,10 @@ unsafe fn block<const NV: usize, const W: bool>(
             }
         }
         if W && flush_y < yy {
-            lanes.flush(seg.x0, flush_y, yy - flush_y, &mut weighted);
+            l0.flush(seg.x0, flush_y, yy - flush_y, &mut weighted);
+            if B > 0 {
+                l1.flush(seg.x0 + 128, flush_y, yy - flush_y, &mut weighted);
+            }
         }
         NarrowBlock {
             end_y: yy,

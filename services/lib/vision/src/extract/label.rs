@@ -371,10 +371,10 @@ impl Scratch {
                         if band.check_bottom {
                             stop = stop.min(band.y1 - 1);
                         }
-                        // 8-bit pixels with AVX2 in a narrow window: the rows in vectors
-                        // (`block`), the same sums as the loop below.
+                        // 8-bit pixels with AVX2 in a window up to 256 pixels wide: the rows
+                        // in vectors (`block`), the same sums as the loop below.
                         #[cfg(target_arch = "x86_64")]
-                        if let (true, Some(bytes), Some(_)) = (AVX2, &bytes, narrow)
+                        if let (true, Some(bytes)) = (AVX2, &bytes)
                             && narrow_block_fits(&seg, img.width())
                         {
                             // SAFETY: `AVX2` is instantiated only on a CPU with AVX2; the

@@ -1055,8 +1055,8 @@ mod tests {
     /// the grey-level sums kept in vector lanes and added up every 32 rows) give the blobs of
     /// the row-by-row path (SSE2) exactly, moments, boxes, flags and grey-level moments with
     /// and without a cap — and, with weights of the pixel minus 0, the pixel-by-pixel sums:
-    /// bars and ellipses up to 190 rows tall and 130 wide at the brightest level, in windows
-    /// of every width up to and past 128 pixels, some at the frame's right edge.
+    /// bars and ellipses up to 190 rows tall and 250 wide at the brightest level, in windows
+    /// of every width up to and past 128 and 256 pixels, some at the frame's right edge.
     #[test]
     fn narrow_blocks_sum_tall_bright_blobs_exactly() {
         use crate::raster::{Ellipse, draw_ellipse};
@@ -1068,7 +1068,7 @@ mod tests {
             let mut windows = Vec::new();
             for _ in 0..1 + trial % 3 {
                 let (bw, bh) = (
-                    1 + (rng.next_u64() % 130) as u32,
+                    1 + (rng.next_u64() % 250) as u32,
                     1 + (rng.next_u64() % 190) as u32,
                 );
                 let x0 = (rng.next_u64() % (w - bw + 1) as u64) as u32;
