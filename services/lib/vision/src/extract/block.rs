@@ -1,5 +1,6 @@
-//! A tracked blob's rows of one run each, in a narrow window of 8-bit pixels, with AVX2 (the
-//! commonest rows of a tracking step), summed with as little work a row as the sums allow.
+//! A tracked blob's rows of one run each, in a window of 8-bit pixels up to 256 wide, with AVX2
+//! (the commonest rows of a tracking step), summed with as little work a row as the sums allow;
+//! and a blob's edge ring (`ring::add_edge_ring`) read the same way.
 //! Each row's run is taken from its foreground mask; its binary moments (Eq. 3.33–3.40) from
 //! tables of `Σi^p` over the window's columns `i` and added into running sums — `C₀ += S`,
 //! `C₁ += C₀`, … — that weigh each row by `u`, `u(u+1)/2`, … (`u` the rows from it to the
@@ -8,9 +9,10 @@
 //! per lane and the rows weighed by the same running sums, and added across the lanes only
 //! every [`FLUSH_ROWS`] rows. The running sums become moments in frame coordinates at the end
 //! (`y = Y + n − u` expanded binomially, then `x = X + i`). Same exact integers as the
-//! row-by-row path (`Scratch::scan_with`'s block loop), which takes every other case (16-bit
-//! pixels, SSE2, windows wider than 128 pixels or too near the frame's right edge for whole
-//! 32-pixel reads). Part of `extract` (module docs there).
+//! row-by-row path (`Scratch::scan_with`'s block loop, `ring::add_edge_ring`'s rows), which
+//! takes every other case (16-bit pixels, SSE2, windows wider than 256 pixels and ring boxes
+//! wider than 128, or too near the frame's right edge for whole 32-pixel reads). Part of
+//! `extract` (module docs there).
 
 use super::*;
 #[cfg(target_arch = "x86_64")]
