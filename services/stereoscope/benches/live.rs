@@ -409,16 +409,12 @@ fn worker_delivered_ms(
     h: u32,
     total: u64,
 ) -> f64 {
-    let mut worker = Worker::new(settings.clone(), "bench", "cam0").unwrap();
-    let mut header = FrameHeader::new("cam0", format, w, h).unwrap();
+    let mut timed = TimedWorker::new(settings, format, w, h, frames.len());
     let (free_tx, free_rx) = mpsc::channel::<Vec<u8>>();
     let (full_tx, full_rx) = mpsc::sync_channel::<(u64, Vec<u8>)>(1);
     for _ in 0..2 {
         free_tx.send(vec![0u8; frames[0].len()]).unwrap();
     }
-    let mut spent = Duration::ZERO;
-    let mut passes_ms = Vec::new();
-    let pass = frames.len() as u64;
     std::thread::scope(|scope| {
         scope.spawn(move || {
             for i in 0..total {
@@ -430,18 +426,11 @@ fn worker_delivered_ms(
             }
         });
         for (i, buf) in full_rx.iter() {
-            header.sequence = i;
-            let t = Instant::now();
-            std::hint::black_box(worker.process_frame(&header, &buf).unwrap());
-            spent += t.elapsed();
+            timed.process(i, &buf);
             let _ = free_tx.send(buf);
-            if (i + 1) % pass == 0 {
-                passes_ms.push(spent.as_secs_f64() * 1e3 / pass as f64);
-                spent = Duration::ZERO;
-            }
         }
     });
-    median(&mut passes_ms)
+    timed.median_pass_ms()
 }
 
 /// ms a frame of a fresh worker on `total` frames, each copied into one buffer by the
@@ -457,24 +446,58 @@ fn worker_copied_ms(
     h: u32,
     total: u64,
 ) -> f64 {
-    let mut worker = Worker::new(settings.clone(), "bench", "cam0").unwrap();
-    let mut header = FrameHeader::new("cam0", format, w, h).unwrap();
+    let mut timed = TimedWorker::new(settings, format, w, h, frames.len());
     let mut staging = vec![0u8; frames[0].len()];
-    let mut spent = Duration::ZERO;
-    let mut passes_ms = Vec::new();
-    let pass = frames.len() as u64;
     for i in 0..total {
         staging.copy_from_slice(&frames[ping_pong(i, frames.len())]);
-        header.sequence = i;
-        let t = Instant::now();
-        std::hint::black_box(worker.process_frame(&header, &staging).unwrap());
-        spent += t.elapsed();
-        if (i + 1) % pass == 0 {
-            passes_ms.push(spent.as_secs_f64() * 1e3 / pass as f64);
-            spent = Duration::ZERO;
+        timed.process(i, &staging);
+    }
+    timed.median_pass_ms()
+}
+
+/// A fresh worker whose calls alone are timed, a pass of the frames at a time.
+struct TimedWorker {
+    worker: Worker,
+    header: FrameHeader,
+    spent: Duration,
+    passes_ms: Vec<f64>,
+    pass: u64,
+}
+
+impl TimedWorker {
+    fn new(
+        settings: &stereoscope_rig::moments::WorkerSettings,
+        format: PixelFormat,
+        w: u32,
+        h: u32,
+        pass: usize,
+    ) -> Self {
+        TimedWorker {
+            worker: Worker::new(settings.clone(), "bench", "cam0").unwrap(),
+            header: FrameHeader::new("cam0", format, w, h).unwrap(),
+            spent: Duration::ZERO,
+            passes_ms: Vec::new(),
+            pass: pass as u64,
         }
     }
-    median(&mut passes_ms)
+
+    /// Times the worker on frame `i` (its sequence number) held in `buf`.
+    fn process(&mut self, i: u64, buf: &[u8]) {
+        self.header.sequence = i;
+        let t = Instant::now();
+        std::hint::black_box(self.worker.process_frame(&self.header, buf).unwrap());
+        self.spent += t.elapsed();
+        if (i + 1).is_multiple_of(self.pass) {
+            self.passes_ms
+                .push(self.spent.as_secs_f64() * 1e3 / self.pass as f64);
+            self.spent = Duration::ZERO;
+        }
+    }
+
+    /// ms a frame of the median pass.
+    fn median_pass_ms(mut self) -> f64 {
+        median(&mut self.passes_ms)
+    }
 }
 
 /// The median of `v` (the mean of the middle two for an even count); NaN when empty.

@@ -425,6 +425,23 @@ fn one_run(m0: u128, m1: u128) -> Option<(u32, u32)> {
     }
 }
 
+/// The weights `min(pixel − bg, cap)` of the foreground lanes `fg` of the row's vectors `v`,
+/// 0 elsewhere.
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+unsafe fn capped_weights<const N: usize>(
+    v: [__m256i; N],
+    fg: [__m256i; N],
+    (bg, cap): (__m256i, __m256i),
+) -> [__m256i; N] {
+    let mut w = fg;
+    for j in 0..N {
+        // SAFETY: AVX2, as every caller is compiled with.
+        w[j] = unsafe { _mm256_and_si256(_mm256_min_epu8(_mm256_subs_epu8(v[j], bg), cap), fg[j]) };
+    }
+    w
+}
+
 /// [`narrow_block_avx2`]'s arguments, passed on.
 type BlockArgs<'v, 'a> = (
     &'a GrayView<'v, u8>,
@@ -510,23 +527,9 @@ unsafe fn block<const A: usize, const B: usize, const W: bool>(
                 }
             }
             if W {
-                let mut w0 = fg0;
-                for j in 0..A {
-                    w0[j] = _mm256_and_si256(
-                        _mm256_min_epu8(_mm256_subs_epu8(v0[j], bgv), capv),
-                        fg0[j],
-                    );
-                }
-                c0.add_row(w0, &mut l0);
+                c0.add_row(capped_weights(v0, fg0, (bgv, capv)), &mut l0);
                 if B > 0 {
-                    let mut w1 = fg1;
-                    for j in 0..B {
-                        w1[j] = _mm256_and_si256(
-                            _mm256_min_epu8(_mm256_subs_epu8(v1[j], bgv), capv),
-                            fg1[j],
-                        );
-                    }
-                    c1.add_row(w1, &mut l1);
+                    c1.add_row(capped_weights(v1, fg1, (bgv, capv)), &mut l1);
                 }
                 if yy + 1 - flush_y == FLUSH_ROWS {
                     l0.flush(seg.x0, flush_y, FLUSH_ROWS, &mut weighted);
