@@ -594,8 +594,9 @@ fn calibrate_wand_bad_input_is_named() {
         "500",
     ]);
     assert!(
-        stderr(&o).contains("cameras [3] share too few wand frames")
-            && stderr(&o).contains("wave the wand where each of them sees it"),
+        stderr(&o).contains("camera cam3 shares too few wand frames")
+            && stderr(&o).contains("cam3: 0 frames with the wand's 2 markers, 300 with 0 blobs")
+            && stderr(&o).contains("wave the wand where each of these cameras sees it"),
         "{}",
         stderr(&o)
     );

@@ -47,15 +47,16 @@ fn one_pc_rig_of(dir: &TempDir, tag: char, base: &str) -> (String, u16) {
 /// The demo rig without its helmet (its last target) and VR feed: the three targets whose
 /// paths stay apart in both views.
 fn demo_rig_without_helmet() -> String {
-    let demo = demo_rig();
-    let cut = demo.rfind("[[synthetic.target]]").unwrap();
-    let rig = demo[..cut].replace("[vr]\nvrpn = {}\nvmt = {}\nopentrack = {}\n", "");
+    let rig = std::fs::read_to_string(repo_root().join("deploy/rigs/demo.toml")).unwrap();
+    let cut = rig.rfind("[[synthetic.target]]").unwrap();
+    let rig = rig[..cut].replace("[vr]\nvrpn = {}\nvmt = {}\nopentrack = {}\n", "");
     assert!(!rig.contains("[vr]"), "the demo rig's [vr] section changed");
     rig
 }
 
+/// The demo rig with its VR feed on this test's own ports.
 fn demo_rig() -> String {
-    std::fs::read_to_string(repo_root().join("deploy/rigs/demo.toml")).unwrap()
+    common::demo_rig_on_own_ports()
 }
 
 /// Subscribes to a rig's pose frames through the router at `endpoint`.
@@ -124,8 +125,11 @@ fn both_cameras(p: &PoseFrame) -> bool {
 #[test]
 fn demo_recovers_three_moving_objects_against_ground_truth() {
     let _serial = serial();
+    // The built-in demo rig, its VR feed on this test's own ports.
+    let dir = TempDir::new("demo");
+    let rig = dir.file("demo.toml", &demo_rig());
     let out = run_with_limit(
-        &["demo", "--seconds", "4", "--json"],
+        &["demo", "--seconds", "4", "--json", "--rig", &rig],
         Duration::from_secs(90),
     );
     assert!(out.status.success(), "demo failed:\n{}", stderr(&out));
@@ -524,7 +528,7 @@ fn bad_sources_are_named() {
         e.contains("clip.y4m") && e.contains("frame 2") && e.contains("truncated"),
         "{e}"
     );
-    assert!(e.contains("frames=2"), "{e}");
+    assert!(e.contains("capture stopped: 2 frames"), "{e}");
     // A Y4M whose frame size differs from the camera's.
     std::fs::write(&clip, b"YUV4MPEG2 W64 H48 F30:1 Cmono\n").unwrap();
     let e = capture_fails(&rig);
@@ -1306,7 +1310,7 @@ fn a_pyserial_receiver_decodes_legacy_and_framed_packets_as_documented() {
     let _serial = serial();
     let _python = common::python_clients();
     let dir = TempDir::new("pyserial");
-    let (path, port) = one_pc_rig(&dir, 'q');
+    let (path, port) = one_pc_rig(&dir, 'n');
     let endpoint = format!("tcp/127.0.0.1:{port}");
     let _launcher = Proc::start(&["run", &path]);
     let watcher = PoseWatcher::new(&endpoint, "demo");
@@ -1850,7 +1854,7 @@ fn a_masked_lamp_and_reflection_are_ignored_and_a_marker_still_tracked() {
         ((p[0] - q[0]).powi(2) + (p[1] - q[1]).powi(2) + (p[2] - q[2]).powi(2)).sqrt() < 0.05
     };
     let (lamp, reflection) = ([0.40, 0.30, 0.60], [-0.35, -0.25, 0.0]);
-    let (path, port) = one_pc_rig_of(&dir, 'k', &format!("{base}{lamps}"));
+    let (path, port) = one_pc_rig_of(&dir, 'm', &format!("{base}{lamps}"));
     let endpoint = format!("tcp/127.0.0.1:{port}");
     let masked = dir.0.join("masked.toml");
     let masked_s = masked.to_str().unwrap();
@@ -1972,7 +1976,7 @@ fn a_live_wand_calibration_finds_the_cameras_and_the_viewer_shows_its_coverage()
         camera("cam1", [90.0, -50.0, 220.0]),
         camera("cam2", [0.0, 100.0, 200.0]),
     );
-    let (path, port) = one_pc_rig_of(&dir, 'w', &rig);
+    let (path, port) = one_pc_rig_of(&dir, 'l', &rig);
     let truth = stereoscope_rig::Rig::load(std::path::Path::new(&path)).unwrap();
     let mut launcher = Proc::start(&["run", &path]);
     let watcher = PoseWatcher::new(&format!("tcp/127.0.0.1:{port}"), "wandlive");

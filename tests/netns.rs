@@ -144,6 +144,16 @@ fn now_s() -> f64 {
         .as_secs_f64()
 }
 
+/// The liveliness tokens of `zenoh_tls.py alive`'s answer.
+fn alive_tokens(r: &[serde_json::Value]) -> Vec<String> {
+    r[0]["alive"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter_map(|v| v.as_str().map(str::to_string))
+        .collect()
+}
+
 /// One line of `zenoh_tls.py watch`.
 #[derive(Debug)]
 struct Seen {
@@ -208,10 +218,11 @@ fn longest_gap(seen: &[Seen], from: f64, to: f64) -> f64 {
 fn three_pcs_over_mutual_tls_survive_kills_a_cut_cable_and_forgers() {
     let lan = match Lan::new() {
         Ok(l) => l,
-        Err(e) => {
-            eprintln!("SKIPPED: network namespaces cannot be made here ({e})");
-            return;
-        }
+        // Not a skip: CI runs as root with iproute2, and a run that cannot test the network
+        // says so by failing.
+        Err(e) => panic!(
+            "network namespaces cannot be made here ({e}): this test needs root and iproute2"
+        ),
     };
     let dir = TempDir::new("netns");
     // Zenoh segments already in /dev/shm (another program's): none may be added by this run.
@@ -303,11 +314,50 @@ fn three_pcs_over_mutual_tls_survive_kills_a_cut_cable_and_forgers() {
     let steady_from = now_s();
     std::thread::sleep(Duration::from_secs(3));
 
-    // Security: an authority the rig does not trust cannot connect; the consumer's own
-    // certificate connects but may publish nothing; a capture PC's may not publish poses.
+    // Security: an authority the rig does not trust cannot connect, nor a client with no
+    // certificate, nor plain TCP to the TLS port; the consumer's own certificate connects but
+    // may publish nothing; a capture PC's may not publish poses.
     let [oa, oc, ok] = cert(&other, "consumer");
     let r = py(&["connect", FUSION, &oa, &oc, &ok]);
     assert_eq!(r[0]["connected"], false, "{r:?}");
+    let plain_tcp = FUSION.replace("tls/", "tcp/");
+    for endpoint in [FUSION, plain_tcp.as_str()] {
+        let r = py(&["connect-plain", endpoint]);
+        assert_eq!(
+            r[0]["connected"], false,
+            "{endpoint} without a certificate: {r:?}"
+        );
+    }
+    // What a user reads from `stereoscope status` without a certificate, and over plain TCP.
+    let status = |endpoint: &str| -> String {
+        let all = [
+            "netns",
+            "exec",
+            &consumer_ns,
+            BIN,
+            "status",
+            "--connect",
+            endpoint,
+            "--rig-name",
+            "lab",
+        ];
+        let o = common::run_program_with_limit(Path::new("ip"), &all, Duration::from_secs(30));
+        assert!(
+            !o.status.success(),
+            "status reached {endpoint} without a certificate"
+        );
+        common::stderr(&o)
+    };
+    let said = status(FUSION);
+    assert!(
+        said.contains("is a TLS endpoint") && said.contains("--zenoh-tls-cert"),
+        "{said}"
+    );
+    let said = status(&plain_tcp);
+    assert!(
+        said.contains("no Zenoh router answered") && said.contains("tls/"),
+        "{said}"
+    );
     let r = py(&["connect", FUSION, &ca, &cc, &ck]);
     assert_eq!(r[0]["connected"], true, "{r:?}");
     let all_keys = [
@@ -317,11 +367,36 @@ fn three_pcs_over_mutual_tls_survive_kills_a_cut_cable_and_forgers() {
         "health/fusion/fusion",
         "alive/fusion/x",
     ];
-    let r = py(&[&["forge", FUSION, "lab", &ca, &cc, &ck][..], &all_keys[..]].concat());
-    assert_eq!(r[0]["opened"], true, "{r:?}");
+    // The consumer forges every key and a liveliness token, and holds the token while the
+    // rig's liveliness is asked: the forged token must not be seen even while it exists.
+    let mut forger = lan.start(
+        "consumer",
+        &python,
+        &[
+            &[client, "forge", FUSION, "lab", &ca, &cc, &ck, "8"][..],
+            &all_keys[..],
+        ]
+        .concat(),
+        &dir.0,
+    );
+    forger.wait_for(Duration::from_secs(20), "the forged token", |o| {
+        o.contains("\"token\": true")
+    });
+    let alive = alive_tokens(&py(&["alive", FUSION, "lab", &ca, &cc, &ck]));
+    assert!(
+        forger.child.try_wait().unwrap().is_none(),
+        "the forger ended before the rig's liveliness was asked"
+    );
+    assert!(
+        !alive
+            .iter()
+            .any(|k| k.contains("FORGED") || k.ends_with("/x")),
+        "a forged token is seen while its forger holds it: {alive:?}"
+    );
+    forger.stop();
     let [_, c1, k1] = cert(&certs, "capture1");
     let r = py(&[
-        &["forge", FUSION, "lab", &ca, &c1, &k1][..],
+        &["forge", FUSION, "lab", &ca, &c1, &k1, "3"][..],
         &[
             "poses",
             "pose/1",
@@ -383,7 +458,8 @@ fn three_pcs_over_mutual_tls_survive_kills_a_cut_cable_and_forgers() {
     let mut sorted = errors.clone();
     sorted.sort_by(f64::total_cmp);
     let median = sorted[sorted.len() / 2];
-    assert!(median < 10.0, "median error {median} mm\n{}", context());
+    // About 1 mm on an idle machine (docs/deploy.md); 3 mm leaves room for a loaded one.
+    assert!(median <= 3.0, "median error {median} mm\n{}", context());
     // Nothing forged crossed a router.
     let forged: Vec<_> = lines(&out)
         .into_iter()
@@ -426,13 +502,7 @@ fn three_pcs_over_mutual_tls_survive_kills_a_cut_cable_and_forgers() {
     );
     assert!(longest_gap(&seen, restored, last) < 1.0, "{}", context());
     // The rig's liveliness as the consumer sees it: its nine services, nothing forged.
-    let r = py(&["alive", FUSION, "lab", &ca, &cc, &ck]);
-    let alive: Vec<&str> = r[0]["alive"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .filter_map(|v| v.as_str())
-        .collect();
+    let alive = alive_tokens(&py(&["alive", FUSION, "lab", &ca, &cc, &ck]));
     assert_eq!(alive.len(), 9, "{alive:?}");
     assert!(
         !alive

@@ -50,8 +50,13 @@ fn the_live_view_in_a_real_browser() {
     let chromium = chromium();
     let port = stereoscope_transport::net::free_loopback_port().unwrap();
     let listen = format!("127.0.0.1:{port}");
+    // The demo rig with its VR feed on this test's own ports.
+    let dir = common::TempDir::new("viewer");
+    let rig = dir.file("demo.toml", &common::demo_rig_on_own_ports());
     let mut demo = Proc::start(&[
         "demo",
+        "--rig",
+        &rig,
         "--view",
         "--view-listen",
         &listen,

@@ -14,10 +14,10 @@ use chain::ceiling;
 /// whole, and most frames are settled by the cores.
 #[test]
 fn the_cores_change_no_observation_of_the_wand_with_frames_skipped() {
-    use stereoscope_capture::source::FrameSource;
-    use stereoscope_capture::synthetic::SyntheticSource;
-    use stereoscope_moments::Worker;
+    use stereoscope_pipeline::worker::Worker;
     use stereoscope_proto::frame::{FrameHeader, PixelFormat};
+    use stereoscope_sources::FrameSource;
+    use stereoscope_sources::synthetic::SyntheticSource;
     let dir = std::env::temp_dir().join("stereoscope-cores-unused");
     let text = chain::scene_rig("chain", &ceiling(), 60.0, &dir, 7000, chain::WAND_SCENE);
     let rig = stereoscope_rig::Rig::from_toml(&text).unwrap();

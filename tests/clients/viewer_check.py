@@ -14,7 +14,9 @@ Checks, each failing with a message:
     sockets at once are served up to the viewer's limit and refused beyond it, an unknown
     camera's page is answered 404; the viewer and every other service stay up;
   * after the viewer is killed (the launcher restarts it) the page shows live data again, and
-    how long that took.
+    how long that took;
+  * in a browser with no WebGL the page says the 3D view is unavailable, and the camera
+    monitors, the services' health and the pose count still update.
 Prints one JSON line of figures; writes the screenshots to OUT_DIR.
 """
 
@@ -50,11 +52,12 @@ def wait_for(what, pred, limit_s, step_s=0.1):
 
 
 class Browser:
-    def __init__(self, chromium, width=1400, height=800):
+    def __init__(self, chromium, width=1400, height=800, webgl=True):
         self.profile = tempfile.mkdtemp(prefix="viewer-check-")
+        gl = (["--use-angle=swiftshader", "--enable-unsafe-swiftshader"] if webgl
+              else ["--disable-3d-apis"])
         self.proc = subprocess.Popen(
-            [chromium, "--headless=new", "--no-sandbox", "--disable-gpu",
-             "--use-angle=swiftshader", "--enable-unsafe-swiftshader",
+            [chromium, "--headless=new", "--no-sandbox", "--disable-gpu", *gl,
              "--no-first-run", "--no-default-browser-check", "--hide-scrollbars",
              f"--window-size={width},{height}", "--remote-debugging-port=0",
              f"--user-data-dir={self.profile}", "about:blank"],
@@ -363,7 +366,36 @@ def main():
             fail(f"live data {live - reopened:.2f} s after the page reconnected")
     finally:
         b.close()
+    check_without_webgl(chromium, url, figures)
     print(json.dumps(figures))
+
+
+def check_without_webgl(chromium, url, figures):
+    """A browser with no WebGL: the page says the 3D view is unavailable, and the camera
+    monitors and the services' table still fill."""
+    b = Browser(chromium, webgl=False)
+    try:
+        b.call("Page.navigate", url=url + "/")
+        wait_for("the page's note that WebGL is missing",
+                 lambda: b.eval("window.stereoscope?.noWebGL ?? null"), 20)
+        wait_for("a camera monitor without WebGL", lambda: b.eval("stereoscope.previews") > 0, 20)
+        wait_for("the services' health without WebGL",
+                 lambda: b.eval("stereoscope.healthReports") > 0, 20)
+        wait_for("pose frames without WebGL", lambda: b.eval("stereoscope.poseFrames") > 5, 20)
+        note = b.eval("document.getElementById('nogl')?.textContent ?? ''")
+        if "3D view unavailable" not in note:
+            fail(f"no note that the 3D view is unavailable: {note!r}")
+        link = b.eval("document.getElementById('link').textContent")
+        if "connecting" in link:
+            fail(f"the page still says {link!r} without WebGL")
+        # Three.js reports the failed context on the console; anything else is an error.
+        others = [e for e in b.errors if "WebGL" not in e]
+        if others:
+            fail("console errors without WebGL: " + "; ".join(others[:5]))
+        figures["without_webgl"] = {"previews": b.eval("stereoscope.previews"),
+                                    "health_reports": b.eval("stereoscope.healthReports")}
+    finally:
+        b.close()
 
 
 if __name__ == "__main__":

@@ -10,14 +10,16 @@ usage:
       nearest true target at the nearest truth time (null without truth)}; one line
       {"forged": KEY} for any sample that is a forged one (a JSON object with the key FORGED);
       at the end {"done": frames}.
-  zenoh_tls.py forge ENDPOINT RIG CA CERT KEY SUFFIX...
+  zenoh_tls.py forge ENDPOINT RIG CA CERT KEY SECONDS SUFFIX...
       Publishes {"FORGED": true} on each key stereoscope/RIG/SUFFIX and declares the
-      liveliness token stereoscope/RIG/alive/fusion/FORGED, for 3 seconds. Prints
-      {"opened": true} once connected.
+      liveliness token stereoscope/RIG/alive/fusion/FORGED, for SECONDS. Prints
+      {"opened": true} once connected and {"token": true} once the token is declared.
   zenoh_tls.py alive ENDPOINT RIG CA CERT KEY
       Prints {"alive": [the rig's liveliness tokens]}.
   zenoh_tls.py connect ENDPOINT CA CERT KEY
       Tries to open a session (3 s); prints {"connected": true|false, "error": text}.
+  zenoh_tls.py connect-plain ENDPOINT
+      The same with no certificate and no TLS settings at all.
 """
 import bisect
 import json
@@ -113,12 +115,13 @@ def alive(endpoint, rig, ca, cert, key):
     session.close()
 
 
-def forge(endpoint, rig, ca, cert, key, suffixes):
+def forge(endpoint, rig, ca, cert, key, seconds, suffixes):
     session = zenoh.open(config(endpoint, ca, cert, key))
     print(json.dumps({"opened": True}), flush=True)
     token = session.liveliness().declare_token(f"stereoscope/{rig}/alive/fusion/FORGED")
+    print(json.dumps({"token": True}), flush=True)
     keys = [f"stereoscope/{rig}/{s}" for s in suffixes]
-    end = time.monotonic() + 3.0
+    end = time.monotonic() + seconds
     while time.monotonic() < end:
         for k in keys:
             session.put(k, json.dumps({"FORGED": True, "rig": rig}).encode())
@@ -128,8 +131,21 @@ def forge(endpoint, rig, ca, cert, key, suffixes):
 
 
 def connect(endpoint, ca, cert, key):
+    try_open(config(endpoint, ca, cert, key))
+
+
+def connect_plain(endpoint):
+    try_open(zenoh.Config.from_json5(json.dumps({
+        "mode": "client",
+        "connect": {"endpoints": [endpoint], "timeout_ms": 3000, "exit_on_failure": True},
+        "scouting": {"multicast": {"enabled": False}},
+        "transport": {"shared_memory": {"enabled": False}},
+    })))
+
+
+def try_open(cfg):
     try:
-        session = zenoh.open(config(endpoint, ca, cert, key))
+        session = zenoh.open(cfg)
         session.close()
         print(json.dumps({"connected": True, "error": None}), flush=True)
     except Exception as e:  # zenoh raises its own error type
@@ -141,11 +157,13 @@ def main():
     if a[0] == "watch":
         watch(a[1], a[2], float(a[3]), a[4], a[5], a[6])
     elif a[0] == "forge":
-        forge(a[1], a[2], a[3], a[4], a[5], a[6:])
+        forge(a[1], a[2], a[3], a[4], a[5], float(a[6]), a[7:])
     elif a[0] == "alive":
         alive(a[1], a[2], a[3], a[4], a[5])
     elif a[0] == "connect":
         connect(a[1], a[2], a[3], a[4])
+    elif a[0] == "connect-plain":
+        connect_plain(a[1])
     else:
         raise SystemExit(__doc__)
 

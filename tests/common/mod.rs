@@ -246,3 +246,37 @@ pub fn run(args: &[&str]) -> Output {
 pub fn stderr(o: &Output) -> String {
     String::from_utf8_lossy(&o.stderr).into_owned()
 }
+
+/// The demo rig (`deploy/rigs/demo.toml`) with its VR feed on free loopback ports of this
+/// test's own instead of the protocols' fixed ones (VRPN 3883, VMT 39570, opentrack 4242), so
+/// that tests running side by side never share a port.
+pub fn demo_rig_on_own_ports() -> String {
+    let demo = std::fs::read_to_string(repo_root().join("deploy/rigs/demo.toml"))
+        .unwrap_or_else(|e| panic!("deploy/rigs/demo.toml: {e}"));
+    own_vr_ports(&demo)
+}
+
+/// `rig` with its `[vr]` section's default ports replaced by free loopback ports.
+pub fn own_vr_ports(rig: &str) -> String {
+    const DEFAULTS: &str = "[vr]\nvrpn = {}\nvmt = {}\nopentrack = {}\n";
+    if !rig.contains(DEFAULTS) {
+        assert!(
+            !rig.contains("[vr]"),
+            "the rig's [vr] section is not the demo's: give it ports of the test's own"
+        );
+        return rig.to_string();
+    }
+    let port = || {
+        stereoscope_transport::net::free_loopback_port()
+            .unwrap_or_else(|e| panic!("no free loopback port: {e}"))
+    };
+    rig.replace(
+        DEFAULTS,
+        &format!(
+            "[vr]\nvrpn = {{ listen = \"127.0.0.1:{}\" }}\nvmt = {{ send_to = \"127.0.0.1:{}\" }}\nopentrack = {{ send_to = \"127.0.0.1:{}\" }}\n",
+            port(),
+            port(),
+            port()
+        ),
+    )
+}

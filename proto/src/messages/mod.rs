@@ -653,6 +653,10 @@ impl Health {
 pub trait Message: Serialize + for<'de> Deserialize<'de> {
     fn schema(&self) -> u32;
 
+    /// The rig the message is of (`None` for a message that names none: a camera's truth,
+    /// which travels on its rig's keys only).
+    fn rig(&self) -> Option<&str>;
+
     /// The field checks of this message type.
     fn fields_valid(&self) -> Result<(), DecodeError>;
 
@@ -693,27 +697,35 @@ pub trait Message: Serialize + for<'de> Deserialize<'de> {
 }
 
 macro_rules! message {
-    ($($t:ty),*) => {$(
+    ($($t:ty),*; without rig: $($u:ty),*) => {
+        $(message!(@impl $t, self => Some(self.rig.as_str()));)*
+        $(message!(@impl $u, self => None);)*
+    };
+    (@impl $t:ty, $self:ident => $rig:expr) => {
         impl Message for $t {
             fn schema(&self) -> u32 {
                 self.schema
+            }
+
+            fn rig(&$self) -> Option<&str> {
+                $rig
             }
 
             fn fields_valid(&self) -> Result<(), DecodeError> {
                 self.validate(&mut Checker::new())
             }
         }
-    )*};
+    };
 }
 message!(
     Observation,
     PoseFrame,
     PoseUpdate,
     BodyUpdate,
-    Truth,
     Health,
     Preview,
-    WandCoverage
+    WandCoverage;
+    without rig: Truth
 );
 
 /// Nanoseconds since the Unix epoch now (CLOCK_REALTIME).

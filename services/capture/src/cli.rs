@@ -2,8 +2,8 @@
 //! capture`.
 
 use crate::{CaptureConfig, run};
-use stereoscope_rig::CommonArgs;
-use stereoscope_transport::{Shutdown, init_logging};
+use stereoscope_service::{CommonArgs, ServiceArgs};
+use stereoscope_transport::Shutdown;
 
 #[derive(clap::Args, Debug, Clone)]
 pub struct Args {
@@ -20,23 +20,24 @@ pub struct Args {
     pub as_fast_as_possible: bool,
 }
 
-/// Runs the service until SIGINT/SIGTERM or the end of its source.
-pub fn main(args: Args) -> anyhow::Result<()> {
-    init_logging("capture");
-    let shutdown = Shutdown::on_signals()?;
-    let summary = run(
-        CaptureConfig {
-            ctx: args.common.resolve()?,
-            camera: args.camera,
-            max_frames: args.max_frames,
-            realtime: args.as_fast_as_possible.then_some(false),
-        },
-        shutdown,
-    )?;
-    tracing::info!(
-        frames = summary.frames,
-        bad = summary.bad_frames,
-        "capture stopped"
-    );
-    Ok(())
+impl ServiceArgs for Args {
+    const NAME: &'static str = "capture";
+    const ABOUT: &'static str = "Publish one camera's frames into shared memory";
+
+    /// Runs the service until SIGINT/SIGTERM or the end of its source.
+    fn run(self, shutdown: Shutdown) -> anyhow::Result<String> {
+        let summary = run(
+            CaptureConfig {
+                ctx: self.common.resolve()?,
+                camera: self.camera,
+                max_frames: self.max_frames,
+                realtime: self.as_fast_as_possible.then_some(false),
+            },
+            shutdown,
+        )?;
+        Ok(format!(
+            "{} frames, {} bad",
+            summary.frames, summary.bad_frames
+        ))
+    }
 }

@@ -11,22 +11,15 @@
 //! skipped ones as dropped), the others as fast as the reader takes them.
 
 pub mod cli;
-pub mod images;
-pub mod source;
-pub mod synthetic;
-#[cfg(feature = "v4l")]
-pub mod v4l;
-pub mod y4m;
 
-use source::{FrameSource, Read, SourceError};
 use std::time::{Duration, Instant};
 use stereoscope_proto::frame::FrameHeader;
 use stereoscope_proto::messages::{Observation, SCHEMA_VERSION, Truth, now_ns};
 use stereoscope_proto::names::{iox as iox_names, zenoh as keys};
-use stereoscope_rig::Context;
-use stereoscope_rig::schema::SourceSpec;
-use stereoscope_transport::iox::{FramePublisher, FrameStamp, MessageSubscriber};
-use stereoscope_transport::{Flow, Outlet, Service, ServiceNode, Shutdown, drive};
+use stereoscope_service::Context;
+use stereoscope_sources::{FrameSource, OpenError, Read, SourceError};
+use stereoscope_transport::iox::{FramePublisher, FrameStamp};
+use stereoscope_transport::{Flow, Inlet, Outlet, Service, ServiceNode, Shutdown, drive};
 
 /// What to run.
 #[derive(Debug, Clone)]
@@ -41,20 +34,9 @@ pub struct CaptureConfig {
 
 #[derive(Debug, thiserror::Error)]
 pub enum CaptureError {
-    #[error("camera {camera}: not a camera of the rig")]
-    UnknownCamera { camera: String },
-    #[error("camera {camera}: camera[{index}].source is missing: say where its frames come from")]
-    NoSource { camera: String, index: usize },
-    #[error(
-        "camera {camera}: the source gives {}×{} frames but camera[{index}].image_size is {}×{}",
-        .got_px.0, .got_px.1, .rig_px.0, .rig_px.1
-    )]
-    SizeMismatch {
-        camera: String,
-        index: usize,
-        got_px: (u32, u32),
-        rig_px: (u32, u32),
-    },
+    /// The camera's source could not be opened (`stereoscope_sources::open`).
+    #[error(transparent)]
+    Open(#[from] OpenError),
     #[error("camera {camera}: the frame header")]
     Header {
         camera: String,
@@ -73,46 +55,6 @@ pub enum CaptureError {
         #[source]
         source: SourceError,
     },
-    /// The rig asks for what this build cannot do.
-    #[error("camera {camera}: {source}")]
-    Unsupported {
-        camera: String,
-        #[source]
-        source: stereoscope_rig::RigError,
-    },
-}
-
-/// Refuses a rig whose cameras on this PC need what this build lacks (V4L2 without the `v4l`
-/// feature): a configuration error, found before any service starts.
-pub fn check_supported(rig: &stereoscope_rig::Rig, cameras: &[String]) -> Result<(), CaptureError> {
-    for (i, c) in rig.spec.cameras.iter().enumerate() {
-        if cfg!(not(feature = "v4l"))
-            && cameras.contains(&c.id)
-            && let Some(SourceSpec::V4l { device, .. }) = &c.source
-        {
-            return Err(no_v4l(rig, i, device));
-        }
-    }
-    Ok(())
-}
-
-/// Camera `index` of `rig` wants V4L2 device `device`, which this build cannot open.
-fn no_v4l(rig: &stereoscope_rig::Rig, index: usize, device: &str) -> CaptureError {
-    CaptureError::Unsupported {
-        camera: rig
-            .cameras
-            .get(index)
-            .map(|c| c.id.clone())
-            .unwrap_or_default(),
-        source: stereoscope_rig::RigError {
-            kind: stereoscope_rig::RigErrorKind::Value,
-            file: rig.path.clone(),
-            key: format!("camera[{index}].source"),
-            message: format!(
-                "{device}: this build has no V4L2 support; build with `--features v4l` (needs libclang-dev)"
-            ),
-        },
-    }
 }
 
 /// What a run did.
@@ -120,87 +62,6 @@ fn no_v4l(rig: &stereoscope_rig::Rig, index: usize, device: &str) -> CaptureErro
 pub struct CaptureSummary {
     pub frames: u64,
     pub bad_frames: u64,
-}
-
-/// Opens the camera's source as the rig file describes it.
-pub fn open_source(ctx: &Context, camera: &str) -> Result<Box<dyn FrameSource>, CaptureError> {
-    let index = ctx
-        .rig
-        .camera_index(camera)
-        .ok_or_else(|| CaptureError::UnknownCamera {
-            camera: camera.to_string(),
-        })?;
-    let spec = &ctx.rig.spec.cameras[index];
-    let src = spec.source.as_ref().ok_or_else(|| CaptureError::NoSource {
-        camera: camera.to_string(),
-        index,
-    })?;
-    let wrap = |source: SourceError| CaptureError::Source {
-        camera: camera.to_string(),
-        source,
-    };
-    let rel = |p: &str| ctx.rig.source_path(p).display().to_string();
-    let source: Box<dyn FrameSource> = match src {
-        SourceSpec::Synthetic {
-            fps,
-            loop_frames,
-            bit_depth,
-        } => Box::new(
-            synthetic::SyntheticSource::new(
-                &ctx.rig.spec,
-                ctx.rig.cameras[index].camera,
-                index,
-                *fps,
-                *loop_frames,
-                *bit_depth,
-            )
-            .map_err(wrap)?,
-        ),
-        SourceSpec::Y4m {
-            path,
-            realtime,
-            repeat,
-            replay_clock,
-        } => Box::new(
-            y4m::Y4mSource::open(&rel(path), *realtime, *repeat)
-                .map_err(wrap)?
-                .with_replay_clock(*replay_clock),
-        ),
-        SourceSpec::Images {
-            path,
-            fps,
-            realtime,
-            repeat,
-        } => {
-            Box::new(images::ImageSource::open(&rel(path), *fps, *realtime, *repeat).map_err(wrap)?)
-        }
-        #[cfg(feature = "v4l")]
-        SourceSpec::V4l {
-            device,
-            format,
-            fps,
-            exposure,
-            gain,
-        } => Box::new(
-            v4l::V4lSource::open(device, format.map(|f| f.fourcc()), *fps, *exposure, *gain)
-                .map_err(wrap)?,
-        ),
-        #[cfg(not(feature = "v4l"))]
-        SourceSpec::V4l { device, .. } => {
-            return Err(no_v4l(&ctx.rig, index, device));
-        }
-    };
-    let (w, h) = source.size();
-    let [rw, rh] = spec.image_size;
-    if (w, h) != (rw, rh) {
-        return Err(CaptureError::SizeMismatch {
-            camera: camera.to_string(),
-            index,
-            got_px: (w, h),
-            rig_px: (rw, rh),
-        });
-    }
-    Ok(source)
 }
 
 /// Runs until the source ends, `max_frames`, or shutdown.
@@ -227,7 +88,7 @@ pub struct Capture {
     summary: CaptureSummary,
     /// With a lockstep source: the worker's observations, and the sequence number of the last
     /// frame sent, whose observation the next frame waits for.
-    lockstep: Option<(MessageSubscriber, Option<u64>)>,
+    lockstep: Option<(Inlet<Observation>, Option<u64>)>,
 }
 
 /// The longest a lockstep frame waits for the worker's observation of the one before.
@@ -254,7 +115,7 @@ impl Capture {
         };
         let ctx = &cfg.ctx;
         let rig = &ctx.rig.name;
-        let source = open_source(ctx, &cam)?;
+        let source = stereoscope_sources::open(&ctx.rig, &cam)?;
         let (w, h) = source.size();
         let header0 = FrameHeader::new(&cam, source.format(), w, h).map_err(|source| {
             CaptureError::Header {
@@ -278,8 +139,21 @@ impl Capture {
             None => None,
         };
         let lockstep = if source.lockstep() {
-            let sub = MessageSubscriber::new(&node.iox, &iox_names::observations(rig, &cam))
-                .map_err(transport)?;
+            let camera = cam.clone();
+            let sub = Inlet::iox(
+                &node.iox,
+                &iox_names::observations(rig, &cam),
+                rig,
+                "observation",
+            )
+            .map_err(transport)?
+            .expecting(move |_, o: &Observation| {
+                if o.camera == camera {
+                    Ok(())
+                } else {
+                    Err(format!("of camera {:?}, not {camera:?}", o.camera))
+                }
+            });
             Some((sub, None))
         } else {
             None
@@ -325,12 +199,11 @@ impl Capture {
         };
         let sent = *sent;
         let end = Instant::now() + LOCKSTEP_WAIT;
+        let counters = &mut self.node.counters;
         while Instant::now() < end && !shutdown.requested() {
-            loop {
-                match sub.try_next::<Observation>() {
-                    Ok(Some(Ok(o))) if o.sequence >= sent => return,
-                    Ok(Some(_)) => continue,
-                    Ok(None) | Err(_) => break,
+            while let Some(o) = sub.try_next(counters) {
+                if o.sequence >= sent {
+                    return;
                 }
             }
             std::thread::sleep(Duration::from_micros(200));

@@ -42,16 +42,17 @@ pub enum DemoError {
 }
 use std::collections::{BTreeMap, VecDeque};
 use std::io::Write;
-use std::sync::{Arc, Mutex, mpsc};
+use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 use stereoscope_numeric::angle::{wrap_half_turn_deg, wrap_turn_deg};
 use stereoscope_numeric::assign::assign_min_cost;
 use stereoscope_numeric::quantiles::LogHistogram;
-use stereoscope_proto::messages::{Health, Message, PoseFrame, Truth};
+use stereoscope_proto::messages::{Health, PoseFrame, Truth};
 use stereoscope_proto::names::zenoh as keys;
-use stereoscope_rig::Context;
 use stereoscope_rig::Rig;
 use stereoscope_rig::truth::Layouts;
+use stereoscope_service::Context;
+use stereoscope_transport::Inlet;
 use stereoscope_transport::Shutdown;
 use stereoscope_transport::net::{self, ZenohSpec};
 
@@ -203,10 +204,6 @@ pub struct GhostExample {
 
 /// `(target, matched object id, error m)`.
 type Scored = (u32, Option<u32>, f64);
-
-enum Event {
-    Poses(PoseFrame),
-}
 
 #[derive(Default)]
 struct BodyAcc {
@@ -392,27 +389,31 @@ fn watch(
     let Some(session) = session else {
         return Ok(DemoSummary::default());
     };
-    let (tx, rx) = mpsc::sync_channel::<Event>(1024);
-    let _poses = net::subscribe(&session, &keys::poses(rig), move |_, b| {
-        if let Ok(p) = PoseFrame::from_json(b) {
-            let _ = tx.try_send(Event::Poses(p));
-        }
-    })?;
+    // What the watcher refuses (another rig's messages, or ones that do not decode) is
+    // counted and said in the summary's log.
+    let mut refused = stereoscope_transport::Counters::default();
+    let poses = Inlet::<PoseFrame>::zenoh(&session, &[keys::poses(rig)], rig, "pose frame", 1024)?;
     // Each service's newest health report, for what it lost.
     let health: Arc<Mutex<BTreeMap<String, Health>>> = Arc::default();
     let sink = health.clone();
-    let _health = net::subscribe(&session, &keys::all_health(rig), move |_, b| {
-        if let Ok(h) = Health::from_json(b)
-            && let Ok(mut m) = sink.lock()
-        {
-            m.insert(h.service.clone(), h);
-        }
-    })?;
+    let _health = stereoscope_transport::inlet::listen(
+        &session,
+        &[keys::all_health(rig)],
+        stereoscope_transport::inlet::Admission::<Health>::new(rig, "health"),
+        move |h, _| {
+            if let Ok(mut m) = sink.lock() {
+                m.insert(h.service.clone(), h);
+            }
+        },
+        |_| {},
+    )?;
     // Ground truth comes from the synthetic camera on this PC, through shared memory.
     let node = stereoscope_transport::iox::node(iox_prefix, "demo-watcher")?;
-    let truth_sub = stereoscope_transport::iox::MessageSubscriber::new(
+    let truth_sub = Inlet::<Truth>::iox(
         &node,
         &stereoscope_proto::names::iox::truth(rig, truth_cam),
+        rig,
+        "truth",
     )?;
 
     let startup_deadline = Instant::now() + Duration::from_secs(30);
@@ -443,22 +444,17 @@ fn watch(
         if first.is_none() && Instant::now() > startup_deadline {
             return Err(DemoError::NoPoses);
         }
-        match rx.recv_timeout(Duration::from_millis(50)) {
-            Ok(Event::Poses(p)) => {
-                if first.is_none() {
-                    first = Some(Instant::now());
-                }
-                frames += 1;
-                latencies.add(p.published_ns.saturating_sub(p.frame_published_ns) as f64 / 1e6);
-                exposure.add(p.published_ns.saturating_sub(p.timestamp_ns) as f64 / 1e6);
-                pending.push_back(p);
+        if let Some(p) = poses.next_within(Duration::from_millis(50), &mut refused) {
+            if first.is_none() {
+                first = Some(Instant::now());
             }
-            Err(_) => {}
+            frames += 1;
+            latencies.add(p.published_ns.saturating_sub(p.frame_published_ns) as f64 / 1e6);
+            exposure.add(p.published_ns.saturating_sub(p.timestamp_ns) as f64 / 1e6);
+            pending.push_back(p);
         }
-        while let Ok(Some(t)) = truth_sub.try_next::<Truth>() {
-            if let Ok(t) = t {
-                truths.push_back(t);
-            }
+        while let Some(t) = truth_sub.try_next(&mut refused) {
+            truths.push_back(t);
         }
         while truths.len() > 600 {
             truths.pop_front();
@@ -584,6 +580,9 @@ fn watch(
             }
         })
         .collect();
+    if let Some(r) = refused.refusals() {
+        eprintln!("demo watcher: messages {r}");
+    }
     Ok(DemoSummary {
         seconds: secs,
         pose_frames: frames,

@@ -2,8 +2,8 @@
 //! fusion`.
 
 use crate::{FusionConfig, run};
-use stereoscope_rig::CommonArgs;
-use stereoscope_transport::{Shutdown, init_logging};
+use stereoscope_service::{CommonArgs, ServiceArgs};
+use stereoscope_transport::Shutdown;
 
 #[derive(clap::Args, Debug, Clone)]
 pub struct Args {
@@ -14,17 +14,19 @@ pub struct Args {
     pub max_sets: Option<u64>,
 }
 
-/// Runs fusion until SIGINT/SIGTERM.
-pub fn main(args: Args) -> anyhow::Result<()> {
-    init_logging("fusion");
-    let shutdown = Shutdown::on_signals()?;
-    let n = run(
-        FusionConfig {
-            ctx: args.common.resolve()?,
-            max_sets: args.max_sets,
-        },
-        shutdown,
-    )?;
-    tracing::info!(sets = n, "fusion stopped");
-    Ok(())
+impl ServiceArgs for Args {
+    const NAME: &'static str = "fusion";
+    const ABOUT: &'static str = "Fuse every camera's observations into 3D poses";
+
+    /// Runs fusion until SIGINT/SIGTERM.
+    fn run(self, shutdown: Shutdown) -> anyhow::Result<String> {
+        let n = run(
+            FusionConfig {
+                ctx: self.common.resolve()?,
+                max_sets: self.max_sets,
+            },
+            shutdown,
+        )?;
+        Ok(format!("{n} pose frames"))
+    }
 }

@@ -1,7 +1,7 @@
 //! The fusion service: one per rig, on any PC. It gathers every camera's observations — over
 //! iceoryx2 from moment workers on its own PC, over Zenoh from the others — pairs them in time
-//! ([`pairing`]), recovers each object's position and heading with a stable id ([`fuser`]),
-//! and publishes pose frames on Zenoh (the system's network interface) and iceoryx2 (for
+//! (`stereoscope_pipeline::pairing`), recovers each object's position and heading with a
+//! stable id and the rigid bodies among them (`stereoscope_pipeline::fusion`), and publishes pose frames on Zenoh (the system's network interface) and iceoryx2 (for
 //! output services on the same PC), plus each object's pose on its own key.
 //!
 //! A camera that stops sending is waited for at most `max_wait`, then left out of sets until
@@ -10,28 +10,20 @@
 //! do not decode, or come from a camera the rig does not have, are counted, named in the log
 //! and in health, and ignored.
 
-pub mod bodies;
 pub mod cli;
-pub mod fuser;
 pub mod identity;
-pub mod pairing;
 
-use fuser::{DEFAULT_CONFIRM_SETS, Fuser, FuserConfig};
-use pairing::{Pairer, PairingConfig};
-use std::sync::Arc;
-use std::sync::atomic::{AtomicU64, Ordering};
-use std::sync::mpsc;
 use std::time::Duration;
-use stereoscope_geometry::correspond::CorrespondConfig;
+use stereoscope_pipeline::pairing::{self, Pairer};
+use stereoscope_pipeline::{Fusion, FusionSettings};
 use stereoscope_proto::messages::{
     BodyUpdate, Message, Observation, PoseFrame, PoseUpdate, SCHEMA_VERSION, now_ns,
 };
 use stereoscope_proto::names::{iox as iox_names, zenoh as keys};
-use stereoscope_rig::Context;
-use stereoscope_rig::schema::{ObservationRoute, RigFile};
-use stereoscope_transport::iox::{MessageSubscriber, Waker};
+use stereoscope_service::Context;
+use stereoscope_transport::iox::Waker;
 use stereoscope_transport::net::KeyedPublisher;
-use stereoscope_transport::{Counters, Flow, Outlet, Service, ServiceNode, Shutdown, drive, net};
+use stereoscope_transport::{Counters, Flow, Inlet, Outlet, Service, ServiceNode, Shutdown, drive};
 
 #[derive(Debug, Clone)]
 pub struct FusionConfig {
@@ -56,48 +48,6 @@ pub enum FusionError {
 /// Most new objects one set can make: the id reservation covers them before a set is fused.
 const MAX_NEW_OBJECTS_PER_SET: u32 = 256;
 
-/// Fusion's settings from the rig file's `[fusion]` table (defaults in `docs/services.md`;
-/// values checked when the rig was loaded).
-pub fn settings(file: &RigFile) -> (PairingConfig, FuserConfig, bool) {
-    let f = file.fusion.clone().unwrap_or_default();
-    let scale = file.units.metres();
-    let ms = |v: Option<f64>, d: f64| (v.unwrap_or(d) * 1e6) as u64;
-    let pairing = PairingConfig {
-        max_skew_ns: ms(f.max_skew_ms, 5.0),
-        max_wait_ns: ms(f.max_wait_ms, 20.0),
-        camera_timeout_ns: ms(f.camera_timeout_ms, 500.0),
-        max_ahead_ns: ms(f.clock_window_ms, 1000.0),
-        // A replay's frames keep their recorded times.
-        max_behind_ns: f
-            .replay_sets
-            .is_none()
-            .then(|| ms(f.clock_window_ms, 1000.0)),
-    };
-    let d = CorrespondConfig::default();
-    let fuser = FuserConfig {
-        correspond: CorrespondConfig {
-            max_epipolar_px: f.max_epipolar_px.unwrap_or(d.max_epipolar_px),
-            max_residual_px: f.max_residual_px.unwrap_or(d.max_residual_px),
-        },
-        gate_m: f.association_gate.map(|g| g * scale).unwrap_or(0.1),
-        drop_after_ns: (f.drop_after_s.unwrap_or(2.0) * 1e9) as u64,
-        confirm_sets: f.confirm_sets.unwrap_or(DEFAULT_CONFIRM_SETS),
-        volume_m: f.volume.map(|v| {
-            let p = |a: [f64; 3]| nalgebra::Point3::new(a[0] * scale, a[1] * scale, a[2] * scale);
-            (p(v.min), p(v.max))
-        }),
-        ..FuserConfig::default()
-    };
-    let all_zenoh = f.observations == Some(ObservationRoute::Zenoh);
-    (pairing, fuser, all_zenoh)
-}
-
-enum Input {
-    Obs(usize, Observation),
-    /// Refused before it changed anything: the reason it is counted under, and the message.
-    Bad(&'static str, String),
-}
-
 /// Runs until shutdown (or `max_sets`); returns the number of pose frames published.
 pub fn run(cfg: FusionConfig, shutdown: Shutdown) -> Result<u64, FusionError> {
     drive(FusionService::setup(cfg)?, &shutdown)
@@ -108,20 +58,17 @@ pub fn run(cfg: FusionConfig, shutdown: Shutdown) -> Result<u64, FusionError> {
 pub struct FusionService {
     cfg: FusionConfig,
     node: ServiceNode,
-    local: Vec<(usize, MessageSubscriber)>,
-    remote: mpsc::Receiver<Input>,
-    /// Kept alive: dropping a subscriber undeclares it.
-    _remote_subs: Vec<net::NetSubscriber>,
-    /// Network messages the loop had no room for (it fell behind by 256).
-    overflow: Arc<AtomicU64>,
+    /// This PC's cameras' observations (rig camera index, inlet).
+    local: Vec<(usize, Inlet<Observation>)>,
+    /// The other PCs' cameras' observations, on their keys.
+    remote: Option<Inlet<Observation>>,
     waker: Waker,
     wait: Duration,
     poses: Outlet<PoseFrame>,
     per_object: KeyedPublisher,
     per_body: KeyedPublisher,
-    bodies: bodies::Bodies,
     pairer: Pairer,
-    fuser: Fuser,
+    fusion: Fusion,
     sequence: u64,
     ids: identity::Reservations,
     /// Blobs left out because they held two objects' merged images.
@@ -144,7 +91,7 @@ impl FusionService {
     pub fn setup(cfg: FusionConfig) -> Result<Self, FusionError> {
         let ctx = &cfg.ctx;
         let rig = ctx.rig.spec.name.clone();
-        let (pair_cfg, fuser_cfg, all_zenoh) = settings(&ctx.rig.spec);
+        let settings = FusionSettings::of_rig(&ctx.rig.spec);
         let n = ctx.rig.cameras.len();
         if n == 0 {
             return Err(FusionError::NoCameras);
@@ -152,52 +99,44 @@ impl FusionService {
         let node = ServiceNode::start(ctx.node_spec("fusion"))?;
         let here = ctx.cameras_here();
         let mut local = Vec::new();
-        let (tx, rx) = mpsc::sync_channel::<Input>(256);
-        let overflow = Arc::new(AtomicU64::new(0));
-        let mut remote_subs = Vec::new();
+        let mut remote_keys = Vec::new();
         for (i, c) in ctx.rig.cameras.iter().enumerate() {
-            if !all_zenoh && here.contains(&c.id) {
-                let sub = MessageSubscriber::new(&node.iox, &iox_names::observations(&rig, &c.id))?;
-                local.push((i, sub));
+            if !settings.all_zenoh && here.contains(&c.id) {
+                let name = iox_names::observations(&rig, &c.id);
+                let id = c.id.clone();
+                let inlet = Inlet::iox(&node.iox, &name, &rig, "observation")?
+                    .expecting(move |_, o: &Observation| same_camera(&id, o));
+                local.push((i, inlet));
             } else {
-                let tx = tx.clone();
-                let key = keys::observations(&rig, &c.id);
-                let expected_rig = rig.clone();
-                let cam_id = c.id.clone();
-                let overflow = overflow.clone();
-                let sub = net::subscribe(&node.session, &key, move |k, bytes| {
-                    let input = match Observation::from_json(bytes) {
-                        Ok(o) if o.rig == expected_rig && o.camera == cam_id => Input::Obs(i, o),
-                        // Names are bounded by the decoder's checks.
-                        Ok(o) => Input::Bad(
-                            "foreign",
-                            format!(
-                                "{k}: observation of rig {:?} camera {:?} on this camera's key",
-                                o.rig, o.camera
-                            ),
-                        ),
-                        Err(e) => Input::Bad(e.reason(), format!("{k}: {e}")),
-                    };
-                    if tx.try_send(input).is_err() {
-                        overflow.fetch_add(1, Ordering::Relaxed);
-                    }
-                })?;
-                remote_subs.push(sub);
+                remote_keys.push((keys::observations(&rig, &c.id), c.id.clone()));
             }
         }
+        // Each camera's observations on its own key only; a network message the loop had no
+        // room for (it fell behind by 256) is counted as dropped.
+        let remote = if remote_keys.is_empty() {
+            None
+        } else {
+            let names: Vec<String> = remote_keys.iter().map(|(k, _)| k.clone()).collect();
+            let inlet = Inlet::zenoh(&node.session, &names, &rig, "observation", 256)?.expecting(
+                move |key, o: &Observation| match remote_keys.iter().find(|(k, _)| k == key) {
+                    Some((_, id)) => same_camera(id, o),
+                    None => Err(format!("on {key}, which is no camera's")),
+                },
+            );
+            Some(inlet)
+        };
         let waker = Waker::new(&node.iox, &iox_names::observations_ready(&rig))?;
         let poses = node.outlet(&iox_names::poses(&rig), &[], &keys::poses(&rig))?;
         let per_object = KeyedPublisher::new(&node.session, &keys::all_poses(&rig))?;
         let per_body = KeyedPublisher::new(&node.session, &keys::all_bodies(&rig))?;
-        let bodies = bodies::Bodies::of_rig(&ctx.rig.spec);
         tracing::info!(
             local = local.len(),
-            remote = remote_subs.len(),
+            remote = n - local.len(),
             "fusion ready for {n} cameras"
         );
         // With remote cameras, poll the network channel often; with local ones only, sleep
         // on the iceoryx2 event until a worker notifies.
-        let wait = if remote_subs.is_empty() {
+        let wait = if remote.is_none() {
             Duration::from_millis(50)
         } else {
             Duration::from_micros(500)
@@ -215,8 +154,9 @@ impl FusionService {
                 "continuing the session from pose frame {sequence}, object id {first_id}"
             );
         }
-        let fuser = Fuser::new(&ctx.rig, fuser_cfg).with_first_id(first_id);
-        let mut pairer = Pairer::new(n, pair_cfg);
+        let mut fusion = Fusion::of_rig(&ctx.rig);
+        fusion.fuser = fusion.fuser.with_first_id(first_id);
+        let mut pairer = Pairer::new(n, settings.pairing);
         if let Some(p) = ctx
             .rig
             .spec
@@ -239,17 +179,14 @@ impl FusionService {
         Ok(FusionService {
             node,
             local,
-            remote: rx,
-            _remote_subs: remote_subs,
-            overflow,
+            remote,
             waker,
             wait,
             poses,
             per_object,
             per_body,
-            bodies,
             pairer,
-            fuser,
+            fusion,
             sequence,
             ids,
             merged_blobs: 0,
@@ -260,34 +197,23 @@ impl FusionService {
     /// Takes every observation waiting, local and remote, into the pairer.
     fn take_inputs(&mut self) {
         let cameras = &self.cfg.ctx.rig.cameras;
+        let counters = &mut self.node.counters;
         if !self.local.is_empty() {
             self.waker.wait(self.wait);
-        } else if let Ok(input) = self.remote.recv_timeout(Duration::from_millis(50)) {
-            handle(input, &mut self.pairer, &mut self.node.counters, cameras);
+        } else if let Some(remote) = &self.remote
+            && let Some(o) = remote.next_within(Duration::from_millis(50), counters)
+        {
+            pair(o, &mut self.pairer, counters, cameras);
         }
-        let counters = &mut self.node.counters;
-        for (i, sub) in &self.local {
-            loop {
-                match sub.try_next::<Observation>() {
-                    Ok(Some(Ok(o))) => {
-                        handle(Input::Obs(*i, o), &mut self.pairer, counters, cameras)
-                    }
-                    Ok(Some(Err(e))) => handle(
-                        Input::Bad(e.reason(), format!("{}: {e}", sub.name())),
-                        &mut self.pairer,
-                        counters,
-                        cameras,
-                    ),
-                    Ok(None) => break,
-                    Err(e) => {
-                        counters.note::<(), _>(Err(e));
-                        break;
-                    }
-                }
+        for (_, inlet) in &self.local {
+            while let Some(o) = inlet.try_next(counters) {
+                pair(o, &mut self.pairer, counters, cameras);
             }
         }
-        while let Ok(input) = self.remote.try_recv() {
-            handle(input, &mut self.pairer, counters, cameras);
+        if let Some(remote) = &self.remote {
+            while let Some(o) = remote.try_next(counters) {
+                pair(o, &mut self.pairer, counters, cameras);
+            }
         }
     }
 
@@ -297,7 +223,10 @@ impl FusionService {
         // Reserved before they are used: a crash never lets them be handed out twice.
         self.ids.reserve(
             self.sequence,
-            self.fuser.next_id().saturating_add(MAX_NEW_OBJECTS_PER_SET),
+            self.fusion
+                .fuser
+                .next_id()
+                .saturating_add(MAX_NEW_OBJECTS_PER_SET),
         )?;
         let rig = &self.cfg.ctx.rig;
         let timestamp_ns = set.iter().map(|(_, o)| o.timestamp_ns).min().unwrap_or(0);
@@ -314,10 +243,7 @@ impl FusionService {
             .iter()
             .map(|(_, o)| o.blobs.iter().filter(|b| b.merged).count() as u64)
             .sum::<u64>();
-        let mut fused = self.fuser.fuse(set, timestamp_ns);
-        let bodies = self
-            .bodies
-            .update_refined(&mut fused, timestamp_ns, &mut self.fuser);
+        let (fused, bodies) = self.fusion.fuse(set, timestamp_ns);
         let published_ns = now_ns();
         let frame = PoseFrame {
             schema: SCHEMA_VERSION,
@@ -374,7 +300,8 @@ impl FusionService {
         let rig = &self.cfg.ctx.rig;
         let counters = &mut self.node.counters;
         let now = now_ns();
-        counters.dropped = self.pairer.discarded + self.overflow.load(Ordering::Relaxed);
+        let overflowed = self.remote.as_ref().map_or(0, Inlet::overflowed);
+        counters.dropped = self.pairer.discarded + overflowed;
         let live: Vec<&str> = (0..rig.cameras.len())
             .filter(|&c| self.pairer.live(c, now))
             .map(|c| rig.cameras[c].id.as_str())
@@ -392,26 +319,29 @@ impl FusionService {
         if self.pairer.short_sets > 0 {
             detail.insert("short_sets".into(), self.pairer.short_sets.to_string());
         }
-        detail.insert("objects".into(), self.fuser.objects().to_string());
-        if self.fuser.outside_volume > 0 {
+        detail.insert("objects".into(), self.fusion.fuser.objects().to_string());
+        if self.fusion.fuser.outside_volume > 0 {
             detail.insert(
                 "outside_volume".into(),
-                self.fuser.outside_volume.to_string(),
+                self.fusion.fuser.outside_volume.to_string(),
             );
         }
-        if self.fuser.hiding_blobs > 0 {
-            detail.insert("hiding".into(), self.fuser.hiding_blobs.to_string());
+        if self.fusion.fuser.hiding_blobs > 0 {
+            detail.insert("hiding".into(), self.fusion.fuser.hiding_blobs.to_string());
         }
-        if self.fuser.clipped > 0 {
-            detail.insert("clipped".into(), self.fuser.clipped.to_string());
+        if self.fusion.fuser.clipped > 0 {
+            detail.insert("clipped".into(), self.fusion.fuser.clipped.to_string());
         }
-        if self.fuser.area_mismatch > 0 {
-            detail.insert("area_mismatch".into(), self.fuser.area_mismatch.to_string());
+        if self.fusion.fuser.area_mismatch > 0 {
+            detail.insert(
+                "area_mismatch".into(),
+                self.fusion.fuser.area_mismatch.to_string(),
+            );
         }
-        if self.fuser.single_view_unmatched > 0 {
+        if self.fusion.fuser.single_view_unmatched > 0 {
             detail.insert(
                 "single_view_unmatched".into(),
-                self.fuser.single_view_unmatched.to_string(),
+                self.fusion.fuser.single_view_unmatched.to_string(),
             );
         }
         if self.merged_blobs > 0 {
@@ -465,33 +395,39 @@ impl Service for FusionService {
     }
 }
 
-/// Pairs an observation of camera index `c` (`cameras` names it in a refusal), or counts a
-/// refused input.
-fn handle(
-    input: Input,
+/// Refuses an observation that names a camera other than `camera`, whose key or service it
+/// came on.
+fn same_camera(camera: &str, o: &Observation) -> Result<(), String> {
+    if o.camera == camera {
+        Ok(())
+    } else {
+        Err(format!(
+            "of camera {:?} on camera {camera:?}'s channel",
+            o.camera
+        ))
+    }
+}
+
+/// Pairs an observation (of a camera of the rig: its inlet checked that), or counts it as
+/// refused by the pairer.
+fn pair(
+    o: Observation,
     pairer: &mut Pairer,
     counters: &mut Counters,
     cameras: &[stereoscope_rig::RigCamera],
 ) {
-    let (reason, message) = match input {
-        Input::Obs(c, o) => {
-            let sequence = o.sequence;
-            match pairer.push(c, o, now_ns()) {
-                Ok(()) => return,
-                Err(r) => {
-                    let camera = cameras.get(c).map(|x| x.id.as_str()).unwrap_or("?");
-                    (
-                        r.reason(),
-                        format!("observation of {camera} frame {sequence}: {r}"),
-                    )
-                }
-            }
-        }
-        Input::Bad(reason, message) => (reason, message),
+    let Some(c) = cameras.iter().position(|x| x.id == o.camera) else {
+        return;
     };
-    counters.reject(reason, &message);
-    // A flood is counted in full but logged sparsely.
-    if counters.rejected <= 10 || counters.rejected.is_power_of_two() {
-        tracing::warn!("rejected {message} ({} so far)", counters.rejected);
+    let sequence = o.sequence;
+    if let Err(r) = pairer.push(c, o, now_ns()) {
+        let message = format!("observation of {} frame {sequence}: {r}", cameras[c].id);
+        stereoscope_transport::inlet::refuse(
+            counters,
+            &stereoscope_transport::Refusal {
+                reason: r.reason(),
+                message,
+            },
+        );
     }
 }

@@ -10,8 +10,8 @@ use stereoscope_proto::messages::{
     BlobObservation, Health, Message, Observation, PoseFrame, SCHEMA_VERSION, TrackState,
 };
 use stereoscope_proto::names::zenoh as keys;
-use stereoscope_rig::Context;
 use stereoscope_rig::Rig;
+use stereoscope_service::Context;
 use stereoscope_transport::Shutdown;
 use stereoscope_transport::net::{self, JsonPublisher, ZenohMode, ZenohSpec};
 

@@ -15,7 +15,8 @@ use std::process::{Child, Command, Stdio};
 use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
-use stereoscope_rig::{Context, RigError, security};
+use stereoscope_rig::{RigError, security};
+use stereoscope_service::Context;
 use stereoscope_transport::net::{ZenohMode, ZenohSpec};
 use stereoscope_transport::{Shutdown, iox, net};
 
@@ -117,7 +118,7 @@ pub enum LaunchError {
     /// A service refused its configuration: no restart would mend it, so the rig stopped.
     #[error(
         "{service} refused its configuration (exit status {}): {message}; stopped the rig",
-        stereoscope_rig::exit::CONFIG_EXIT_STATUS
+        stereoscope_service::exit::CONFIG_EXIT_STATUS
     )]
     ServiceConfig { service: String, message: String },
 }
@@ -368,7 +369,8 @@ pub fn router_specs(ctx: &Context) -> Result<Option<(ZenohSpec, ZenohSpec)>, Rig
         )));
     }
     let base = ctx.rig.base_dir.as_deref();
-    let Some(router) = security::router_spec(&ctx.rig.spec, &ctx.host, base)? else {
+    let Some(router) = stereoscope_service::router::router_spec(&ctx.rig.spec, &ctx.host, base)?
+    else {
         return Ok(None);
     };
     let local = ctx
@@ -399,8 +401,8 @@ pub fn run_router(ctx: &Context, shutdown: &Shutdown) -> Result<(), LaunchError>
 
 /// The router's command line (`stereoscope service router`).
 pub mod router_cli {
-    use stereoscope_rig::CommonArgs;
-    use stereoscope_transport::{Shutdown, init_logging};
+    use stereoscope_service::{CommonArgs, ServiceArgs};
+    use stereoscope_transport::Shutdown;
 
     #[derive(clap::Args, Debug, Clone)]
     pub struct Args {
@@ -408,13 +410,17 @@ pub mod router_cli {
         pub common: CommonArgs,
     }
 
-    /// Runs the router until SIGINT/SIGTERM.
-    pub fn main(args: Args) -> anyhow::Result<()> {
-        init_logging("router");
-        let shutdown = Shutdown::on_signals()?;
-        let ctx = args.common.resolve()?;
-        super::run_router(&ctx, &shutdown)?;
-        Ok(())
+    impl ServiceArgs for Args {
+        const NAME: &'static str = "router";
+        const ABOUT: &'static str =
+            "Run this host's Zenoh router (with the rig's TLS and access control)";
+
+        /// Runs the router until SIGINT/SIGTERM.
+        fn run(self, shutdown: Shutdown) -> anyhow::Result<String> {
+            let ctx = self.common.resolve()?;
+            super::run_router(&ctx, &shutdown)?;
+            Ok(format!("host {}", ctx.host))
+        }
     }
 }
 
@@ -529,7 +535,7 @@ pub fn run(cfg: LaunchConfig, shutdown: Shutdown) -> Result<u32, LaunchError> {
                     r.finished = true;
                     continue;
                 }
-                if status.code() == Some(stereoscope_rig::exit::CONFIG_EXIT_STATUS.into()) {
+                if status.code() == Some(stereoscope_service::exit::CONFIG_EXIT_STATUS.into()) {
                     // The copier ends at the pipe's end, after the service's last line.
                     if let Some(t) = r.stderr_copier.take() {
                         let _ = t.join();

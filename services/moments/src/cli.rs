@@ -2,8 +2,8 @@
 //! moments`.
 
 use crate::{MomentsConfig, run};
-use stereoscope_rig::CommonArgs;
-use stereoscope_transport::{Shutdown, init_logging};
+use stereoscope_service::{CommonArgs, ServiceArgs};
+use stereoscope_transport::Shutdown;
 
 #[derive(clap::Args, Debug, Clone)]
 pub struct Args {
@@ -17,18 +17,20 @@ pub struct Args {
     pub max_frames: Option<u64>,
 }
 
-/// Runs the worker until SIGINT/SIGTERM.
-pub fn main(args: Args) -> anyhow::Result<()> {
-    init_logging("moments");
-    let shutdown = Shutdown::on_signals()?;
-    let n = run(
-        MomentsConfig {
-            ctx: args.common.resolve()?,
-            camera: args.camera,
-            max_frames: args.max_frames,
-        },
-        shutdown,
-    )?;
-    tracing::info!(frames = n, "moment worker stopped");
-    Ok(())
+impl ServiceArgs for Args {
+    const NAME: &'static str = "moments";
+    const ABOUT: &'static str = "Track one camera's blobs and publish observations";
+
+    /// Runs the worker until SIGINT/SIGTERM.
+    fn run(self, shutdown: Shutdown) -> anyhow::Result<String> {
+        let n = run(
+            MomentsConfig {
+                ctx: self.common.resolve()?,
+                camera: self.camera,
+                max_frames: self.max_frames,
+            },
+            shutdown,
+        )?;
+        Ok(format!("{n} frames"))
+    }
 }

@@ -354,7 +354,7 @@ pub fn write(trial: &C3dTrial) -> Result<Vec<u8>, C3dError> {
 /// A parameter record as read: group id, name, type, dimensions, data.
 type RawParam = (i8, String, i8, Vec<usize>, Vec<u8>);
 
-/// Reads what [`write`] writes (Intel byte order, floating-point points); every problem is
+/// Reads what [`write()`] writes (Intel byte order, floating-point points); every problem is
 /// named, none panics.
 pub fn read(bytes: &[u8]) -> Result<C3dTrial, C3dError> {
     let corrupt = |s: String| C3dError::Corrupt(s);

@@ -3,8 +3,8 @@
 use crate::{RecorderConfig, run};
 use std::path::PathBuf;
 use std::time::Duration;
-use stereoscope_rig::CommonArgs;
-use stereoscope_transport::{Shutdown, init_logging};
+use stereoscope_service::{CommonArgs, ServiceArgs};
+use stereoscope_transport::Shutdown;
 
 #[derive(clap::Args, Debug, Clone)]
 pub struct Args {
@@ -28,35 +28,37 @@ pub struct Args {
     pub seconds: Option<f64>,
 }
 
-/// Records until SIGINT/SIGTERM.
-pub fn main(args: Args) -> anyhow::Result<()> {
-    init_logging("recorder");
-    let shutdown = Shutdown::on_signals()?;
-    if let Some(s) = args.seconds {
-        if !(s.is_finite() && s > 0.0 && s <= 1e9) {
-            anyhow::bail!("--seconds {s} must be a number of seconds above zero");
+impl ServiceArgs for Args {
+    const NAME: &'static str = "recorder";
+    const ABOUT: &'static str = "Record poses, observations and frames into a session folder";
+
+    /// Records until SIGINT/SIGTERM (or `--seconds`).
+    fn run(self, shutdown: Shutdown) -> anyhow::Result<String> {
+        if let Some(s) = self.seconds {
+            if !(s.is_finite() && s > 0.0 && s <= 1e9) {
+                anyhow::bail!("--seconds {s} must be a number of seconds above zero");
+            }
+            let stop = shutdown.clone();
+            std::thread::spawn(move || {
+                stop.sleep(std::time::Duration::from_secs_f64(s));
+                stop.request();
+            });
         }
-        let stop = shutdown.clone();
-        std::thread::spawn(move || {
-            stop.sleep(std::time::Duration::from_secs_f64(s));
-            stop.request();
-        });
+        let ctx = self.common.resolve()?;
+        let out = match (self.out, self.into) {
+            (Some(out), _) => out,
+            (None, Some(folder)) => crate::session::new_session_folder(&folder, &ctx.rig.name),
+            (None, None) => anyhow::bail!("give --out SESSION or --into FOLDER"),
+        };
+        let (p, o) = run(
+            RecorderConfig {
+                ctx,
+                out,
+                flush_interval: Duration::from_millis(self.flush_ms.max(1)),
+                frames: self.frames,
+            },
+            shutdown,
+        )?;
+        Ok(format!("{p} pose frames, {o} observations"))
     }
-    let ctx = args.common.resolve()?;
-    let out = match (args.out, args.into) {
-        (Some(out), _) => out,
-        (None, Some(folder)) => crate::session::new_session_folder(&folder, &ctx.rig.name),
-        (None, None) => anyhow::bail!("give --out SESSION or --into FOLDER"),
-    };
-    let (p, o) = run(
-        RecorderConfig {
-            ctx,
-            out,
-            flush_interval: Duration::from_millis(args.flush_ms.max(1)),
-            frames: args.frames,
-        },
-        shutdown,
-    )?;
-    tracing::info!(pose_frames = p, observations = o, "recorder stopped");
-    Ok(())
 }

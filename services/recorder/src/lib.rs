@@ -17,14 +17,13 @@ use session::{POSES_CSV_HEADER, SESSION_SCHEMA, SessionInfo, csv_rows};
 use std::fs::File;
 use std::io::Write;
 use std::path::PathBuf;
-use std::sync::mpsc;
 use std::time::{Duration, Instant};
 use stereoscope_proto::frame::{FrameHeader, PixelFormat};
-use stereoscope_proto::messages::{Message, Observation, PoseFrame, now_ns};
+use stereoscope_proto::messages::{Observation, PoseFrame, now_ns};
 use stereoscope_proto::names::{iox as iox_names, zenoh as keys};
-use stereoscope_rig::Context;
+use stereoscope_service::Context;
 use stereoscope_transport::iox::FrameSubscriber;
-use stereoscope_transport::{Flow, Service, ServiceNode, Shutdown, drive, net};
+use stereoscope_transport::{Flow, Inlet, Service, ServiceNode, Shutdown, drive};
 
 #[derive(Debug, Clone)]
 pub struct RecorderConfig {
@@ -62,13 +61,6 @@ pub enum RecorderError {
         #[source]
         source: std::io::Error,
     },
-}
-
-enum Item {
-    Poses(Vec<u8>, PoseFrame),
-    Observation(Vec<u8>),
-    /// Refused (not recorded): the reason it is counted under, and the message.
-    Bad(&'static str, String),
 }
 
 struct Out {
@@ -195,9 +187,12 @@ struct FrameTrack {
 pub struct Recorder {
     cfg: RecorderConfig,
     node: ServiceNode,
-    items: mpsc::Receiver<Item>,
-    /// Kept alive while recording: dropping them ends the subscriptions.
-    subs: Vec<net::NetSubscriber>,
+    /// Only messages that decode within the protocol's limits and name this rig are recorded
+    /// (a session replays and exports what it holds), each as the bytes that came.
+    poses: Inlet<PoseFrame>,
+    observations: Inlet<Observation>,
+    /// Of the inlets' overflow, what is already counted as dropped.
+    overflow_counted: u64,
     poses_out: Out,
     obs_out: Out,
     csv_out: Out,
@@ -270,37 +265,35 @@ impl Recorder {
                 y4m: Y4mState::default(),
             });
         }
-        let (tx, rx) = mpsc::sync_channel::<Item>(4096);
-        let tx2 = tx.clone();
-        // Only messages that decode within the protocol's limits and name this rig are
-        // recorded: a session replays and exports what it holds.
-        let (rig_p, rig_o) = (rig.clone(), rig.clone());
-        let foreign = |k: &str, what: &str, other: &str| {
-            Item::Bad("foreign", format!("{k}: {what} of rig {other:?}"))
-        };
-        let poses = net::subscribe(&node.session, &keys::poses(&rig), move |k, b| {
-            let item = match PoseFrame::from_json(b) {
-                Ok(f) if f.rig == rig_p => Item::Poses(b.to_vec(), f),
-                Ok(f) => foreign(k, "pose frame", &f.rig),
-                Err(e) => Item::Bad(e.reason(), format!("{k}: {e}")),
-            };
-            let _ = tx.send(item);
-        })?;
-        let observations =
-            net::subscribe(&node.session, &keys::all_observations(&rig), move |k, b| {
-                let item = match Observation::from_json(b) {
-                    Ok(o) if o.rig == rig_o => Item::Observation(b.to_vec()),
-                    Ok(o) => foreign(k, "observation", &o.rig),
-                    Err(e) => Item::Bad(e.reason(), format!("{k}: {e}")),
-                };
-                let _ = tx2.send(item);
-            })?;
+        let poses = Inlet::zenoh(
+            &node.session,
+            &[keys::poses(&rig)],
+            &rig,
+            "pose frame",
+            4096,
+        )?;
+        let obs_rig = rig.clone();
+        let observations = Inlet::zenoh(
+            &node.session,
+            &[keys::all_observations(&rig)],
+            &rig,
+            "observation",
+            4096,
+        )?
+        .expecting(move |key, o: &Observation| {
+            if key == keys::observations(&obs_rig, &o.camera) {
+                Ok(())
+            } else {
+                Err(format!("of camera {:?} on another camera's key", o.camera))
+            }
+        });
         tracing::info!(out = %cfg.out.display(), "recording");
         Ok(Recorder {
             cfg,
             node,
-            items: rx,
-            subs: vec![poses, observations],
+            poses,
+            observations,
+            overflow_counted: 0,
             poses_out,
             obs_out,
             csv_out,
@@ -311,30 +304,30 @@ impl Recorder {
         })
     }
 
-    /// Takes the messages queued (waiting up to `wait` for the first) into the buffers, until
-    /// a flush is due; how many it took.
+    /// Takes the messages queued (waiting up to `wait` for the first pose frame) into the
+    /// buffers, until a flush is due; how many it took.
     fn take_messages(&mut self, wait: Duration) -> usize {
         let mut taken = 0;
-        let first = self.items.recv_timeout(wait).ok();
         let counters = &mut self.node.counters;
-        for item in first
-            .into_iter()
-            .chain(std::iter::from_fn(|| self.items.try_recv().ok()))
-        {
-            match item {
-                Item::Poses(bytes, f) => {
-                    self.poses_out.buf.extend_from_slice(&bytes);
-                    self.poses_out.buf.push(b'\n');
-                    self.csv_out.buf.extend_from_slice(csv_rows(&f).as_bytes());
-                    self.n_poses += 1;
-                }
-                Item::Observation(bytes) => {
-                    self.obs_out.buf.extend_from_slice(&bytes);
-                    self.obs_out.buf.push(b'\n');
-                    self.n_obs += 1;
-                }
-                Item::Bad(reason, m) => counters.reject(reason, &m),
+        let first = self.poses.next_with_bytes(wait, counters);
+        let mut poses = first.into_iter().chain(std::iter::from_fn(|| {
+            self.poses.next_with_bytes(Duration::ZERO, counters)
+        }));
+        for (f, bytes) in poses.by_ref() {
+            self.poses_out.buf.extend_from_slice(&bytes);
+            self.poses_out.buf.push(b'\n');
+            self.csv_out.buf.extend_from_slice(csv_rows(&f).as_bytes());
+            self.n_poses += 1;
+            taken += 1;
+            if self.last_flush.elapsed() >= self.cfg.flush_interval {
+                return taken;
             }
+        }
+        drop(poses);
+        while let Some((_, bytes)) = self.observations.next_with_bytes(Duration::ZERO, counters) {
+            self.obs_out.buf.extend_from_slice(&bytes);
+            self.obs_out.buf.push(b'\n');
+            self.n_obs += 1;
             taken += 1;
             if self.last_flush.elapsed() >= self.cfg.flush_interval {
                 break;
@@ -398,6 +391,10 @@ impl Recorder {
 
     fn count(&mut self) {
         let counters = &mut self.node.counters;
+        // Messages that came while 4096 were queued are lost: counted as dropped.
+        let overflowed = self.poses.overflowed() + self.observations.overflowed();
+        counters.dropped += overflowed.saturating_sub(self.overflow_counted);
+        self.overflow_counted = overflowed;
         counters.processed = self.n_poses;
         counters
             .detail
@@ -428,8 +425,9 @@ impl Service for Recorder {
 
     /// Takes what is still queued and writes everything.
     fn stop(&mut self) -> Result<(), RecorderError> {
-        // No more messages after these: the queue below ends.
-        self.subs.clear();
+        // No more messages after these: the queues below end.
+        self.poses.close();
+        self.observations.close();
         while self.take_messages(Duration::ZERO) > 0 {
             self.flush(false)?;
         }

@@ -1,6 +1,6 @@
 //! `stereoscope replay` and `stereoscope export`.
 //!
-//! Replay re-runs fusion (`stereoscope_fusion::fuser`, the same code the service runs) on the
+//! Replay re-runs fusion (`stereoscope_pipeline::Fusion`, the same code the service runs) on the
 //! recorded observations, grouped into exactly the sets the live fusion used (each recorded
 //! pose frame names its cameras and time), and compares every pose with the recorded one; and
 //! it can publish the recorded observations back on Zenoh, at recorded speed or as fast as
@@ -8,7 +8,7 @@
 
 use crate::session::{BODIES_CSV_HEADER, POSES_CSV_HEADER, Session, body_csv_rows, csv_rows};
 use std::collections::HashMap;
-use stereoscope_fusion::fuser::Fuser;
+use stereoscope_pipeline::Fusion;
 use stereoscope_proto::messages::{Observation, PoseFrame};
 use stereoscope_rig::Rig;
 
@@ -160,9 +160,7 @@ pub fn refuse_with(
     mut frame: impl FnMut(PoseFrame),
 ) -> Result<Refused, ReplayError> {
     let rig = rig.clone();
-    let (_, fuser_cfg, _) = stereoscope_fusion::settings(&rig.spec);
-    let mut fuser = Fuser::new(&rig, fuser_cfg);
-    let mut bodies = stereoscope_fusion::bodies::Bodies::of_rig(&rig.spec);
+    let mut fusion = Fusion::of_rig(&rig);
     let mut by_key: HashMap<(String, u64), &Observation> = HashMap::new();
     for o in &session.observations {
         by_key.insert((o.camera.clone(), o.timestamp_ns), o);
@@ -206,8 +204,7 @@ pub fn refuse_with(
             continue;
         }
         set.sort_by_key(|(c, _)| *c);
-        let mut poses = fuser.fuse(&set, pf.timestamp_ns);
-        let found = bodies.update_refined(&mut poses, pf.timestamp_ns, &mut fuser);
+        let (poses, found) = fusion.fuse(&set, pf.timestamp_ns);
         out.frames += 1;
         frame(PoseFrame {
             poses: poses.clone(),

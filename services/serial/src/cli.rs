@@ -3,8 +3,8 @@
 
 use crate::{SerialConfig, run};
 use stereoscope_proto::serial::SerialMode;
-use stereoscope_rig::CommonArgs;
-use stereoscope_transport::{Shutdown, init_logging};
+use stereoscope_service::{CommonArgs, ServiceArgs};
+use stereoscope_transport::Shutdown;
 
 #[derive(clap::Args, Debug, Clone)]
 pub struct Args {
@@ -27,21 +27,23 @@ pub struct Args {
     pub max_packets: Option<u64>,
 }
 
-/// Runs the service until SIGINT/SIGTERM.
-pub fn main(args: Args) -> anyhow::Result<()> {
-    init_logging("serial");
-    let shutdown = Shutdown::on_signals()?;
-    let n = run(
-        SerialConfig {
-            ctx: args.common.resolve()?,
-            port: args.port,
-            baud: args.baud,
-            mode: args.mode,
-            objects: args.objects,
-            max_packets: args.max_packets,
-        },
-        shutdown,
-    )?;
-    tracing::info!(packets = n, "serial output stopped");
-    Ok(())
+impl ServiceArgs for Args {
+    const NAME: &'static str = "serial";
+    const ABOUT: &'static str = "Send poses over a serial link";
+
+    /// Runs the service until SIGINT/SIGTERM.
+    fn run(self, shutdown: Shutdown) -> anyhow::Result<String> {
+        let n = run(
+            SerialConfig {
+                ctx: self.common.resolve()?,
+                port: self.port,
+                baud: self.baud,
+                mode: self.mode,
+                objects: self.objects,
+                max_packets: self.max_packets,
+            },
+            shutdown,
+        )?;
+        Ok(format!("{n} packets"))
+    }
 }

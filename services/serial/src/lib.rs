@@ -19,13 +19,12 @@
 pub mod cli;
 
 use std::io::Write as _;
-use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
-use stereoscope_proto::messages::{Message, PoseFrame};
+use stereoscope_proto::messages::PoseFrame;
 use stereoscope_proto::names::zenoh as keys;
 use stereoscope_proto::serial::{SerialMode, SerialPose, encode_framed, encode_legacy};
-use stereoscope_rig::Context;
-use stereoscope_transport::{Flow, Service, ServiceNode, Shutdown, drive, net};
+use stereoscope_service::Context;
+use stereoscope_transport::{Flow, Inlet, Service, ServiceNode, Shutdown, drive};
 
 #[derive(Debug, Clone)]
 pub struct SerialConfig {
@@ -118,32 +117,20 @@ pub fn packet(
     }
 }
 
-#[derive(Default)]
-struct Latest {
-    frame: Option<PoseFrame>,
-    generation: u64,
-    /// Messages refused since the service last looked: each with its reason.
-    bad: Vec<(&'static str, String)>,
-    /// Refused beyond those kept (counted, not kept).
-    bad_uncounted: u64,
-}
-
-/// Most refusals kept between two looks (a flood is counted, its messages not all kept).
-const MAX_BAD_KEPT: usize = 64;
-
 /// Runs until shutdown (or `max_packets`); returns the packets written.
 pub fn run(cfg: SerialConfig, shutdown: Shutdown) -> Result<u64, SerialServiceError> {
     drive(SerialService::setup(cfg)?, &shutdown)
 }
 
-/// A running serial output: the newest pose frame (kept by the Zenoh subscription), the
-/// port (opened again after a failure), and the line's pacing.
+/// A running serial output: the newest pose frame (from its Zenoh inlet), the port (opened again after a failure), and the line's pacing.
 pub struct SerialService {
     cfg: SerialConfig,
     node: ServiceNode,
-    latest: Arc<Mutex<Latest>>,
-    /// Kept alive: dropping it ends the subscription.
-    _poses: net::NetSubscriber,
+    /// Pose frames from fusion's key; only the newest counts.
+    poses: Inlet<PoseFrame>,
+    latest: Option<PoseFrame>,
+    /// Pose frames taken so far (the newest's number).
+    generation: u64,
     port: Option<Box<dyn serialport::SerialPort>>,
     next_open: Instant,
     line_free: Instant,
@@ -195,32 +182,15 @@ impl SerialService {
             ..ctx.node_spec(&service)
         })
         .map_err(transport)?;
-        let latest = Arc::new(Mutex::new(Latest::default()));
-        let sink = latest.clone();
-        let poses = net::subscribe(&node.session, &keys::poses(&rig), move |k, b| {
-            let mut l = sink.lock().unwrap_or_else(|e| e.into_inner());
-            let bad = match PoseFrame::from_json(b) {
-                Ok(f) if f.rig == rig => {
-                    l.frame = Some(f);
-                    l.generation += 1;
-                    return;
-                }
-                Ok(f) => ("foreign", format!("{k}: pose frame of rig {:?}", f.rig)),
-                Err(e) => (e.reason(), format!("{k}: {e}")),
-            };
-            if l.bad.len() < MAX_BAD_KEPT {
-                l.bad.push(bad);
-            } else {
-                l.bad_uncounted += 1;
-            }
-        })
-        .map_err(transport)?;
+        let poses = Inlet::zenoh(&node.session, &[keys::poses(&rig)], &rig, "pose frame", 256)
+            .map_err(transport)?;
         tracing::info!(port = %cfg.port, baud = cfg.baud, mode = ?cfg.mode, "serial output ready");
         Ok(SerialService {
             cfg,
             node,
-            latest,
-            _poses: poses,
+            poses,
+            latest: None,
+            generation: 0,
             port: None,
             next_open: Instant::now(),
             line_free: Instant::now(),
@@ -270,15 +240,11 @@ impl SerialService {
     /// (those pending from an older frame are superseded and counted as dropped).
     fn newest_frame(&mut self) -> Option<PoseFrame> {
         let counters = &mut self.node.counters;
-        let (frame, generation) = {
-            let mut l = self.latest.lock().unwrap_or_else(|e| e.into_inner());
-            for (reason, message) in l.bad.drain(..) {
-                counters.reject(reason, &message);
-            }
-            counters.rejected += std::mem::take(&mut l.bad_uncounted);
-            (l.frame.clone(), l.generation)
-        };
-        let frame = frame?;
+        while let Some(f) = self.poses.try_next(counters) {
+            self.latest = Some(f);
+            self.generation += 1;
+        }
+        let (frame, generation) = (self.latest.clone()?, self.generation);
         if generation != self.sent_generation {
             counters.dropped += self.pending.len() as u64;
             let order: Vec<u32> = selected(&frame, &self.cfg.objects, self.cfg.mode)

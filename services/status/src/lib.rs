@@ -9,8 +9,9 @@ use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 use stereoscope_proto::messages::{Health, Message, PoseFrame, now_ns};
 use stereoscope_proto::names::zenoh as keys;
-use stereoscope_transport::TransportError;
+use stereoscope_transport::inlet::{self, Admission};
 use stereoscope_transport::net::{self, ZenohSpec};
+use stereoscope_transport::{Refusal, TransportError};
 
 #[derive(Debug, Clone)]
 pub struct StatusConfig {
@@ -39,12 +40,25 @@ pub struct ServiceStatus {
 pub struct Status {
     pub services: Vec<ServiceStatus>,
     pub poses: Option<PoseFrame>,
+    /// Messages refused while listening (another rig's, or ones that do not decode), and
+    /// the last refusal.
+    pub refused: u64,
+    pub last_refused: Option<String>,
 }
 
 #[derive(Default)]
 struct Seen {
     health: BTreeMap<(String, String), (Health, Instant)>,
     poses: Option<PoseFrame>,
+    refused: u64,
+    last_refused: Option<String>,
+}
+
+impl Seen {
+    fn refuse(&mut self, r: Refusal) {
+        self.refused += 1;
+        self.last_refused = Some(r.message);
+    }
 }
 
 /// A connection that keeps listening, for `--watch`.
@@ -52,7 +66,9 @@ pub struct Monitor {
     session: zenoh::Session,
     seen: Arc<Mutex<Seen>>,
     cfg: StatusConfig,
-    _subs: Vec<zenoh::pubsub::Subscriber<()>>,
+    _subs: Vec<net::NetSubscriber>,
+    /// When it began listening.
+    started: Instant,
 }
 
 impl std::fmt::Debug for Monitor {
@@ -69,27 +85,51 @@ fn split_key(key: &str, prefix: &str) -> Option<(String, String)> {
 
 impl Monitor {
     pub fn connect(cfg: StatusConfig) -> Result<Self, TransportError> {
-        let session = net::open(&cfg.zenoh)?;
+        let session = match cfg.zenoh.mode {
+            stereoscope_transport::ZenohMode::Client => net::open_client(&cfg.zenoh)?,
+            _ => net::open(&cfg.zenoh)?,
+        };
         let seen = Arc::new(Mutex::new(Seen::default()));
         let s1 = seen.clone();
         let health_prefix = format!("stereoscope/{}/health/", cfg.rig);
-        let h = net::subscribe(&session, &keys::all_health(&cfg.rig), move |k, b| {
-            if let (Some(id), Ok(h)) = (split_key(k, &health_prefix), Health::from_json(b)) {
+        let lock = |s: &Arc<Mutex<Seen>>| {
+            let s = s.clone();
+            move |r: Refusal| s.lock().unwrap_or_else(|e| e.into_inner()).refuse(r)
+        };
+        // A health report on another service's key is refused: the table is by key.
+        let mut subs = inlet::listen(
+            &session,
+            &[keys::all_health(&cfg.rig)],
+            Admission::<Health>::new(&cfg.rig, "health").expecting(move |k, h: &Health| {
+                match split_key(k, &health_prefix) {
+                    Some((host, service)) if host == h.host && service == h.service => Ok(()),
+                    _ => Err(format!(
+                        "of {}/{} on another service's key",
+                        h.host, h.service
+                    )),
+                }
+            }),
+            move |h, _| {
                 let mut s = s1.lock().unwrap_or_else(|e| e.into_inner());
+                let id = (h.host.clone(), h.service.clone());
                 s.health.insert(id, (h, Instant::now()));
-            }
-        })?;
+            },
+            lock(&seen),
+        )?;
         let s2 = seen.clone();
-        let p = net::subscribe(&session, &keys::poses(&cfg.rig), move |_, b| {
-            if let Ok(p) = PoseFrame::from_json(b) {
-                s2.lock().unwrap_or_else(|e| e.into_inner()).poses = Some(p);
-            }
-        })?;
+        subs.extend(inlet::listen(
+            &session,
+            &[keys::poses(&cfg.rig)],
+            Admission::<PoseFrame>::new(&cfg.rig, "pose frame"),
+            move |p, _| s2.lock().unwrap_or_else(|e| e.into_inner()).poses = Some(p),
+            lock(&seen),
+        )?);
         Ok(Monitor {
             session,
             seen,
             cfg,
-            _subs: vec![h, p],
+            _subs: subs,
+            started: Instant::now(),
         })
     }
 
@@ -128,7 +168,9 @@ impl Monitor {
                 // Stalled: no report for the stall time, or reports that handled nothing.
                 let stalled = (camera_service || (fusion && observations_flow))
                     && match h {
-                        None => true,
+                        // No report yet: stalled only once a report had time to come (the
+                        // first seconds of listening, or of a service, are not a stall).
+                        None => self.started.elapsed().as_secs_f64() > stall,
                         Some((h, t)) => {
                             t.elapsed().as_secs_f64() > stall
                                 || (h.rate_hz == 0.0
@@ -148,6 +190,8 @@ impl Monitor {
         Ok(Status {
             services,
             poses: seen.poses.clone(),
+            refused: seen.refused,
+            last_refused: seen.last_refused.clone(),
         })
     }
 
@@ -223,6 +267,12 @@ pub fn to_text(s: &Status) -> String {
         if let Some(e) = x.health.as_ref().and_then(|h| h.last_error.as_ref()) {
             o.push_str(&format!("            last error: {e}\n"));
         }
+    }
+    if let Some(r) = &s.last_refused {
+        o.push_str(&format!(
+            "{} messages refused while listening; the last: {r}\n",
+            s.refused
+        ));
     }
     if let Some(p) = &s.poses {
         o.push_str(&format!(

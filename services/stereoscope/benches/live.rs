@@ -13,13 +13,13 @@
 
 use std::sync::mpsc;
 use std::time::{Duration, Instant};
-use stereoscope_capture::source::FrameSource;
-use stereoscope_capture::synthetic::{SyntheticSource, ping_pong};
 use stereoscope_demo::{DEMO_RIG, DemoConfig};
-use stereoscope_moments::Worker;
+use stereoscope_pipeline::worker::Worker;
 use stereoscope_proto::frame::{FrameHeader, PixelFormat};
 use stereoscope_proto::messages::now_ns;
 use stereoscope_rig::Rig;
+use stereoscope_sources::FrameSource;
+use stereoscope_sources::synthetic::{SyntheticSource, ping_pong};
 use stereoscope_transport::iox::{FramePublisher, FrameStamp, FrameSubscriber, node};
 use stereoscope_transport::net::{self, ZenohMode, ZenohSpec};
 use stereoscope_transport::{Shutdown, init_logging};
@@ -283,7 +283,7 @@ fn worker_fps(
         std::fs::create_dir_all(&sub).unwrap();
         // The threshold the worker's rule takes from each frame's own histogram (the rows it
         // reads), for the OpenCV side to check its histogram and the same rule against.
-        let rows_step = (h / stereoscope_moments::THRESHOLD_ROWS).max(1);
+        let rows_step = (h / stereoscope_pipeline::worker::THRESHOLD_ROWS).max(1);
         let mut per_frame = Vec::new();
         for (k, (f, obs)) in frames.iter().zip(&found).enumerate() {
             let img = stereoscope_vision::GrayImage::from_vec(f.clone(), w, h).unwrap();

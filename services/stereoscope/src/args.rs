@@ -111,7 +111,7 @@ pub struct MaskArgs {
     #[arg(long)]
     pub connect: Option<String>,
     #[command(flatten)]
-    pub tls: stereoscope_rig::context::TlsArgs,
+    pub tls: stereoscope_service::context::TlsArgs,
 }
 
 impl MaskArgs {
@@ -252,7 +252,7 @@ pub struct WandArgs {
     #[arg(long)]
     pub connect: Option<String>,
     #[command(flatten)]
-    pub tls: stereoscope_rig::context::TlsArgs,
+    pub tls: stereoscope_service::context::TlsArgs,
     /// The wand: 0 (one marker: no scale, set it later with `calibrate floor --scale`), D (two
     /// markers D apart) or D1,D2 (three in a line, D1 and D2 from one end).
     #[arg(long, value_delimiter = ',', required = true)]
@@ -433,7 +433,7 @@ pub struct ViewArgs {
     /// The rig file.
     pub rig: PathBuf,
     #[command(flatten)]
-    pub place: stereoscope_rig::HostArgs,
+    pub place: stereoscope_service::HostArgs,
     /// Serve on this address and port instead of the rig's `[viewer] listen` (default
     /// 127.0.0.1:8750; port 0 takes a free one, printed at start).
     #[arg(long)]
@@ -442,14 +442,14 @@ pub struct ViewArgs {
     #[arg(long)]
     pub connect: Vec<String>,
     #[command(flatten)]
-    pub tls: stereoscope_rig::context::TlsArgs,
+    pub tls: stereoscope_service::context::TlsArgs,
 }
 
 impl ViewArgs {
     /// The viewer service's own arguments.
     pub fn into_service_args(self) -> stereoscope_viewer::cli::Args {
         stereoscope_viewer::cli::Args {
-            common: stereoscope_rig::CommonArgs {
+            common: stereoscope_service::CommonArgs {
                 rig: self.rig,
                 place: self.place,
                 zenoh_mode: (!self.connect.is_empty()).then(|| "client".to_string()),
@@ -468,7 +468,7 @@ pub struct RunArgs {
     /// The rig file.
     pub rig: PathBuf,
     #[command(flatten)]
-    pub place: stereoscope_rig::HostArgs,
+    pub place: stereoscope_service::HostArgs,
     /// Do not run a Zenoh router here (one runs already).
     #[arg(long)]
     pub no_router: bool,
@@ -496,7 +496,7 @@ pub struct StatusArgs {
     pub stall_ms: u64,
     /// Certificates for a tls/ router (from another PC).
     #[command(flatten)]
-    pub tls: stereoscope_rig::context::TlsArgs,
+    pub tls: stereoscope_service::context::TlsArgs,
 }
 
 /// `stereoscope body define`: its options.
@@ -521,7 +521,7 @@ pub struct BodyDefineArgs {
     pub write: bool,
     /// Certificates for a tls/ router (from another PC).
     #[command(flatten)]
-    pub tls: stereoscope_rig::context::TlsArgs,
+    pub tls: stereoscope_service::context::TlsArgs,
 }
 
 /// `stereoscope replay`: its options.

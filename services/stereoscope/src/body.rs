@@ -159,11 +159,9 @@ pub fn define_live(
     seconds: f64,
     tolerance: Option<f64>,
     write: bool,
-    tls: stereoscope_rig::context::TlsArgs,
+    tls: stereoscope_service::context::TlsArgs,
 ) -> anyhow::Result<String> {
     use anyhow::Context as _;
-    use stereoscope_proto::messages::Message;
-    use stereoscope_transport::net;
     let rig = stereoscope_rig::Rig::load(rig_path)?;
     if !stereoscope_proto::names::valid_segment(name) {
         anyhow::bail!(
@@ -171,22 +169,20 @@ pub fn define_live(
         );
     }
     let (session, endpoint) = crate::mask::client_session(&rig, connect, &tls)?;
-    let (tx, rx) = std::sync::mpsc::sync_channel::<PoseFrame>(100_000);
-    let rig_name = rig.name.clone();
-    let _sub = net::subscribe(
+    let inlet = stereoscope_transport::Inlet::<PoseFrame>::zenoh(
         &session,
-        &stereoscope_proto::names::zenoh::poses(&rig.name),
-        move |_, b| {
-            if let Ok(f) = PoseFrame::from_json(b)
-                && f.rig == rig_name
-            {
-                let _ = tx.try_send(f);
-            }
-        },
+        &[stereoscope_proto::names::zenoh::poses(&rig.name)],
+        &rig.name,
+        "pose frame",
+        100_000,
     )?;
     eprintln!("hold the body still: listening {seconds} s to {endpoint} …");
     std::thread::sleep(std::time::Duration::from_secs_f64(seconds.clamp(0.1, 60.0)));
-    let frames: Vec<PoseFrame> = rx.try_iter().collect();
+    let mut refused = stereoscope_transport::Counters::default();
+    let frames: Vec<PoseFrame> = std::iter::from_fn(|| inlet.try_next(&mut refused)).collect();
+    if let Some(r) = refused.refusals() {
+        eprintln!("pose frames {r}");
+    }
     if frames.is_empty() {
         return Err(DefineError::NoFrames { seconds }.into());
     }
@@ -211,7 +207,8 @@ pub fn define_live(
     if write {
         let old = std::fs::read_to_string(rig_path)
             .with_context(|| format!("reading {}", rig_path.display()))?;
-        let new = format!("{}\n{text}", old.trim_end());
+        // A blank line between the file's last table and the new one.
+        let new = format!("{}\n\n{text}", old.trim_end());
         // The whole file with the body must load before it replaces the old one.
         stereoscope_rig::Rig::from_toml(&new)
             .with_context(|| format!("{} with the new body", rig_path.display()))?;

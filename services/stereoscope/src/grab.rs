@@ -9,9 +9,9 @@ use anyhow::Context as _;
 use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
-use stereoscope_capture::source::Read;
 use stereoscope_proto::frame::{FrameHeader, PixelFormat};
 use stereoscope_proto::messages::Observation;
+use stereoscope_sources::Read;
 use stereoscope_vision::GrayImage;
 
 /// How to save the frames.
@@ -175,9 +175,9 @@ pub fn run(opts: &GrabOptions, out: &mut impl Write) -> anyhow::Result<usize> {
     } else {
         rig.spec.cameras[index].host.clone()
     };
-    let ctx = stereoscope_rig::CommonArgs {
+    let ctx = stereoscope_service::CommonArgs {
         rig: opts.rig.clone(),
-        place: stereoscope_rig::HostArgs {
+        place: stereoscope_service::HostArgs {
             host,
             iox_prefix: None,
         },
@@ -189,8 +189,9 @@ pub fn run(opts: &GrabOptions, out: &mut impl Write) -> anyhow::Result<usize> {
     .resolve()?;
     let settings = ctx.rig.worker_settings(index)?;
     let max_level = settings.max_level;
-    let mut worker = stereoscope_moments::Worker::new(settings, &ctx.rig.name, &opts.camera)?;
-    let mut source = stereoscope_capture::open_source(&ctx, &opts.camera)?;
+    let mut worker =
+        stereoscope_pipeline::worker::Worker::new(settings, &ctx.rig.name, &opts.camera)?;
+    let mut source = stereoscope_sources::open(&ctx.rig, &opts.camera)?;
     let (w, h) = source.size();
     let format = source.format();
     let bytes_pp = match format {

@@ -6,13 +6,14 @@ use anyhow::Context as _;
 use std::path::PathBuf;
 use stereoscope_demo::{DemoConfig, DemoSummary};
 use stereoscope_launcher::{LaunchConfig, run};
-use stereoscope_rig::CommonArgs;
+use stereoscope_service::CommonArgs;
+use stereoscope_transport::inlet::Admission;
 use stereoscope_transport::{Shutdown, init_logging};
 
 /// Runs this host's services of `rig` until Ctrl-C.
 pub fn run_rig(
     rig: PathBuf,
-    place: stereoscope_rig::HostArgs,
+    place: stereoscope_service::HostArgs,
     router: bool,
     program: anyhow::Result<Vec<String>>,
 ) -> anyhow::Result<usize> {
@@ -27,7 +28,7 @@ pub fn run_rig(
         tls: Default::default(),
     }
     .resolve()?;
-    stereoscope_capture::check_supported(&ctx.rig, &ctx.cameras_here())?;
+    stereoscope_sources::check_supported(&ctx.rig, &ctx.cameras_here())?;
     if ctx.rig.spec.fusion.is_none() {
         tracing::warn!(
             "{} has no [fusion] section: no fusion will run, so no poses are made",
@@ -173,7 +174,7 @@ pub fn status(
     watch: bool,
     json: bool,
     stall_ms: u64,
-    tls: stereoscope_rig::context::TlsArgs,
+    tls: stereoscope_service::context::TlsArgs,
 ) -> anyhow::Result<usize> {
     use stereoscope_status::{Monitor, StatusConfig, to_json, to_text};
     use stereoscope_transport::net::ZenohSpec;
@@ -384,10 +385,11 @@ pub fn replay_frames(
         ));
     }
     use std::sync::{Arc, Mutex};
-    use stereoscope_proto::messages::{Message, PoseFrame};
+    use stereoscope_proto::messages::PoseFrame;
     use stereoscope_recorder::replay::{compare_frames, frames_rig};
     use stereoscope_recorder::session::Session;
-    use stereoscope_rig::{Context, Rig};
+    use stereoscope_rig::Rig;
+    use stereoscope_service::Context;
     use stereoscope_transport::net::{self, ZenohSpec};
     let s = Session::read(&session)?;
     for w in &s.warnings {
@@ -407,7 +409,7 @@ pub fn replay_frames(
     let rig_path = work.join("replay-rig.toml");
     std::fs::write(&rig_path, &text).with_context(|| rig_path.display().to_string())?;
     let rig = Rig::load(&rig_path).map_err(|e| anyhow::anyhow!("the replay rig: {e}"))?;
-    let client = ZenohSpec::client_of(&stereoscope_rig::context::local_endpoint(&listen));
+    let client = ZenohSpec::client_of(&stereoscope_rig::security::local_endpoint(&listen));
     let ctx = Context {
         rig_path,
         rig: rig.clone(),
@@ -447,19 +449,23 @@ pub fn replay_frames(
     let health: Arc<
         Mutex<std::collections::BTreeMap<String, stereoscope_proto::messages::Health>>,
     > = Arc::default();
+    // Messages refused on the way (another rig's, or ones that do not decode): the first
+    // ten, said after the replay.
+    let refused = Arc::new(Mutex::new(Vec::<stereoscope_transport::Refusal>::new()));
     let _health_sub = match &zs {
         Some(z) => {
             let sink = health.clone();
-            Some(net::subscribe(
+            let keep = refused.clone();
+            Some(stereoscope_transport::inlet::listen(
                 z,
-                &stereoscope_proto::names::zenoh::all_health(&rig.name),
-                move |_, b| {
-                    if let Ok(h) = stereoscope_proto::messages::Health::from_json(b)
-                        && let Ok(mut m) = sink.lock()
-                    {
+                &[stereoscope_proto::names::zenoh::all_health(&rig.name)],
+                Admission::<stereoscope_proto::messages::Health>::new(&rig.name, "health"),
+                move |h, _| {
+                    if let Ok(mut m) = sink.lock() {
                         m.insert(h.service.clone(), h);
                     }
                 },
+                move |r| keep_first(&keep, r),
             )?)
         }
         None => None,
@@ -467,16 +473,17 @@ pub fn replay_frames(
     let _sub = match &zs {
         Some(z) => {
             let sink = replayed.clone();
-            Some(net::subscribe(
+            let keep = refused.clone();
+            Some(stereoscope_transport::inlet::listen(
                 z,
-                &stereoscope_proto::names::zenoh::poses(&rig.name),
-                move |_, b| {
-                    if let Ok(p) = PoseFrame::from_json(b)
-                        && let Ok(mut v) = sink.lock()
-                    {
+                &[stereoscope_proto::names::zenoh::poses(&rig.name)],
+                Admission::<PoseFrame>::new(&rig.name, "pose frame"),
+                move |p, _| {
+                    if let Ok(mut v) = sink.lock() {
                         v.push(p);
                     }
                 },
+                move |r| keep_first(&keep, r),
             )?)
         }
         None => {
@@ -507,6 +514,9 @@ pub fn replay_frames(
     let replayed = replayed.lock().map(|v| v.clone()).unwrap_or_default();
     let c = compare_frames(&s.poses, &replayed);
     let losses = health.lock().map(|h| losses(&h)).unwrap_or_default();
+    for r in refused.lock().map(|v| v.clone()).unwrap_or_default() {
+        eprintln!("refused ({}): {}", r.reason, r.message);
+    }
     if json {
         let mut v = serde_json::to_value(&c)?;
         v["losses"] = serde_json::json!(losses);
@@ -632,4 +642,16 @@ fn write_whole(path: &std::path::Path, bytes: &[u8]) -> anyhow::Result<()> {
         return Err(anyhow::anyhow!("{}: {e}", path.display()));
     }
     Ok(())
+}
+
+/// Keeps the first ten refusals of a listener for the command's report.
+fn keep_first(
+    kept: &std::sync::Mutex<Vec<stereoscope_transport::Refusal>>,
+    r: stereoscope_transport::Refusal,
+) {
+    if let Ok(mut v) = kept.lock()
+        && v.len() < 10
+    {
+        v.push(r);
+    }
 }

@@ -104,14 +104,14 @@ enum ServiceCommand {
 
 fn service(cmd: ServiceCommand) -> anyhow::Result<()> {
     match cmd {
-        ServiceCommand::Capture(a) => stereoscope_capture::cli::main(a),
-        ServiceCommand::Moments(a) => stereoscope_moments::cli::main(a),
-        ServiceCommand::Fusion(a) => stereoscope_fusion::cli::main(a),
-        ServiceCommand::Serial(a) => stereoscope_serial::cli::main(a),
-        ServiceCommand::Vrfeed(a) => stereoscope_vrfeed::cli::main(a),
-        ServiceCommand::Recorder(a) => stereoscope_recorder::cli::main(a),
-        ServiceCommand::Router(a) => stereoscope_launcher::router_cli::main(a),
-        ServiceCommand::Viewer(a) => stereoscope_viewer::cli::main(a),
+        ServiceCommand::Capture(a) => stereoscope_service::run(a),
+        ServiceCommand::Moments(a) => stereoscope_service::run(a),
+        ServiceCommand::Fusion(a) => stereoscope_service::run(a),
+        ServiceCommand::Serial(a) => stereoscope_service::run(a),
+        ServiceCommand::Vrfeed(a) => stereoscope_service::run(a),
+        ServiceCommand::Recorder(a) => stereoscope_service::run(a),
+        ServiceCommand::Router(a) => stereoscope_service::run(a),
+        ServiceCommand::Viewer(a) => stereoscope_service::run(a),
     }
 }
 
@@ -197,7 +197,7 @@ fn main() -> ExitCode {
             )
             .map(|()| 0),
         ),
-        Command::Service(cmd) => stereoscope_rig::exit::exit_code(service(cmd)),
+        Command::Service(cmd) => stereoscope_service::exit::exit_code(service(cmd)),
         Command::Run(args::RunArgs {
             rig,
             place,
@@ -220,9 +220,9 @@ fn main() -> ExitCode {
             match result {
                 Err(e) if refused => {
                     eprintln!("error: {e:#}");
-                    ExitCode::from(stereoscope_rig::exit::CONFIG_EXIT_STATUS)
+                    ExitCode::from(stereoscope_service::exit::CONFIG_EXIT_STATUS)
                 }
-                r => stereoscope_rig::exit::exit_code(r.map(|_| ())),
+                r => stereoscope_service::exit::exit_code(r.map(|_| ())),
             }
         }
         Command::Body(BodyCommand::Define(a)) => match stereoscope::body::define_live(
@@ -254,7 +254,7 @@ fn main() -> ExitCode {
         }) => finish(stereoscope::live::status(
             rig, connect, rig_name, watch, json, stall_ms, tls,
         )),
-        Command::Record { args } => match stereoscope_recorder::cli::main(args) {
+        Command::Record { args } => match stereoscope_service::run(args) {
             Ok(()) => ExitCode::SUCCESS,
             Err(e) => {
                 eprintln!("error: {e:#}");
@@ -309,7 +309,7 @@ fn main() -> ExitCode {
             service_program(),
         )),
         Command::View(a) => {
-            stereoscope_rig::exit::exit_code(stereoscope_viewer::cli::main(a.into_service_args()))
+            stereoscope_service::exit::exit_code(stereoscope_service::run(a.into_service_args()))
         }
         Command::Triangulate(args::TriangulateArgs { rig, points, json }) => {
             let opts = TriangulateOptions { rig, points, json };

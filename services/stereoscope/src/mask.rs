@@ -11,7 +11,7 @@ use anyhow::{Context as _, anyhow};
 use std::collections::BTreeMap;
 use std::io::Write;
 use std::path::{Path, PathBuf};
-use stereoscope_proto::messages::{Message, Observation, TrackState};
+use stereoscope_proto::messages::{Observation, TrackState};
 use stereoscope_rig::Rig;
 use stereoscope_rig::moments::MAX_MASK_RECTS;
 use stereoscope_transport::net::{self, ZenohSpec};
@@ -28,7 +28,7 @@ pub struct MaskOptions {
     pub out: Option<PathBuf>,
     /// Only report what the cameras see now.
     pub check: bool,
-    pub tls: stereoscope_rig::context::TlsArgs,
+    pub tls: stereoscope_service::context::TlsArgs,
 }
 
 /// A rectangle `[x0, y0, x1, y1]`, pixels, inclusive.
@@ -103,7 +103,7 @@ pub fn share_pct(rects: &[Rect], w: u32, h: u32) -> f64 {
 pub fn client_session(
     rig: &Rig,
     connect: Option<String>,
-    tls: &stereoscope_rig::context::TlsArgs,
+    tls: &stereoscope_service::context::TlsArgs,
 ) -> anyhow::Result<(zenoh::Session, String)> {
     let endpoint = connect
         .or_else(|| {
@@ -115,32 +115,26 @@ pub fn client_session(
         .unwrap_or_else(|| "tcp/127.0.0.1:7447".to_string());
     let mut zenoh = ZenohSpec::client_of(&endpoint);
     zenoh.tls = tls.files();
-    let session = net::open(&zenoh).with_context(|| format!("asking the router at {endpoint}"))?;
+    let session =
+        net::open_client(&zenoh).with_context(|| format!("asking the router at {endpoint}"))?;
     Ok((session, endpoint))
 }
 
 /// Listens to every camera's observations for `seconds`.
 fn listen(rig: &Rig, opts: &MaskOptions) -> anyhow::Result<Vec<Observation>> {
     let (session, endpoint) = client_session(rig, opts.connect.clone(), &opts.tls)?;
-    let (tx, rx) = std::sync::mpsc::sync_channel::<Observation>(100_000);
-    let rig_name = rig.name.clone();
-    let _sub = net::subscribe(
-        &session,
-        &stereoscope_proto::names::zenoh::all_observations(&rig.name),
-        move |_, b| {
-            if let Ok(o) = Observation::from_json(b)
-                && o.rig == rig_name
-            {
-                let _ = tx.try_send(o);
-            }
-        },
-    )?;
+    let inlet = crate::wand_live::observations_inlet(&session, rig)?;
     eprintln!(
         "listening {} s to {endpoint} for what the cameras see …",
         opts.seconds
     );
     std::thread::sleep(std::time::Duration::from_secs_f64(opts.seconds));
-    Ok(rx.try_iter().collect())
+    let mut refused = stereoscope_transport::Counters::default();
+    let got: Vec<Observation> = std::iter::from_fn(|| inlet.try_next(&mut refused)).collect();
+    if let Some(r) = refused.refusals() {
+        eprintln!("observations {r}");
+    }
+    Ok(got)
 }
 
 /// Runs the command; returns how many cameras still see something with `--check` (the exit
@@ -249,6 +243,18 @@ fn write_masks(
 ) -> anyhow::Result<()> {
     let text = std::fs::read_to_string(rig_path)
         .with_context(|| format!("reading {}", rig_path.display()))?;
+    let text = with_masks(&text, rig_path, masks)?;
+    // What is written must load.
+    Rig::from_toml(&text).with_context(|| format!("the rig with masks for {}", out.display()))?;
+    std::fs::write(out, text).with_context(|| format!("writing {}", out.display()))
+}
+
+/// A rig file's text with each camera's `moments.mask` set (`path` names it in errors).
+fn with_masks(
+    text: &str,
+    rig_path: &Path,
+    masks: &BTreeMap<String, Vec<Rect>>,
+) -> anyhow::Result<String> {
     let mut doc: toml_edit::DocumentMut = text
         .parse()
         .map_err(|e| anyhow!("{}: {e}", rig_path.display()))?;
@@ -274,6 +280,9 @@ fn write_masks(
         match cam.get_mut("moments") {
             Some(toml_edit::Item::Value(toml_edit::Value::InlineTable(t))) => {
                 t.insert("mask", toml_edit::Value::Array(list));
+                // `{ max_objects = 10, mask = … }`: the spacing made anew, not the old last
+                // value's space before the closing brace kept before the comma.
+                t.fmt();
             }
             Some(toml_edit::Item::Table(t)) => {
                 t.insert("mask", toml_edit::value(list));
@@ -285,15 +294,24 @@ fn write_masks(
             }
         }
     }
-    let text = doc.to_string();
-    // What is written must load.
-    Rig::from_toml(&text).with_context(|| format!("the rig with masks for {}", out.display()))?;
-    std::fs::write(out, text).with_context(|| format!("writing {}", out.display()))
+    Ok(doc.to_string())
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A mask added to an inline `moments` table reads as a person would write it.
+    #[test]
+    fn a_mask_joins_an_inline_moments_table_tidily() {
+        let text = "[[camera]]\nid = \"cam0\"\nmoments = { max_objects = 10 }\n";
+        let masks = BTreeMap::from([("cam0".to_string(), vec![[1, 2, 3, 4]])]);
+        let got = with_masks(text, Path::new("rig.toml"), &masks).unwrap();
+        assert!(
+            got.contains("moments = { max_objects = 10, mask = [[1, 2, 3, 4]] }"),
+            "{got}"
+        );
+    }
 
     #[test]
     fn touching_rectangles_are_joined() {

@@ -12,6 +12,7 @@ use std::collections::BTreeMap;
 use std::io::Write;
 use std::path::{Path, PathBuf};
 use stereoscope_geometry::Camera;
+use stereoscope_geometry::GeometryError;
 use stereoscope_geometry::wand::{Wand, WandConfig, WandFrame, WandSolution, calibrate_wand};
 use stereoscope_proto::messages::{Observation, TrackState};
 use stereoscope_rig::{Rig, Units};
@@ -670,7 +671,12 @@ pub fn run(
         refine_intrinsics: opts.refine_intrinsics,
         ..WandConfig::default()
     };
-    let sol = calibrate_wand(&cams, &frames, &wand, &cfg).map_err(|e| anyhow!("{source}: {e}"))?;
+    let sol = calibrate_wand(&cams, &frames, &wand, &cfg).map_err(|e| match e {
+        GeometryError::WandUnplaced { cameras, .. } => {
+            anyhow!("{source}: {}", unplaced(&cameras, &ids, &frames, &wand))
+        }
+        e => anyhow!("{source}: {e}"),
+    })?;
     if let (Some(middle), 3) = (sol.middle_mean_m, wand.markers()) {
         let said = wand.offsets_m[1];
         if (middle - said).abs() > (0.002f64).max(0.02 * said) {
@@ -730,6 +736,51 @@ pub fn run(
     Ok(0)
 }
 
+/// Why cameras `unplaced` (rig indices) could not be placed, by id: a frame is the wand's only
+/// where a camera sees exactly its markers, so each camera's frames are counted by how many
+/// blobs it saw ("cam2: 12 frames with the wand's 2 markers, 1 830 with 3 blobs").
+fn unplaced(unplaced: &[usize], ids: &[String], frames: &[WandFrame], wand: &Wand) -> String {
+    let per_camera: Vec<String> = unplaced
+        .iter()
+        .map(|&c| {
+            let mut by_count = std::collections::BTreeMap::<usize, usize>::new();
+            for f in frames {
+                *by_count
+                    .entry(f.pixels.get(c).map_or(0, Vec::len))
+                    .or_default() += 1;
+            }
+            let right = by_count.remove(&wand.markers()).unwrap_or(0);
+            let others: Vec<String> = by_count
+                .iter()
+                .rev()
+                .map(|(blobs, n)| {
+                    format!(
+                        "{n} with {blobs} blob{}",
+                        if *blobs == 1 { "" } else { "s" }
+                    )
+                })
+                .collect();
+            format!(
+                "{}: {right} frames with the wand's {} markers{}{}",
+                ids.get(c).map_or("?", String::as_str),
+                wand.markers(),
+                if others.is_empty() { "" } else { ", " },
+                others.join(", ")
+            )
+        })
+        .collect();
+    let names: Vec<&str> = unplaced
+        .iter()
+        .map(|&c| ids.get(c).map_or("?", String::as_str))
+        .collect();
+    format!(
+        "camera{} {} share{} too few wand frames (8 at least) with the others to be placed — {}. A frame counts where a camera sees exactly the wand's markers: remove other bright things from view (or mask them, `calibrate mask`), and wave the wand where each of these cameras sees it together with another camera",
+        if names.len() == 1 { "" } else { "s" },
+        names.join(", "),
+        if names.len() == 1 { "s" } else { "" },
+        per_camera.join("; ")
+    )
+}
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -8,16 +8,17 @@ use std::io::Write;
 use stereoscope_geometry::Camera;
 use stereoscope_geometry::wand::Wand;
 use stereoscope_proto::messages::{
-    CameraCoverage, Message, Observation, SCHEMA_VERSION, WandCoverage, now_ns,
+    CameraCoverage, Observation, SCHEMA_VERSION, WandCoverage, now_ns,
 };
 use stereoscope_rig::Rig;
+use stereoscope_transport::{Counters, Inlet};
 
 /// `--live`: how long to collect and what is enough.
 #[derive(Debug, Clone)]
 pub struct LiveWand {
     /// A Zenoh router to ask (default: the rig's first host's).
     pub connect: Option<String>,
-    pub tls: stereoscope_rig::context::TlsArgs,
+    pub tls: stereoscope_service::context::TlsArgs,
     /// Longest collection, seconds.
     pub max_seconds: f64,
     /// Share of each camera's image cells to cover before solving.
@@ -40,16 +41,8 @@ pub fn collect_live(
     use stereoscope_transport::net;
     let ids: Vec<String> = rig.cameras.iter().map(|c| c.id.clone()).collect();
     let (session, endpoint) = crate::mask::client_session(rig, live.connect.clone(), &live.tls)?;
-    let (tx, rx) = std::sync::mpsc::sync_channel::<Observation>(100_000);
-    let (rig_name, known) = (rig.name.clone(), ids.clone());
-    let _sub = net::subscribe(&session, &keys::all_observations(&rig.name), move |_, b| {
-        if let Ok(o) = Observation::from_json(b)
-            && o.rig == rig_name
-            && known.contains(&o.camera)
-        {
-            let _ = tx.try_send(o);
-        }
-    })?;
+    let mut refused = Counters::default();
+    let inlet = observations_inlet(&session, rig)?;
     let publisher = net::JsonPublisher::new(&session, &keys::wand_coverage(&rig.name))?;
     let (cx, cy) = COVERAGE_CELLS;
     let mut counts = vec![vec![0u32; cx * cy]; ids.len()];
@@ -65,8 +58,9 @@ pub fn collect_live(
         live.min_samples
     )?;
     loop {
-        if let Ok(o) = rx.recv_timeout(std::time::Duration::from_millis(50)) {
-            for o in std::iter::once(o).chain(rx.try_iter()) {
+        if let Some(o) = inlet.next_within(std::time::Duration::from_millis(50), &mut refused) {
+            let more = std::iter::from_fn(|| inlet.try_next(&mut refused));
+            for o in std::iter::once(o).chain(more.collect::<Vec<_>>()) {
                 if all.len() >= MAX_ROWS {
                     bail!("more than {MAX_ROWS} observations collected");
                 }
@@ -137,7 +131,40 @@ pub fn collect_live(
                     live.max_seconds
                 )?;
             }
+            if let Some(r) = refused.refusals() {
+                writeln!(err, "observations {r}")?;
+            }
             return Ok(all);
         }
     }
+}
+
+/// Every camera's observations of `rig` on the router, each checked: of this rig, and of the
+/// camera whose key it came on (a camera the rig does not have is refused).
+pub fn observations_inlet(
+    session: &zenoh::Session,
+    rig: &Rig,
+) -> anyhow::Result<Inlet<Observation>> {
+    use stereoscope_proto::names::zenoh as keys;
+    let (name, ids): (String, Vec<String>) = (
+        rig.name.clone(),
+        rig.cameras.iter().map(|c| c.id.clone()).collect(),
+    );
+    let inlet = Inlet::zenoh(
+        session,
+        &[keys::all_observations(&rig.name)],
+        &rig.name,
+        "observation",
+        100_000,
+    )?
+    .expecting(move |key, o: &Observation| {
+        if !ids.contains(&o.camera) {
+            Err(format!("of camera {:?}, not one of the rig's", o.camera))
+        } else if key != keys::observations(&name, &o.camera) {
+            Err(format!("of camera {:?} on another camera's key", o.camera))
+        } else {
+            Ok(())
+        }
+    });
+    Ok(inlet)
 }

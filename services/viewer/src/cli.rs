@@ -2,8 +2,8 @@
 //! `stereoscope service viewer`.
 
 use crate::{ViewerConfig, run};
-use stereoscope_rig::CommonArgs;
-use stereoscope_transport::{Shutdown, init_logging};
+use stereoscope_service::{CommonArgs, ServiceArgs};
+use stereoscope_transport::Shutdown;
 
 #[derive(clap::Args, Debug, Clone)]
 pub struct Args {
@@ -15,21 +15,23 @@ pub struct Args {
     pub listen: Option<std::net::SocketAddr>,
 }
 
-/// Runs the service until SIGINT/SIGTERM.
-pub fn main(args: Args) -> anyhow::Result<()> {
-    init_logging("viewer");
-    let shutdown = Shutdown::on_signals()?;
-    let s = run(
-        ViewerConfig {
-            ctx: args.common.resolve()?,
-            listen: args.listen,
-        },
-        shutdown,
-    )?;
-    tracing::info!(
-        pose_frames = s.pose_frames,
-        connections = s.connections,
-        "viewer stopped"
-    );
-    Ok(())
+impl ServiceArgs for Args {
+    const NAME: &'static str = "viewer";
+    const ABOUT: &'static str =
+        "Serve the live view: 3D scene, camera monitors and health in a browser";
+
+    /// Runs the service until SIGINT/SIGTERM.
+    fn run(self, shutdown: Shutdown) -> anyhow::Result<String> {
+        let s = run(
+            ViewerConfig {
+                ctx: self.common.resolve()?,
+                listen: self.listen,
+            },
+            shutdown,
+        )?;
+        Ok(format!(
+            "{} pose frames, {} connections",
+            s.pose_frames, s.connections
+        ))
+    }
 }

@@ -32,11 +32,12 @@ use std::net::SocketAddr;
 use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
-use stereoscope_proto::messages::{Health, Message, PoseFrame, Preview, Truth, WandCoverage};
+use stereoscope_proto::messages::{Health, PoseFrame, Preview, Truth, WandCoverage};
 use stereoscope_proto::names::zenoh as keys;
-use stereoscope_rig::Context;
 use stereoscope_rig::schema::DEFAULT_VIEWER_LISTEN;
-use stereoscope_transport::{Flow, Service, ServiceNode, Shutdown, drive, net};
+use stereoscope_service::Context;
+use stereoscope_transport::inlet::{self, Admission};
+use stereoscope_transport::{Flow, Refusal, Service, ServiceNode, Shutdown, drive, net};
 use tokio::sync::broadcast;
 
 /// The page and its bundled script (three.js inside), made by `build.rs`.
@@ -331,99 +332,101 @@ impl Service for ViewerService {
     }
 }
 
-/// The Zenoh streams the page shows, each checked before it is forwarded.
+/// The Zenoh streams the page shows, each checked (`transport::inlet`) before it is
+/// forwarded as the bytes that came.
 fn subscribe(
     session: &zenoh::Session,
     shared: &Arc<Shared>,
 ) -> Result<Vec<net::NetSubscriber>, ViewerError> {
     let rig = shared.rig.clone();
     let mut subs = Vec::new();
+    let refused = |s: &Arc<Shared>| {
+        let s = s.clone();
+        move |r: Refusal| s.reject(r.reason, r.message)
+    };
     let s = shared.clone();
-    subs.push(net::subscribe(
+    subs.extend(inlet::listen(
         session,
-        &keys::poses(&rig),
-        move |k, b| match PoseFrame::from_json(b) {
-            Ok(f) if f.rig == s.rig => {
-                if let Some(t) = wrap("poses", "frame", b) {
-                    s.stats.pose_frames.fetch_add(1, Ordering::Relaxed);
-                    s.send(Out::Text(t));
-                }
+        &[keys::poses(&rig)],
+        Admission::<PoseFrame>::new(&rig, "pose frame"),
+        move |_, b| {
+            if let Some(t) = wrap("poses", "frame", b) {
+                s.stats.pose_frames.fetch_add(1, Ordering::Relaxed);
+                s.send(Out::Text(t));
             }
-            Ok(f) => s.reject("foreign", format!("{k}: pose frame of rig {:?}", f.rig)),
-            Err(e) => s.reject(e.reason(), format!("{k}: {e}")),
         },
+        refused(shared),
     )?);
     if let Some(cam) = &shared.truth_camera {
         let s = shared.clone();
-        subs.push(net::subscribe(
+        subs.extend(inlet::listen(
             session,
-            &keys::truth(&rig, cam),
-            move |k, b| match Truth::from_json(b) {
-                Ok(_) => {
-                    if let Some(t) = wrap("truth", "truth", b) {
-                        s.send(Out::Text(t));
-                    }
+            &[keys::truth(&rig, cam)],
+            Admission::<Truth>::new(&rig, "truth"),
+            move |_, b| {
+                if let Some(t) = wrap("truth", "truth", b) {
+                    s.send(Out::Text(t));
                 }
-                Err(e) => s.reject(e.reason(), format!("{k}: {e}")),
             },
+            refused(shared),
         )?);
     }
     let s = shared.clone();
-    subs.push(net::subscribe(
+    let cameras = shared.cameras.clone();
+    subs.extend(inlet::listen(
         session,
-        &keys::all_previews(&rig),
-        move |k, b| match Preview::from_binary(b) {
-            Ok(p) if p.rig == s.rig && s.cameras.contains(&p.camera) => {
-                let bytes = preview_bytes(&p);
-                s.stats.previews.fetch_add(1, Ordering::Relaxed);
-                if let Ok(mut m) = s.previews.lock() {
-                    m.insert(p.camera.clone(), bytes.clone());
+        &[keys::all_previews(&rig)],
+        Admission::<Preview>::new(&rig, "preview")
+            .binary()
+            .expecting(move |_, p: &Preview| {
+                if cameras.contains(&p.camera) {
+                    Ok(())
+                } else {
+                    Err(format!("of camera {:?}, not one of the rig's", p.camera))
                 }
-                s.send(Out::Preview {
-                    camera: Arc::from(p.camera.as_str()),
-                    bytes,
-                });
+            }),
+        move |p, _| {
+            let bytes = preview_bytes(&p);
+            s.stats.previews.fetch_add(1, Ordering::Relaxed);
+            if let Ok(mut m) = s.previews.lock() {
+                m.insert(p.camera.clone(), bytes.clone());
             }
-            Ok(p) => s.reject(
-                "foreign",
-                format!("{k}: preview of camera {:?} of rig {:?}", p.camera, p.rig),
-            ),
-            Err(e) => s.reject(e.reason(), format!("{k}: {e}")),
+            s.send(Out::Preview {
+                camera: Arc::from(p.camera.as_str()),
+                bytes,
+            });
         },
+        refused(shared),
     )?);
     let s = shared.clone();
-    subs.push(net::subscribe(
+    subs.extend(inlet::listen(
         session,
-        &keys::wand_coverage(&rig),
-        move |k, b| match WandCoverage::from_json(b) {
-            Ok(c) if c.rig == s.rig => {
-                if let Some(t) = wrap("coverage", "coverage", b) {
-                    s.send(Out::Text(t));
-                }
+        &[keys::wand_coverage(&rig)],
+        Admission::<WandCoverage>::new(&rig, "coverage"),
+        move |_, b| {
+            if let Some(t) = wrap("coverage", "coverage", b) {
+                s.send(Out::Text(t));
             }
-            Ok(c) => s.reject("foreign", format!("{k}: coverage of rig {:?}", c.rig)),
-            Err(e) => s.reject(e.reason(), format!("{k}: {e}")),
         },
+        refused(shared),
     )?);
     let s = shared.clone();
-    subs.push(net::subscribe(
+    subs.extend(inlet::listen(
         session,
-        &keys::all_health(&rig),
-        move |k, b| match Health::from_json(b) {
-            Ok(h) if h.rig == s.rig => {
-                if let Some(t) = wrap("health", "health", b) {
-                    let key = format!("{}/{}", h.host, h.service);
-                    if let Ok(mut m) = s.health.lock()
-                        && (m.len() < MAX_SERVICES || m.contains_key(&key))
-                    {
-                        m.insert(key, t.clone());
-                    }
-                    s.send(Out::Text(t));
+        &[keys::all_health(&rig)],
+        Admission::<Health>::new(&rig, "health"),
+        move |h, b| {
+            if let Some(t) = wrap("health", "health", b) {
+                let key = format!("{}/{}", h.host, h.service);
+                if let Ok(mut m) = s.health.lock()
+                    && (m.len() < MAX_SERVICES || m.contains_key(&key))
+                {
+                    m.insert(key, t.clone());
                 }
+                s.send(Out::Text(t));
             }
-            Ok(h) => s.reject("foreign", format!("{k}: health of rig {:?}", h.rig)),
-            Err(e) => s.reject(e.reason(), format!("{k}: {e}")),
         },
+        refused(shared),
     )?);
     Ok(subs)
 }

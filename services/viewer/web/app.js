@@ -22,7 +22,7 @@ const state = window.stereoscope = {
   health(key) { return health.get(key)?.h ?? null; },
   healthAgeMs(key) { const e = health.get(key); return e ? performance.now() - e.at : null; },
   view() {
-    const r = renderer.domElement.getBoundingClientRect();
+    const r = (renderer ? renderer.domElement : view).getBoundingClientRect();
     return {
       position: camera.position.toArray(), quaternion: camera.quaternion.toArray(),
       fov_deg: camera.fov, aspect: camera.aspect, near: camera.near,
@@ -37,18 +37,30 @@ if (single) document.body.classList.add('single');
 
 // ---- 3D scene -------------------------------------------------------------------------------
 const view = $('view');
-const renderer = new THREE.WebGLRenderer({ antialias: true, preserveDrawingBuffer: true });
-renderer.setPixelRatio(window.devicePixelRatio);
-view.prepend(renderer.domElement);
+// A browser without WebGL still gets every camera's monitor and the services' table: the 3D
+// view says it is unavailable instead of the whole page waiting.
+let renderer = null;
+try {
+  renderer = new THREE.WebGLRenderer({ antialias: true, preserveDrawingBuffer: true });
+  renderer.setPixelRatio(window.devicePixelRatio);
+  view.prepend(renderer.domElement);
+} catch (e) {
+  state.noWebGL = String(e && e.message || e);
+  const note = document.createElement('div');
+  note.id = 'nogl';
+  note.textContent = '3D view unavailable: this browser cannot create a WebGL context. ' +
+    'The camera monitors and the services below still update.';
+  view.prepend(note);
+}
 const scene = new THREE.Scene();
 scene.background = new THREE.Color(0x15171a);
 const camera = new THREE.PerspectiveCamera(50, 1, 0.01, 200);
-const controls = new OrbitControls(camera, renderer.domElement);
+const controls = new OrbitControls(camera, renderer ? renderer.domElement : view);
 controls.enableDamping = false;
 
 function resize() {
   const w = Math.max(1, view.clientWidth), h = Math.max(1, view.clientHeight);
-  renderer.setSize(w, h, false);
+  if (renderer) renderer.setSize(w, h, false);
   camera.aspect = w / h;
   camera.updateProjectionMatrix();
 }
@@ -216,7 +228,7 @@ function render() {
     if (pendingTruth) { drawTruth(pendingTruth); pendingTruth = null; }
   }
   controls.update();
-  renderer.render(scene, camera);
+  if (renderer) renderer.render(scene, camera);
   requestAnimationFrame(render);
 }
 

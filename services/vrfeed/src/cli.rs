@@ -1,8 +1,8 @@
 //! The VR feed's command line, shared by its own binary and `stereoscope service vrfeed`.
 
 use crate::{VrFeedConfig, run};
-use stereoscope_rig::CommonArgs;
-use stereoscope_transport::{Shutdown, init_logging};
+use stereoscope_service::{CommonArgs, ServiceArgs};
+use stereoscope_transport::Shutdown;
 
 #[derive(clap::Args, Debug, Clone)]
 pub struct Args {
@@ -13,30 +13,29 @@ pub struct Args {
     pub max_frames: Option<u64>,
 }
 
-/// Runs the service until SIGINT/SIGTERM.
-pub fn main(args: Args) -> anyhow::Result<()> {
-    init_logging("vrfeed");
-    let shutdown = Shutdown::on_signals()?;
-    let s = run(
-        VrFeedConfig {
-            ctx: args.common.resolve()?,
-            max_frames: args.max_frames,
-        },
-        shutdown,
-    )?;
-    let mut l = s.latency_us.clone();
-    l.sort_by(f64::total_cmp);
-    let q = |p: f64| {
-        l.get(((l.len().max(1) - 1) as f64 * p).round() as usize)
-            .copied()
-    };
-    tracing::info!(
-        frames = s.frames,
-        "VR feed stopped; frame published → sent, µs: p50 {:?}, p99 {:?}, max {:?} (last {})",
-        q(0.5),
-        q(0.99),
-        l.last(),
-        l.len()
-    );
-    Ok(())
+impl ServiceArgs for Args {
+    const NAME: &'static str = "vrfeed";
+    const ABOUT: &'static str = "Send rigid bodies over VRPN, OSC (VMT, VMC) and opentrack's UDP";
+
+    /// Runs the service until SIGINT/SIGTERM.
+    fn run(self, shutdown: Shutdown) -> anyhow::Result<String> {
+        let s = run(
+            VrFeedConfig {
+                ctx: self.common.resolve()?,
+                max_frames: self.max_frames,
+            },
+            shutdown,
+        )?;
+        let mut l = s.latency_us.clone();
+        l.sort_by(f64::total_cmp);
+        let q = |p: f64| l.get(((l.len().max(1) - 1) as f64 * p).round() as usize);
+        Ok(match (q(0.5), q(0.99), l.last()) {
+            (Some(p50), Some(p99), Some(max)) => format!(
+                "{} frames; frame published → sent: p50 {p50:.0} µs, p99 {p99:.0} µs, max {max:.0} µs (last {})",
+                s.frames,
+                l.len()
+            ),
+            _ => format!("{} frames; none sent", s.frames),
+        })
+    }
 }

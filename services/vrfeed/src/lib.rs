@@ -21,18 +21,13 @@ pub mod vrpn;
 
 use nalgebra::{Isometry3, Point3, Quaternion, Translation3, UnitQuaternion, Vector3};
 use std::net::{SocketAddr, UdpSocket};
-use std::sync::mpsc;
-use std::sync::{
-    Arc,
-    atomic::{AtomicU64, Ordering},
-};
 use std::time::Duration;
 use stereoscope_bodies::filter::{PoseFilter, predict};
-use stereoscope_proto::messages::{BodyPose, Message, PoseFrame, now_ns};
+use stereoscope_proto::messages::{BodyPose, PoseFrame, now_ns};
 use stereoscope_proto::names::zenoh as keys;
-use stereoscope_rig::Context;
 use stereoscope_rig::vr::VrSettings;
-use stereoscope_transport::{Flow, Service, ServiceNode, Shutdown, drive, net};
+use stereoscope_service::Context;
+use stereoscope_transport::{Flow, Inlet, Service, ServiceNode, Shutdown, drive};
 
 #[derive(Debug, Clone)]
 pub struct VrFeedConfig {
@@ -66,23 +61,11 @@ pub struct VrFeedSummary {
     pub latency_us: Vec<f64>,
 }
 
-enum Input {
-    Frame(Box<PoseFrame>),
-    Bad(&'static str, String),
-}
-
-/// Where pose frames come from.
-enum PoseInput {
-    /// Fusion on this PC: its iceoryx2 outlet, and the event it notifies after each frame.
-    Local {
-        sub: Box<stereoscope_transport::iox::MessageSubscriber>,
-        waker: Box<stereoscope_transport::iox::Waker>,
-    },
-    /// Fusion elsewhere: a Zenoh subscription feeding a channel.
-    Remote {
-        rx: mpsc::Receiver<Input>,
-        _sub: net::NetSubscriber,
-    },
+/// Where pose frames come from: fusion's iceoryx2 outlet when fusion is on this PC (and the
+/// event it notifies after each frame), its Zenoh key otherwise.
+struct PoseInput {
+    frames: Inlet<PoseFrame>,
+    waker: Option<stereoscope_transport::iox::Waker>,
 }
 
 /// Latencies kept for the percentiles.
@@ -101,7 +84,6 @@ pub struct VrFeedService {
     settings: VrSettings,
     names: Vec<String>,
     input: PoseInput,
-    overflow: Arc<AtomicU64>,
     vrpn: Option<vrpn::Server>,
     next_bind: std::time::Instant,
     udp: UdpSocket,
@@ -160,30 +142,18 @@ impl VrFeedService {
                 ));
             }
         }
-        let overflow = Arc::new(AtomicU64::new(0));
         let rig = ctx.rig.name.clone();
         let input = if ctx.fusion_here() {
             let name = stereoscope_proto::names::iox::poses(&rig);
-            PoseInput::Local {
-                sub: Box::new(stereoscope_transport::iox::MessageSubscriber::new(
-                    &node.iox, &name,
-                )?),
-                waker: Box::new(stereoscope_transport::iox::Waker::new(&node.iox, &name)?),
+            PoseInput {
+                frames: Inlet::iox(&node.iox, &name, &rig, "pose frame")?,
+                waker: Some(stereoscope_transport::iox::Waker::new(&node.iox, &name)?),
             }
         } else {
-            let (tx, rx) = mpsc::sync_channel::<Input>(64);
-            let lost = overflow.clone();
-            let sub = net::subscribe(&node.session, &keys::poses(&rig), move |k, b| {
-                let input = match PoseFrame::from_json(b) {
-                    Ok(f) if f.rig == rig => Input::Frame(Box::new(f)),
-                    Ok(f) => Input::Bad("foreign", format!("{k}: pose frame of rig {:?}", f.rig)),
-                    Err(e) => Input::Bad(e.reason(), format!("{k}: {e}")),
-                };
-                if tx.try_send(input).is_err() {
-                    lost.fetch_add(1, Ordering::Relaxed);
-                }
-            })?;
-            PoseInput::Remote { rx, _sub: sub }
+            PoseInput {
+                frames: Inlet::zenoh(&node.session, &[keys::poses(&rig)], &rig, "pose frame", 64)?,
+                waker: None,
+            }
         };
         match (&vrpn, settings.vrpn) {
             (Some(s), _) => {
@@ -216,7 +186,6 @@ impl VrFeedService {
             settings,
             names,
             input,
-            overflow,
             vrpn,
             next_bind: std::time::Instant::now(),
             udp,
@@ -367,7 +336,7 @@ impl VrFeedService {
 
     fn report_detail(&mut self) {
         let counters = &mut self.node.counters;
-        counters.dropped = self.overflow.load(Ordering::Relaxed);
+        counters.dropped = self.input.frames.overflowed();
         if let Some(s) = self.vrpn.as_mut() {
             for (reason, message) in s.dropped.drain(..) {
                 counters.reject(reason, &message);
@@ -408,42 +377,24 @@ impl Service for VrFeedService {
         self.bind_vrpn();
         // Wake for a frame, or every 5 ms to serve VRPN clients.
         let wait = Duration::from_millis(5);
-        let mut inputs: Vec<Input> = Vec::new();
-        match &self.input {
-            PoseInput::Local { sub, waker } => {
+        let mut frames = Vec::new();
+        let counters = &mut self.node.counters;
+        let first = match &self.input.waker {
+            Some(waker) => {
                 waker.wait(wait);
-                let rig = &self.cfg.ctx.rig.name;
-                loop {
-                    match sub.try_next::<PoseFrame>() {
-                        Ok(Some(Ok(f))) if &f.rig == rig => inputs.push(Input::Frame(Box::new(f))),
-                        Ok(Some(Ok(f))) => inputs.push(Input::Bad(
-                            "foreign",
-                            format!("{}: pose frame of rig {:?}", sub.name(), f.rig),
-                        )),
-                        Ok(Some(Err(e))) => {
-                            inputs.push(Input::Bad(e.reason(), format!("{}: {e}", sub.name())))
-                        }
-                        Ok(None) => break,
-                        Err(e) => {
-                            self.node.counters.note::<(), _>(Err(e));
-                            break;
-                        }
-                    }
-                }
+                self.input.frames.try_next(counters)
             }
-            PoseInput::Remote { rx, .. } => {
-                inputs.extend(rx.recv_timeout(wait));
-                inputs.extend(rx.try_iter());
-            }
+            None => self.input.frames.next_within(wait, counters),
+        };
+        frames.extend(first);
+        while let Some(f) = self.input.frames.try_next(counters) {
+            frames.push(f);
         }
         if let Some(s) = self.vrpn.as_mut() {
             s.poll();
         }
-        for input in inputs {
-            match input {
-                Input::Frame(f) => self.handle(&f),
-                Input::Bad(reason, message) => self.node.counters.reject(reason, &message),
-            }
+        for f in &frames {
+            self.handle(f);
         }
         if self.node.report_due() {
             self.report_detail();

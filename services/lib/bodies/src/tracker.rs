@@ -1,4 +1,4 @@
-//! Bodies over time: [`identify`] each frame, then keep each body's identity, velocity and
+//! Bodies over time: [`identify`](crate::identify) each frame, then keep each body's identity, velocity and
 //! angular velocity across frames, and hold its last pose through a short full occlusion
 //! (`docs/bodies.md`, "Over time").
 //!

@@ -29,6 +29,16 @@ pub enum GeometryError {
     },
     #[error("degenerate points: {0}")]
     Degenerate(String),
+    /// Wand calibration: cameras (rig indices) that share too few usable frames with the
+    /// placed ones to be placed themselves.
+    #[error(
+        "cameras {cameras:?} share too few wand frames (8 at least) with the others to be placed{}: wave the wand where each of them sees it together with another camera",
+        if *one_marker { " (with a one-marker wand: 8 frames each seen by the camera and two placed cameras)" } else { "" }
+    )]
+    WandUnplaced {
+        cameras: Vec<usize>,
+        one_marker: bool,
+    },
     /// A dot-grid target that cannot be made or was not found in an image.
     #[error("dot grid: {0}")]
     DotGrid(#[from] DotGridProblem),

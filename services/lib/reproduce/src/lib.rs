@@ -208,7 +208,7 @@ pub(crate) use lab::*;
 pub(crate) use measure::*;
 pub use output::*;
 
-/// Runs the experiments (no files written): see [`write`] for the outputs.
+/// Runs the experiments (no files written): see [`write()`] for the outputs.
 pub fn run(opts: &ReproduceOptions) -> anyhow::Result<Report> {
     let rig = match &opts.rig {
         None => Rig::from_toml(THESIS_LAB).map_err(|e| anyhow!("the built-in thesis lab: {e}"))?,

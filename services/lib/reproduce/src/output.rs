@@ -365,7 +365,7 @@ pub fn write(r: &Report, opts: &ReproduceOptions) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// Reads a table CSV written by [`write`] (for checks).
+/// Reads a table CSV written by [`write()`] (for checks).
 pub fn read_table(path: &Path) -> anyhow::Result<Vec<Row>> {
     let rows = csv::read(
         path,

@@ -43,7 +43,7 @@ impl RigError {
 }
 
 /// A value error at `key`.
-pub(crate) fn err(key: impl Into<String>, message: impl Into<String>) -> RigError {
+pub fn err(key: impl Into<String>, message: impl Into<String>) -> RigError {
     RigError {
         kind: RigErrorKind::Value,
         file: None,

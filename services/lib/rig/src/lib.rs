@@ -1,15 +1,14 @@
 //! The rig: one TOML file describing a rig's cameras, PCs and services, read once into a typed,
 //! checked [`Rig`] that every service and command shares (`docs/rig.md`). Nothing else parses
 //! the file: the schema ([`schema`]), its checks (`check.rs`), the cameras built from it
-//! ([`cameras`]), the moment workers' settings ([`moments`]) and what a service is started with
-//! ([`context`]) all live here, and every problem is one [`RigError`] naming the file, the key
-//! and the value.
+//! ([`cameras`]) and the moment workers' settings ([`moments`]) all live here, and every problem
+//! is one [`RigError`] naming the file, the key and the value. What a service is started with
+//! (the rig plus its place and Zenoh endpoints) is `stereoscope-service`'s: this crate knows no
+//! transport and no command line.
 
 pub mod cameras;
 mod check;
-pub mod context;
 pub mod error;
-pub mod exit;
 pub mod moments;
 pub mod schema;
 pub mod security;
@@ -21,9 +20,8 @@ use std::path::{Path, PathBuf};
 pub use cameras::{DepthFromArea, RigCamera, camera_spec};
 pub use check::{
     FPS_RANGE, MAX_BAUD, MAX_CONFIRM_SETS, MAX_DROP_AFTER_S, MAX_LOOP_BYTES, MAX_PIXELS,
-    MAX_REPLAY_SPEED, MAX_SIDE_PX, MAX_TOLERANCE_PX, MAX_WAIT_MS, body_defs,
+    MAX_REPLAY_SPEED, MAX_SIDE_PX, MAX_TOLERANCE_PX, MAX_WAIT_MS, body_defs, resolve,
 };
-pub use context::{CommonArgs, Context, HostArgs};
 pub use error::{RigError, RigErrorKind};
 pub use schema::{RigFile, Units};
 

@@ -7,13 +7,11 @@
 //! lets it publish only what its services publish. A certificate of the rig's authority whose
 //! name is not a host (a consumer: the VR or robot PC) may read and nothing else.
 
+use crate::RigError;
 use crate::error::err;
 use crate::schema::{HostSpec, RigFile};
-use crate::{RigError, check::resolve};
 use serde_json::{Value, json};
-use std::path::Path;
 use stereoscope_proto::names::zenoh as keys;
-use stereoscope_transport::net::{TlsFiles, ZenohMode, ZenohSpec};
 
 /// Where a PC's own services reach its router when its first listen endpoint is TLS and the
 /// host names no `local_listen`.
@@ -130,6 +128,13 @@ pub(crate) fn check_hosts(file: &RigFile) -> Result<(), RigError> {
     Ok(())
 }
 
+/// A listen endpoint as a client on the same PC reaches it: any-address becomes loopback.
+pub fn local_endpoint(listen: &str) -> String {
+    listen
+        .replace("/0.0.0.0:", "/127.0.0.1:")
+        .replace("/[::]:", "/[::1]:")
+}
+
 /// The endpoint a PC's own services reach its router on (`None` for a host that listens on
 /// nothing).
 pub fn service_endpoint(h: &HostSpec) -> Option<String> {
@@ -139,63 +144,8 @@ pub fn service_endpoint(h: &HostSpec) -> Option<String> {
     let first = h.zenoh_listen.first()?;
     Some(match reach(first) {
         Ok(Reach::Tls) => DEFAULT_LOCAL_LISTEN.to_string(),
-        _ => crate::context::local_endpoint(first),
+        _ => local_endpoint(first),
     })
-}
-
-/// The host's TLS files, resolved against the rig file's folder and checked readable.
-pub fn tls_files(
-    h: &HostSpec,
-    index: usize,
-    base: Option<&Path>,
-) -> Result<Option<TlsFiles>, RigError> {
-    let Some(t) = &h.tls else { return Ok(None) };
-    let file = |name: &str, p: &str| {
-        let path = resolve(base, p);
-        match std::fs::File::open(&path) {
-            Ok(_) => Ok(path),
-            Err(e) => Err(err(
-                format!("host[{index}].tls.{name}"),
-                format!("{} cannot be read: {e}", path.display()),
-            )),
-        }
-    };
-    Ok(Some(TlsFiles {
-        ca: file("ca", &t.ca)?,
-        cert: file("cert", &t.cert)?,
-        key: file("key", &t.key)?,
-    }))
-}
-
-/// Host `name`'s router: its endpoints, plus the loopback one for its services when that is
-/// not among them; with TLS, its certificate and the rig's access control.
-pub fn router_spec(
-    file: &RigFile,
-    name: &str,
-    base: Option<&Path>,
-) -> Result<Option<ZenohSpec>, RigError> {
-    let Some((index, h)) = file.hosts.iter().enumerate().find(|(_, h)| h.name == name) else {
-        return Ok(None);
-    };
-    let Some(local) = service_endpoint(h) else {
-        return Ok(None);
-    };
-    let mut listen = h.zenoh_listen.clone();
-    let served = listen
-        .iter()
-        .any(|e| crate::context::local_endpoint(e) == local && reach(e) != Ok(Reach::Tls));
-    if !served {
-        listen.push(local);
-    }
-    let tls = tls_files(h, index, base)?;
-    let access_control = tls.as_ref().map(|_| access_control(file).to_string());
-    Ok(Some(ZenohSpec {
-        mode: ZenohMode::Router,
-        connect: h.zenoh_connect.clone(),
-        listen,
-        tls,
-        access_control,
-    }))
 }
 
 /// The host a service whose section says `host` runs on: that one, or the only host.

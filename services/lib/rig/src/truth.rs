@@ -1,6 +1,6 @@
 //! Poses scored against a synthetic scene's truth: where every body marker truly is, and which
 //! published poses are ghosts (no target there). Shared by `stereoscope demo`, the in-process
-//! ghost sweep (`services/fusion/examples/ghosts.rs`) and the fusion tests, so that each counts
+//! ghost sweep (`services/lib/pipeline/examples/ghosts.rs`) and the fusion tests, so that each counts
 //! ghosts the same way.
 
 use nalgebra::{Point3, Quaternion, UnitQuaternion};

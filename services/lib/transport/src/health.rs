@@ -55,6 +55,25 @@ impl Counters {
         self.set_error(message);
     }
 
+    /// What was refused, for a person: "3 refused (foreign 2, schema 1); the last: …", or
+    /// `None` when nothing was.
+    pub fn refusals(&self) -> Option<String> {
+        if self.rejected == 0 {
+            return None;
+        }
+        let reasons: Vec<String> = self
+            .detail
+            .iter()
+            .filter_map(|(k, v)| Some(format!("{} {v}", k.strip_prefix("rejected.")?)))
+            .collect();
+        Some(format!(
+            "{} refused ({}); the last: {}",
+            self.rejected,
+            reasons.join(", "),
+            self.last_error().unwrap_or("")
+        ))
+    }
+
     /// Counts frames `first..=last` of `what` as dropped and names them in the health
     /// report's `last_lost` detail, so a missing pose can be traced to the frame behind it.
     pub fn lost_frames(&mut self, what: &str, first: u64, last: u64) {

@@ -497,6 +497,15 @@ impl MessageSubscriber {
         &self.name
     }
 
+    /// The next message's payload, handed to `f` while the sample is held.
+    pub fn receive_with<R>(&self, f: impl FnOnce(&[u8]) -> R) -> Result<Option<R>, TransportError> {
+        match self.subscriber.receive() {
+            Ok(Some(s)) => Ok(Some(f(s.payload()))),
+            Ok(None) => Ok(None),
+            Err(e) => Err(err("message receive", &self.name, e)),
+        }
+    }
+
     /// The next message, if any: `Some(Err)` for a payload that does not decode (the caller
     /// reports it and goes on).
     pub fn try_next<M: Message>(

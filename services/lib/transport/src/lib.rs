@@ -6,6 +6,7 @@
 //! pose means.
 
 pub mod health;
+pub mod inlet;
 pub mod iox;
 pub mod net;
 pub mod service;
@@ -14,6 +15,7 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 
 pub use health::{Counters, HealthReporter};
+pub use inlet::{Inlet, Refusal};
 pub use net::{ZenohMode, ZenohSpec};
 pub use service::{Exclusive, Flow, NodeSpec, Outlet, Service, ServiceNode, drive};
 
@@ -64,11 +66,11 @@ impl Shutdown {
 /// line tagged with the service name.
 pub fn init_logging(service: &str) {
     use tracing_subscriber::EnvFilter;
-    // Our crates at info; the libraries (Zenoh's many crates, iceoryx2) only when they fail.
-    let ours = "stereoscope=info,stereoscope_capture=info,stereoscope_moments=info,\
-                stereoscope_fusion=info,stereoscope_launcher=info,stereoscope_transport=info";
+    // Our crates at info (a directive's target matches every target it begins: `stereoscope`
+    // covers each `stereoscope_*` crate); the libraries (Zenoh's many crates, iceoryx2) only
+    // when they fail.
     let filter = EnvFilter::try_from_default_env()
-        .unwrap_or_else(|_| EnvFilter::new(format!("error,{ours}")));
+        .unwrap_or_else(|_| EnvFilter::new("error,stereoscope=info"));
     let _ = tracing_subscriber::fmt()
         .with_env_filter(filter)
         .with_writer(std::io::stderr)
@@ -122,9 +124,12 @@ pub enum TransportError {
     /// An iceoryx2 file prefix iceoryx2 does not take.
     #[error("iceoryx2 prefix {0:?} is not a valid file name prefix")]
     BadPrefix(String),
+    /// A client cannot reach its router: why, for a person (`net::why_unreachable`).
+    #[error("{0}")]
+    Unreachable(String),
 }
 
-/// Zenoh's own error, kept whole but said without the trailing "at <source file>:<line>."
+/// Zenoh's own error, kept whole but said without the trailing "at `<source file>:<line>`."
 /// that Zenoh appends (a user has no use for a path inside a dependency).
 #[derive(Debug)]
 pub struct ZenohCause(pub zenoh::Error);

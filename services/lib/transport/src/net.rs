@@ -159,6 +159,60 @@ fn json_list(items: &[String]) -> String {
     serde_json::to_string(items).unwrap_or_else(|_| "[]".into())
 }
 
+/// Why a client could not reach its router, said for a person: the endpoint is TLS and no
+/// certificate was given, nothing listens at its address (the rig seems not to be running
+/// there), or it cannot be reached. `None` when the address takes a TCP connection.
+pub fn why_unreachable(spec: &ZenohSpec) -> Option<String> {
+    for endpoint in &spec.connect {
+        let Some((protocol, rest)) = endpoint.split_once('/') else {
+            continue;
+        };
+        let address = rest.split(['?', '#']).next().unwrap_or(rest);
+        if protocol == "tls" && spec.tls.is_none() {
+            return Some(format!(
+                "{endpoint} is a TLS endpoint: give this PC's certificate with \
+                 --zenoh-tls-ca, --zenoh-tls-cert and --zenoh-tls-key (deploy/make-certs.sh makes them)"
+            ));
+        }
+        if protocol != "tcp" && protocol != "tls" {
+            continue;
+        }
+        let Ok(mut addrs) = std::net::ToSocketAddrs::to_socket_addrs(address) else {
+            return Some(format!(
+                "{endpoint}: {address:?} is not an address this PC can resolve"
+            ));
+        };
+        let Some(addr) = addrs.next() else { continue };
+        match std::net::TcpStream::connect_timeout(&addr, std::time::Duration::from_secs(2)) {
+            Ok(_) => {}
+            Err(e) if e.kind() == std::io::ErrorKind::ConnectionRefused => {
+                return Some(format!(
+                    "nothing listens at {endpoint}: the rig seems not to be running there \
+                     (start it with `stereoscope run RIG.toml`), or its router listens elsewhere (--connect)"
+                ));
+            }
+            Err(e) => return Some(format!("{endpoint} cannot be reached: {e}")),
+        }
+    }
+    None
+}
+
+/// A client session to its router, failing at once with [`why_unreachable`]'s reason when the
+/// router cannot be reached, and with a hint when something listens but no router answered.
+pub fn open_client(spec: &ZenohSpec) -> Result<zenoh::Session, TransportError> {
+    if let Some(why) = why_unreachable(spec) {
+        return Err(TransportError::Unreachable(why));
+    }
+    open(spec).map_err(|e| match spec.connect.first() {
+        Some(endpoint) if !endpoint.starts_with("tls/") => TransportError::Unreachable(format!(
+            "{endpoint} takes connections but no Zenoh router answered ({}): if the rig's \
+             links are TLS, connect to its tls/ endpoint with this PC's certificate",
+            crate::error_chain(&e)
+        )),
+        _ => e,
+    })
+}
+
 /// Opens a session. A client waits up to 10 s for its router; peers and routers keep
 /// retrying their `connect` endpoints in the background.
 pub fn open(spec: &ZenohSpec) -> Result<zenoh::Session, TransportError> {
@@ -375,6 +429,32 @@ pub fn alive(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A client told why it cannot reach its router: a TLS endpoint without a certificate,
+    /// and a port nothing listens on (the rig not running), each said at once.
+    #[test]
+    fn an_unreachable_router_is_explained() {
+        let tls = ZenohSpec::client_of("tls/127.0.0.1:7447");
+        let why = why_unreachable(&tls).unwrap_or_default();
+        assert!(why.contains("--zenoh-tls-ca"), "{why}");
+        // A port just freed: nothing listens on it.
+        let port = std::net::TcpListener::bind("127.0.0.1:0")
+            .and_then(|l| l.local_addr())
+            .map(|a| a.port())
+            .unwrap_or(1);
+        let tcp = ZenohSpec::client_of(&format!("tcp/127.0.0.1:{port}"));
+        let started = std::time::Instant::now();
+        let e = open_client(&tcp).map(|_| ()).unwrap_err().to_string();
+        assert!(
+            e.contains("nothing listens") && e.contains("stereoscope run"),
+            "{e}"
+        );
+        assert!(started.elapsed() < std::time::Duration::from_secs(5));
+        // Something listening: nothing to say before trying.
+        let l = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+        let here = ZenohSpec::client_of(&format!("tcp/{}", l.local_addr().unwrap()));
+        assert_eq!(why_unreachable(&here), None);
+    }
 
     /// Keyed puts reach a subscriber of one of the keys, each on its own key; the wildcard's
     /// matching status says whether anyone listens (a subscriber of one key is enough).

@@ -6,9 +6,9 @@
 //! - [`extract`]: every connected bright blob with exact moments in one pass (Eq. 3.33–3.43).
 //! - [`moments`]: raw and central moments, orientation with PAR (Eq. 3.44 / 4.14b corrected),
 //!   third-order direction, grey-level moments (Eq. 3.1).
-//! - [`heading`]: continuous 0–360° heading from axis angles (§4.1.1, `track_orientation`).
+//! - `stereoscope_numeric::heading`: continuous 0–360° heading from axis angles (§4.1.1, `track_orientation`).
 //! - [`tracker`]: self-adaptive tracking windows for several objects (Eq. 5.1–5.3).
-//! - [`assign`]: minimum-cost assignment.
+//! - `stereoscope_numeric::assign`: minimum-cost assignment.
 //! - [`raster`]: anti-aliased test shapes and noise with known truth.
 //! - `weights`: a run's grey-level weight sums (Eq. 3.1), vectorised for 8-bit pixels.
 //!

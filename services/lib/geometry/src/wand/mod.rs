@@ -365,14 +365,10 @@ pub fn calibrate_wand(
         )));
     }
     if !missing.is_empty() {
-        return Err(GeometryError::Degenerate(format!(
-            "cameras {missing:?} share too few wand frames (8 at least) with the others to be placed{}: wave the wand where each of them sees it together with another camera",
-            if wand.has_length() {
-                ""
-            } else {
-                " (with a one-marker wand: 8 frames each seen by the camera and two placed cameras)"
-            }
-        )));
+        return Err(GeometryError::WandUnplaced {
+            cameras: missing,
+            one_marker: !wand.has_length(),
+        });
     }
     let mut poses: Vec<Isometry3<f64>> = placed.into_iter().flatten().collect();
     // One marker: the farthest camera from camera 0 is 1 unit away, and held there.

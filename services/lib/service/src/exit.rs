@@ -1,8 +1,8 @@
 //! How a service's process ends, so that its supervisor can tell a mistake in the rig (which
 //! no restart mends) from a crash (which a restart may).
 
-use crate::RigError;
 use std::process::ExitCode;
+use stereoscope_rig::RigError;
 
 /// The exit status of a service that refused its configuration (sysexits' `EX_CONFIG`): the
 /// launcher does not restart it.
@@ -46,7 +46,10 @@ mod tests {
 
     #[test]
     fn a_rig_error_anywhere_in_the_chain_is_a_configuration_error() {
-        let rig = crate::error::err("camera[0].moments.max_objects", "0 is not between 1 and 64");
+        let rig = stereoscope_rig::error::err(
+            "camera[0].moments.max_objects",
+            "0 is not between 1 and 64",
+        );
         assert!(is_config_error(&Wrapper(rig.clone())));
         let wrapped = anyhow::Error::new(rig).context("starting moments/cam0");
         assert!(wrapped.chain().any(is_config_error));

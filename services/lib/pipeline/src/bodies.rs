@@ -6,8 +6,18 @@ use nalgebra::{Isometry3, Point3};
 use stereoscope_bodies::tracker::{BodyTracker, TrackedBody};
 use stereoscope_proto::messages::{BodyLabel, BodyPose, MAX_BODY_MARKERS, Pose, PoseMethod};
 
+use crate::fuser::{MarkerMotion, SetSightings};
+
 // The protocol's bound on a body's markers is the library's.
 const _: () = assert!(stereoscope_bodies::MAX_MARKERS as u32 == MAX_BODY_MARKERS);
+
+/// What one set's update found: the bodies' poses, and the found bodies' markers that no
+/// camera saw (world position and velocity).
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct BodiesFound {
+    pub bodies: Vec<BodyPose>,
+    pub unseen: Vec<MarkerMotion>,
+}
 
 /// The rig's bodies followed over sets.
 #[derive(Debug, Clone)]
@@ -16,26 +26,14 @@ pub struct Bodies {
     /// Each body's markers in its own frame (the refinement reads them while the tracker is
     /// borrowed).
     markers_m: Vec<Vec<Point3<f64>>>,
-    /// The last set's found bodies' unseen markers: world position and velocity.
-    unseen: Vec<crate::fuser::MarkerMotion>,
 }
 
 impl Bodies {
-    /// The rig's bodies with its `[fusion] body_hold_ms` (fusion and the replay alike).
-    pub fn of_rig(file: &stereoscope_rig::RigFile) -> Self {
-        let hold_ms = file
-            .fusion
-            .as_ref()
-            .and_then(|f| f.body_hold_ms)
-            .unwrap_or(stereoscope_bodies::tracker::DEFAULT_HOLD_NS as f64 * 1e-6);
-        Bodies::new(stereoscope_rig::body_defs(file), (hold_ms * 1e6) as u64)
-    }
-
+    /// `defs` followed over sets, each held for `hold_ns` while unseen.
     pub fn new(defs: Vec<stereoscope_bodies::BodyDef>, hold_ns: u64) -> Self {
         Bodies {
             markers_m: defs.iter().map(|d| d.markers_m.clone()).collect(),
             tracker: BodyTracker::new(defs, hold_ns),
-            unseen: Vec::new(),
         }
     }
 
@@ -47,34 +45,31 @@ impl Bodies {
     /// match distances), labels their markers, and returns the bodies' poses (Kabsch on the
     /// triangulated markers).
     pub fn update(&mut self, poses: &mut [Pose], timestamp_ns: u64) -> Vec<BodyPose> {
-        self.update_with(poses, timestamp_ns, None)
+        self.update_with(poses, timestamp_ns, None).bodies
     }
 
     /// [`Bodies::update`] with each body's pose refined on the cameras' pixels of its markers
-    /// (`fuser` knows them for the set just fused; `stereoscope_bodies::refine_reprojection`).
-    ///
-    /// It also tells `fuser` where each found body's unseen markers are (their positions and
-    /// velocities from the body's pose): a blob that hides one gives no point next set
-    /// ([`crate::fuser::Fuser::hiding`]).
+    /// (`seen`: what the cameras saw of each object in the set just fused;
+    /// `stereoscope_bodies::refine_reprojection`), and where each found body's unseen markers
+    /// are (their positions and velocities from the body's pose), for the fuser to expect
+    /// next set ([`crate::fuser::Fuser::expect_unseen`]).
     pub fn update_refined(
         &mut self,
         poses: &mut [Pose],
         timestamp_ns: u64,
-        fuser: &mut crate::fuser::Fuser,
-    ) -> Vec<BodyPose> {
-        let found = self.update_with(poses, timestamp_ns, Some(fuser));
-        fuser.expect_unseen(timestamp_ns, std::mem::take(&mut self.unseen));
-        found
+        seen: SetSightings<'_>,
+    ) -> BodiesFound {
+        self.update_with(poses, timestamp_ns, Some(seen))
     }
 
     fn update_with(
         &mut self,
         poses: &mut [Pose],
         timestamp_ns: u64,
-        fuser: Option<&crate::fuser::Fuser>,
-    ) -> Vec<BodyPose> {
+        seen: Option<SetSightings<'_>>,
+    ) -> BodiesFound {
         if self.is_empty() {
-            return Vec::new();
+            return BodiesFound::default();
         }
         let index: Vec<usize> = (0..poses.len())
             .filter(|&i| poses[i].method == PoseMethod::Triangulated)
@@ -86,8 +81,8 @@ impl Bodies {
         let defs_now = &self.markers_m;
         let ids: Vec<u32> = index.iter().map(|&i| poses[i].object_id).collect();
         let mut refine = |body: usize, markers: &[Option<usize>], pose: &Isometry3<f64>| {
-            let fuser = fuser?;
-            let cams = fuser.cameras();
+            let seen = seen?;
+            let cams = seen.cameras;
             let projections: Vec<_> = cams
                 .iter()
                 .map(|c| move |p: &Point3<f64>| c.project(p))
@@ -95,7 +90,7 @@ impl Bodies {
             let mut sightings = Vec::new();
             for (k, p) in markers.iter().enumerate() {
                 let Some(p) = p else { continue };
-                for (cam, pixel) in fuser.pixels_of(ids[*p]) {
+                for (cam, pixel) in seen.pixels_of(ids[*p]) {
                     sightings.push(stereoscope_bodies::Sighting {
                         marker_body: defs_now[body][k],
                         project: &projections[*cam],
@@ -108,9 +103,9 @@ impl Bodies {
         let found = self
             .tracker
             .update_refined(&points, timestamp_ns, &mut refine);
-        self.unseen = unseen_markers(&found, &self.markers_m);
+        let unseen = unseen_markers(&found, &self.markers_m);
         let defs = self.tracker.defs();
-        found
+        let bodies = found
             .iter()
             .map(|b| {
                 let def = &defs[b.body];
@@ -124,16 +119,14 @@ impl Bodies {
                 }
                 body_pose(def, b)
             })
-            .collect()
+            .collect();
+        BodiesFound { bodies, unseen }
     }
 }
 
 /// Each found body's markers not seen this set: world position and velocity (metres, metres
 /// per second).
-fn unseen_markers(
-    found: &[TrackedBody],
-    markers_m: &[Vec<Point3<f64>>],
-) -> Vec<crate::fuser::MarkerMotion> {
+fn unseen_markers(found: &[TrackedBody], markers_m: &[Vec<Point3<f64>>]) -> Vec<MarkerMotion> {
     let mut out = Vec::new();
     for b in found.iter().filter(|b| !b.held) {
         for (k, m) in b.markers.iter().enumerate() {

@@ -338,7 +338,7 @@ mod tests {
     /// the truth message passes the receivers' checks (a NaN centroid made it refused whole).
     #[test]
     fn a_target_out_of_view_gives_a_valid_truth() {
-        let text = include_str!("../../../deploy/rigs/demo.toml").to_string()
+        let text = include_str!("../../../../deploy/rigs/demo.toml").to_string()
             + "\n[[synthetic.target]]\nshape = \"sphere\"\nradius = 2.0\n\
                motion = { kind = \"circle\", centre = [900.0, 0.0, 40.0], radius = 1.0, period_s = 8.0 }\n";
         let rig = stereoscope_rig::Rig::from_toml(&text).unwrap();

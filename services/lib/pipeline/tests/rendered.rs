@@ -3,14 +3,14 @@
 //! against the renderer's truth.
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
 
-use stereoscope_capture::source::FrameSource;
-use stereoscope_capture::synthetic::SyntheticSource;
-use stereoscope_fusion::fuser::Fuser;
-use stereoscope_moments::Worker;
+use stereoscope_pipeline::Fusion;
+use stereoscope_pipeline::worker::Worker;
 use stereoscope_proto::frame::{FrameHeader, PixelFormat};
 use stereoscope_rig::Rig;
+use stereoscope_sources::FrameSource;
+use stereoscope_sources::synthetic::SyntheticSource;
 
-const RIG: &str = include_str!("../../../deploy/rigs/demo.toml");
+const RIG: &str = include_str!("../../../../deploy/rigs/demo.toml");
 
 /// Per frame: each loose target's position error and heading error; and the helmet body's
 /// position and rotation errors (degrees) where it was measured.
@@ -36,11 +36,7 @@ fn sweep(rig_text: &str, from_s: f64, frames: u64) -> (Errors, Vec<String>) {
             Worker::new(s, "demo", &rig.cameras[i].id).unwrap()
         })
         .collect();
-    let mut fuser = Fuser::new(&rig, stereoscope_fusion::settings(file).1);
-    let mut bodies = stereoscope_fusion::bodies::Bodies::new(
-        stereoscope_rig::body_defs(&rig.spec),
-        stereoscope_bodies::tracker::DEFAULT_HOLD_NS,
-    );
+    let mut fusion = Fusion::of_rig(&rig);
     let layouts = stereoscope_rig::truth::Layouts::of_rig(file);
     let mut ghosts = Vec::new();
     let mut out = Vec::new();
@@ -63,8 +59,7 @@ fn sweep(rig_text: &str, from_s: f64, frames: u64) -> (Errors, Vec<String>) {
             hd.timestamp_ns = ts;
             set.push((c, workers[c].process_frame(&hd, &buf).unwrap()));
         }
-        let mut poses = fuser.fuse(&set, ts);
-        let found = bodies.update_refined(&mut poses, ts, &mut fuser);
+        let (poses, found) = fusion.fuse(&set, ts);
         for g in layouts.ghosts(&poses, &truth) {
             ghosts.push(format!(
                 "{t:.2} s: object {} at {:.3?} {:?}",

@@ -3,7 +3,7 @@
 //! target (`stereoscope_rig::truth`) and a summary. Deterministic: a ghost found here is found
 //! again, and `--dump FRAME` prints that frame's blobs and poses (and the two after it).
 //!
-//!   cargo run --release -p stereoscope-fusion --example ghosts -- \
+//!   cargo run --release -p stereoscope-pipeline --example ghosts -- \
 //!       [--seconds 600] [--from 0] [--phase 0] [--rig deploy/rigs/demo.toml] [--dump FRAME]
 //!
 //! `--phase P` samples the scene at (k + P) / 30 s (0 ≤ P < 1): the live demo's frames fall
@@ -12,13 +12,13 @@
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
 use nalgebra::{Isometry3, Quaternion, Translation3, UnitQuaternion};
-use stereoscope_capture::source::FrameSource;
-use stereoscope_capture::synthetic::SyntheticSource;
-use stereoscope_fusion::fuser::Fuser;
-use stereoscope_moments::Worker;
+use stereoscope_pipeline::Fusion;
+use stereoscope_pipeline::worker::Worker;
 use stereoscope_proto::frame::{FrameHeader, PixelFormat};
 use stereoscope_rig::Rig;
 use stereoscope_rig::truth::Layouts;
+use stereoscope_sources::FrameSource;
+use stereoscope_sources::synthetic::SyntheticSource;
 
 fn iso(p: [f64; 3], q: [f64; 4]) -> Isometry3<f64> {
     Isometry3::from_parts(
@@ -101,7 +101,7 @@ fn main() {
     let dump: Option<u64> = arg(&args, "--dump").map(|s| s.parse().unwrap());
     let text = match arg(&args, "--rig") {
         Some(p) => std::fs::read_to_string(p).unwrap(),
-        None => include_str!("../../../deploy/rigs/demo.toml").to_string(),
+        None => include_str!("../../../../deploy/rigs/demo.toml").to_string(),
     };
     let rig = Rig::from_toml(&text).unwrap();
     let file = &rig.spec;
@@ -119,9 +119,7 @@ fn main() {
             .unwrap()
         })
         .collect();
-    let (_, cfg, _) = stereoscope_fusion::settings(file);
-    let mut fuser = Fuser::new(&rig, cfg);
-    let mut bodies = stereoscope_fusion::bodies::Bodies::of_rig(file);
+    let mut fusion = Fusion::of_rig(&rig);
     let layouts = Layouts::of_rig(file);
     let phase: f64 = arg(&args, "--phase").map_or(0.0, |s| s.parse().unwrap());
     let skew: f64 = arg(&args, "--skew-ms").map_or(0.0, |s| s.parse::<f64>().unwrap() * 1e-3);
@@ -186,8 +184,7 @@ fn main() {
             }
             set.push((c, obs));
         }
-        let mut poses = fuser.fuse(&set, ts);
-        let found = bodies.update_refined(&mut poses, ts, &mut fuser);
+        let (poses, found) = fusion.fuse(&set, ts);
         if dumped {
             for p in &poses {
                 println!(
@@ -195,7 +192,7 @@ fn main() {
                     p.object_id,
                     p.position_m,
                     p.body,
-                    fuser.pixels_of(p.object_id)
+                    fusion.fuser.pixels_of(p.object_id)
                 );
             }
         }
@@ -276,9 +273,9 @@ fn main() {
         (body_sq / body_n.max(1) as f64).sqrt() * 1e3,
         body_sum.map(|v| v / body_n.max(1) as f64 * 1e3),
         (rot_sq / body_n.max(1) as f64).sqrt(),
-        fuser.area_mismatch,
-        fuser.single_view_unmatched,
-        fuser.clipped,
-        fuser.hiding_blobs,
+        fusion.fuser.area_mismatch,
+        fusion.fuser.single_view_unmatched,
+        fusion.fuser.clipped,
+        fusion.fuser.hiding_blobs,
     );
 }

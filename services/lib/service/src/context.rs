@@ -1,9 +1,9 @@
 //! What every service is started with: the rig, which PC it is on, its iceoryx2 prefix and how
 //! it joins Zenoh — the same flags for every service binary, checked the same way.
 
-use crate::schema::HostSpec;
-use crate::{Rig, RigError, RigErrorKind};
 use std::path::PathBuf;
+use stereoscope_rig::schema::HostSpec;
+use stereoscope_rig::{Rig, RigError, RigErrorKind};
 use stereoscope_transport::net::{ZenohMode, ZenohSpec};
 
 /// Default iceoryx2 file prefix.
@@ -154,17 +154,10 @@ impl CommonArgs {
 /// A client of the host's router (its first listen endpoint, seen from this PC), or a lone
 /// peer when the rig says nothing.
 pub fn default_zenoh(host: Option<&HostSpec>) -> ZenohSpec {
-    match host.and_then(crate::security::service_endpoint) {
+    match host.and_then(stereoscope_rig::security::service_endpoint) {
         Some(e) => ZenohSpec::client_of(&e),
         None => ZenohSpec::lone_peer(),
     }
-}
-
-/// A listen endpoint as a client on the same PC reaches it: any-address becomes loopback.
-pub fn local_endpoint(listen: &str) -> String {
-    listen
-        .replace("/0.0.0.0:", "/127.0.0.1:")
-        .replace("/[::]:", "/[::1]:")
 }
 
 impl Context {

@@ -23,7 +23,7 @@ use stereoscope_numeric::angle::wrap_half_turn_deg;
 use stereoscope_numeric::assign::Assigner;
 use stereoscope_numeric::heading::{HeadingConfig, HeadingTracker};
 use stereoscope_proto::messages::{BlobObservation, Observation, Pose, PoseMethod, TrackState};
-use stereoscope_rig::Rig;
+use stereoscope_rig::RigCamera;
 
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct FuserConfig {
@@ -145,7 +145,7 @@ pub struct Fuser {
     /// points are published, but their pixels refine no body's pose ([`Fuser::pixels_of`]).
     pub clipped: u64,
     /// Blobs left out because another followed object's image is hidden in them
-    /// ([`Fuser::hiding`]).
+    /// (`Fuser::hiding`).
     pub hiding_blobs: u64,
     /// Rigid bodies' markers unseen in the last set (`expect_unseen`): when, and each one's
     /// world position and velocity.
@@ -181,7 +181,7 @@ fn merge_duplicates(mut points: Vec<Point>, merge_m: f64) -> Vec<Point> {
 /// A marker's world position (metres) and velocity (metres per second).
 pub type MarkerMotion = (Point3<f64>, Vector3<f64>);
 
-/// How recently an object must have been seen for [`Fuser::hiding`] to look for its image.
+/// How recently an object must have been seen for `Fuser::hiding` to look for its image.
 const HIDDEN_WITHIN_NS: u64 = 200_000_000;
 
 fn usable(b: &BlobObservation) -> bool {
@@ -193,12 +193,13 @@ fn usable(b: &BlobObservation) -> bool {
 }
 
 impl Fuser {
-    pub fn new(rig: &Rig, cfg: FuserConfig) -> Self {
+    /// A fuser for `cameras` (the rig's, in its order: observations name them by index).
+    pub fn new(cameras: &[RigCamera], cfg: FuserConfig) -> Self {
         Fuser {
             cfg,
-            cameras: rig.cameras.iter().map(|c| c.camera).collect(),
-            ids: rig.cameras.iter().map(|c| c.id.clone()).collect(),
-            depth: rig.cameras.iter().map(|c| c.depth_from_area).collect(),
+            cameras: cameras.iter().map(|c| c.camera).collect(),
+            ids: cameras.iter().map(|c| c.id.clone()).collect(),
+            depth: cameras.iter().map(|c| c.depth_from_area).collect(),
             objects: Vec::new(),
             next_id: 1,
             assigner: Assigner::default(),
@@ -266,7 +267,7 @@ impl Fuser {
     }
 
     /// Where the markers of the bodies found in the set of `timestamp_ns` that were not seen
-    /// are (world position and velocity, from each body's pose): [`Fuser::hiding`] looks for
+    /// are (world position and velocity, from each body's pose): `Fuser::hiding` looks for
     /// them in the next set's blobs.
     pub fn expect_unseen(&mut self, timestamp_ns: u64, markers: Vec<MarkerMotion>) {
         self.unseen = (timestamp_ns, markers);
@@ -696,15 +697,39 @@ impl Fuser {
     /// `id` in the last set fused, whole blobs only (a clipped blob's centroid is pulled
     /// inwards).
     pub fn pixels_of(&self, id: u32) -> &[(usize, Point2<f64>)] {
-        self.pixels
-            .iter()
-            .find(|(i, _)| *i == id)
-            .map_or(&[], |(_, v)| v.as_slice())
+        self.sightings().pixels_of(id)
     }
 
     /// The rig's cameras, by rig camera index.
     pub fn cameras(&self) -> &[Camera] {
         &self.cameras
+    }
+
+    /// What the cameras saw of each object of the last set fused, for the bodies' refinement.
+    pub fn sightings(&self) -> SetSightings<'_> {
+        SetSightings {
+            cameras: &self.cameras,
+            pixels: &self.pixels,
+        }
+    }
+}
+
+/// What the cameras saw of each object in one set: the rig's cameras (by rig camera index) and
+/// each published object's pixels as measured (whole blobs only).
+#[derive(Debug, Clone, Copy)]
+pub struct SetSightings<'a> {
+    pub cameras: &'a [Camera],
+    pixels: &'a [(u32, Sightings)],
+}
+
+impl<'a> SetSightings<'a> {
+    /// The pixels (rig camera index, distorted pixel as measured) each camera saw of object
+    /// `id`.
+    pub fn pixels_of(&self, id: u32) -> &'a [(usize, Point2<f64>)] {
+        self.pixels
+            .iter()
+            .find(|(i, _)| *i == id)
+            .map_or(&[], |(_, v)| v.as_slice())
     }
 }
 
@@ -712,13 +737,14 @@ impl Fuser {
 mod tests {
     use super::*;
     use stereoscope_proto::messages::SCHEMA_VERSION;
+    use stereoscope_rig::Rig;
 
-    const RIG: &str = include_str!("../../../deploy/rigs/demo.toml");
+    const RIG: &str = include_str!("../../../../deploy/rigs/demo.toml");
 
     /// A fuser whose points become objects in their first set.
     fn confirmed_at_once(rig: &Rig) -> Fuser {
         Fuser::new(
-            rig,
+            &rig.cameras,
             FuserConfig {
                 confirm_sets: 1,
                 ..FuserConfig::default()
@@ -801,7 +827,7 @@ mod tests {
     #[test]
     fn a_point_becomes_an_object_only_when_it_lasts() {
         let rig = Rig::from_toml(RIG).unwrap();
-        let mut f = Fuser::new(&rig, FuserConfig::default());
+        let mut f = Fuser::new(&rig.cameras, FuserConfig::default());
         let dt = 33_333_333u64;
         let p = Point3::new(0.05, -0.03, 0.6);
         // A ghost seen in two sets, then gone: never published, never takes an id.
@@ -849,7 +875,7 @@ mod tests {
     #[test]
     fn a_rig_of_several_cameras_publishes_no_one_view_points() {
         let rig = Rig::from_toml(RIG).unwrap();
-        let mut f = Fuser::new(&rig, FuserConfig::default());
+        let mut f = Fuser::new(&rig.cameras, FuserConfig::default());
         let dt = 33_333_333u64;
         let at = Point3::new(-0.1, 0.05, 0.6);
         for k in 1..=5 {

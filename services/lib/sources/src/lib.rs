@@ -1,0 +1,162 @@
+//! Where a camera's frames come from, as a rig file describes it (`docs/services.md`,
+//! "capture"): a V4L2 camera (feature `v4l`), a Y4M file or pipe ([`y4m`]), a PGM/PNG sequence
+//! ([`images`]), or the synthetic scene ([`synthetic`], rendered with its ground truth). Each
+//! is a [`FrameSource`]: the capture service publishes what it reads into shared memory, and
+//! the benches, examples and offline processing read the same sources in process.
+
+pub mod images;
+pub mod source;
+pub mod synthetic;
+#[cfg(feature = "v4l")]
+pub mod v4l;
+pub mod y4m;
+
+pub use source::{BadFrame, FrameSource, Read, SourceError};
+use stereoscope_rig::schema::SourceSpec;
+use stereoscope_rig::{Rig, RigError, RigErrorKind};
+
+/// Why a camera's source could not be opened.
+#[derive(Debug, thiserror::Error)]
+pub enum OpenError {
+    #[error("camera {camera}: not a camera of the rig")]
+    UnknownCamera { camera: String },
+    #[error("camera {camera}: camera[{index}].source is missing: say where its frames come from")]
+    NoSource { camera: String, index: usize },
+    #[error(
+        "camera {camera}: the source gives {}×{} frames but camera[{index}].image_size is {}×{}",
+        .got_px.0, .got_px.1, .rig_px.0, .rig_px.1
+    )]
+    SizeMismatch {
+        camera: String,
+        index: usize,
+        got_px: (u32, u32),
+        rig_px: (u32, u32),
+    },
+    #[error("camera {camera}: {source}")]
+    Source {
+        camera: String,
+        #[source]
+        source: SourceError,
+    },
+    /// The rig asks for what this build cannot do.
+    #[error("camera {camera}: {source}")]
+    Unsupported {
+        camera: String,
+        #[source]
+        source: RigError,
+    },
+}
+
+/// Refuses a rig whose cameras among `cameras` need what this build lacks (V4L2 without the
+/// `v4l` feature): a configuration error, found before any service starts.
+pub fn check_supported(rig: &Rig, cameras: &[String]) -> Result<(), OpenError> {
+    for (i, c) in rig.spec.cameras.iter().enumerate() {
+        if cfg!(not(feature = "v4l"))
+            && cameras.contains(&c.id)
+            && let Some(SourceSpec::V4l { device, .. }) = &c.source
+        {
+            return Err(no_v4l(rig, i, device));
+        }
+    }
+    Ok(())
+}
+
+/// Camera `index` of `rig` wants V4L2 device `device`, which this build cannot open.
+fn no_v4l(rig: &Rig, index: usize, device: &str) -> OpenError {
+    OpenError::Unsupported {
+        camera: rig
+            .cameras
+            .get(index)
+            .map(|c| c.id.clone())
+            .unwrap_or_default(),
+        source: RigError {
+            kind: RigErrorKind::Value,
+            file: rig.path.clone(),
+            key: format!("camera[{index}].source"),
+            message: format!(
+                "{device}: this build has no V4L2 support; build with `--features v4l` (needs libclang-dev)"
+            ),
+        },
+    }
+}
+
+/// Opens camera `camera`'s source as the rig file describes it, and checks its frame size
+/// against the rig's `image_size`.
+pub fn open(rig: &Rig, camera: &str) -> Result<Box<dyn FrameSource>, OpenError> {
+    let index = rig
+        .camera_index(camera)
+        .ok_or_else(|| OpenError::UnknownCamera {
+            camera: camera.to_string(),
+        })?;
+    let spec = &rig.spec.cameras[index];
+    let src = spec.source.as_ref().ok_or_else(|| OpenError::NoSource {
+        camera: camera.to_string(),
+        index,
+    })?;
+    let wrap = |source: SourceError| OpenError::Source {
+        camera: camera.to_string(),
+        source,
+    };
+    let rel = |p: &str| rig.source_path(p).display().to_string();
+    let source: Box<dyn FrameSource> = match src {
+        SourceSpec::Synthetic {
+            fps,
+            loop_frames,
+            bit_depth,
+        } => Box::new(
+            synthetic::SyntheticSource::new(
+                &rig.spec,
+                rig.cameras[index].camera,
+                index,
+                *fps,
+                *loop_frames,
+                *bit_depth,
+            )
+            .map_err(wrap)?,
+        ),
+        SourceSpec::Y4m {
+            path,
+            realtime,
+            repeat,
+            replay_clock,
+        } => Box::new(
+            y4m::Y4mSource::open(&rel(path), *realtime, *repeat)
+                .map_err(wrap)?
+                .with_replay_clock(*replay_clock),
+        ),
+        SourceSpec::Images {
+            path,
+            fps,
+            realtime,
+            repeat,
+        } => {
+            Box::new(images::ImageSource::open(&rel(path), *fps, *realtime, *repeat).map_err(wrap)?)
+        }
+        #[cfg(feature = "v4l")]
+        SourceSpec::V4l {
+            device,
+            format,
+            fps,
+            exposure,
+            gain,
+        } => Box::new(
+            v4l::V4lSource::open(device, format.map(|f| f.fourcc()), *fps, *exposure, *gain)
+                .map_err(wrap)?,
+        ),
+        #[cfg(not(feature = "v4l"))]
+        SourceSpec::V4l { device, .. } => {
+            return Err(no_v4l(rig, index, device));
+        }
+    };
+    let (w, h) = source.size();
+    let [rw, rh] = spec.image_size;
+    if (w, h) != (rw, rh) {
+        return Err(OpenError::SizeMismatch {
+            camera: camera.to_string(),
+            index,
+            got_px: (w, h),
+            rig_px: (rw, rh),
+        });
+    }
+    Ok(source)
+}
