@@ -153,20 +153,39 @@ fn demo_recovers_three_moving_objects_against_ground_truth() {
             t["target"],
             matched + missed
         );
+        // 0.6–1.1 mm in three runs of this test on an idle 2-core machine (2026-12-06);
+        // twice that leaves room for a loaded one.
         let rms = t["position_rms_m"].as_f64().unwrap();
-        assert!(rms < 0.02, "target {} RMS {rms} m: {line}", t["target"]);
+        assert!(rms <= 0.002, "target {} RMS {rms} m: {line}", t["target"]);
     }
-    // The two double balls have a heading; the single ball has none.
-    assert!(
-        targets[0]["heading_rms_deg"].as_f64().unwrap() < 3.0,
-        "{line}"
-    );
-    assert!(
-        targets[1]["heading_rms_deg"].as_f64().unwrap() < 3.0,
-        "{line}"
-    );
+    // The two double balls have a heading (0.08–0.18° seen); the single ball has none.
+    for t in &targets[..2] {
+        let h = t["heading_rms_deg"].as_f64().unwrap();
+        assert!(h < 1.0, "target {} heading RMS {h}°: {line}", t["target"]);
+    }
     assert!(targets[2]["heading_rms_deg"].is_null(), "{line}");
-    assert!(v["latency_p50_ms"].as_f64().unwrap().is_finite());
+    // The helmet: 0.37–0.44 mm and 0.05–0.07° seen; three times that.
+    let bodies = v["bodies"].as_array().unwrap();
+    let head = bodies
+        .iter()
+        .find(|b| b["name"] == "head")
+        .expect("the helmet");
+    assert!(
+        head["position_rms_m"].as_f64().unwrap() <= 0.0015
+            && head["rotation_rms_deg"].as_f64().unwrap() <= 0.3,
+        "{line}"
+    );
+    assert_eq!(v["ghost_poses"].as_u64(), Some(0), "ghosts: {line}");
+    // Frame in shared memory → pose out: p50 0.45–0.51 ms, p99 1.0–1.1 ms seen; the bounds
+    // leave room for a machine busy with other work (a 25 ms p99 is three frame periods).
+    let (p50, p99) = (
+        v["latency_p50_ms"].as_f64().unwrap(),
+        v["latency_p99_ms"].as_f64().unwrap(),
+    );
+    assert!(
+        p50 < 5.0 && p99 < 25.0,
+        "latency p50 {p50} ms, p99 {p99} ms: {line}"
+    );
 }
 
 #[test]
