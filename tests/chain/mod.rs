@@ -128,7 +128,8 @@ pub fn scene_rig(
     t
 }
 
-/// Runs `rig_path` for `seconds` and returns the session folder it recorded.
+/// Runs `rig_path`, waits (up to a minute) until its recorder has written observations, lets
+/// it record `seconds` more, stops it, and returns the session folder it recorded.
 pub fn record(rig_path: &std::path::Path, seconds: f64) -> std::path::PathBuf {
     let dir = rig_path.parent().unwrap();
     let mut run = Command::new(BIN)
@@ -137,18 +138,44 @@ pub fn record(rig_path: &std::path::Path, seconds: f64) -> std::path::PathBuf {
         .stderr(Stdio::null())
         .spawn()
         .unwrap();
-    std::thread::sleep(Duration::from_secs_f64(seconds + 3.0));
-    // SAFETY: signalling our own child.
-    unsafe {
-        libc::kill(run.id() as libc::pid_t, libc::SIGTERM);
+    let session = || {
+        std::fs::read_dir(dir.join("rec"))
+            .ok()?
+            .flatten()
+            .map(|e| e.path())
+            .find(|p| std::fs::metadata(p.join("observations.jsonl")).is_ok_and(|m| m.len() > 0))
+    };
+    let stop = |run: &mut std::process::Child, signal: libc::c_int| {
+        // SAFETY: signalling our own child.
+        unsafe {
+            libc::kill(run.id() as libc::pid_t, signal);
+        }
+    };
+    let end = std::time::Instant::now() + Duration::from_secs(60);
+    let found = loop {
+        if let Some(s) = session() {
+            break Some(s);
+        }
+        if std::time::Instant::now() > end || run.try_wait().ok().flatten().is_some() {
+            break None;
+        }
+        std::thread::sleep(Duration::from_millis(100));
+    };
+    if found.is_some() {
+        std::thread::sleep(Duration::from_secs_f64(seconds));
+    }
+    stop(&mut run, libc::SIGTERM);
+    let end = std::time::Instant::now() + Duration::from_secs(30);
+    let mut exited = false;
+    while !exited && std::time::Instant::now() < end {
+        exited = run.try_wait().ok().flatten().is_some();
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    if !exited {
+        stop(&mut run, libc::SIGKILL);
     }
     let _ = run.wait();
-    std::fs::read_dir(dir.join("rec"))
-        .unwrap()
-        .flatten()
-        .map(|e| e.path())
-        .find(|p| p.join("observations.jsonl").exists())
-        .expect("a recorded session")
+    found.expect("the recorder wrote no observations within a minute of `stereoscope run`")
 }
 
 /// `stereoscope ARGS`, which must succeed.

@@ -14,7 +14,7 @@ pub mod cli;
 
 use std::time::{Duration, Instant};
 use stereoscope_proto::frame::FrameHeader;
-use stereoscope_proto::messages::{Observation, SCHEMA_VERSION, Truth, now_ns};
+use stereoscope_proto::messages::{Detail, Observation, SCHEMA_VERSION, Truth, now_ns};
 use stereoscope_proto::names::{iox as iox_names, zenoh as keys};
 use stereoscope_service::Context;
 use stereoscope_sources::{FrameSource, OpenError, Read, SourceError};
@@ -159,9 +159,7 @@ impl Capture {
             None
         };
         tracing::info!(camera = %cam, "capturing from {}", source.describe());
-        node.counters
-            .detail
-            .insert("source".into(), source.describe());
+        node.counters.set(Detail::Source, source.describe());
         let realtime = cfg.realtime.unwrap_or(source.realtime());
         let period_ns = source
             .fps()
@@ -261,9 +259,6 @@ impl Service for Capture {
     /// Reads one frame from the source into a loaned shared-memory frame and publishes it
     /// (with the scene's truth, for a synthetic source).
     fn step(&mut self, shutdown: &Shutdown) -> Result<Flow, CaptureError> {
-        if self.cfg.max_frames.is_some_and(|m| self.index >= m) {
-            return Ok(Flow::Stop);
-        }
         self.wait_for_worker(shutdown);
         let Some((slot, scene_time_s, nominal_ns)) = self.next_slot(shutdown) else {
             return Ok(Flow::Stop);
@@ -329,6 +324,11 @@ impl Service for Capture {
         self.summary.frames += 1;
         self.node.counters.processed = self.summary.frames;
         Ok(Flow::Continue)
+    }
+
+    /// Frames published.
+    fn limit(&self) -> Option<u64> {
+        self.cfg.max_frames
     }
 
     fn summary(&self) -> CaptureSummary {

@@ -47,7 +47,7 @@ use std::time::{Duration, Instant};
 use stereoscope_numeric::angle::{wrap_half_turn_deg, wrap_turn_deg};
 use stereoscope_numeric::assign::assign_min_cost;
 use stereoscope_numeric::quantiles::LogHistogram;
-use stereoscope_proto::messages::{Health, PoseFrame, Truth};
+use stereoscope_proto::messages::{Detail, Health, PoseFrame, Truth};
 use stereoscope_proto::names::zenoh as keys;
 use stereoscope_rig::Rig;
 use stereoscope_rig::truth::Layouts;
@@ -622,8 +622,8 @@ fn watch(
                 },
             })
             .collect(),
-        vr_latency_p50_us: vr_detail(&health, "latency_p50_us"),
-        vr_latency_p99_us: vr_detail(&health, "latency_p99_us"),
+        vr_latency_p50_us: vr_detail(&health, Detail::LatencyP50Us),
+        vr_latency_p99_us: vr_detail(&health, Detail::LatencyP99Us),
         restarts: 0,
         losses: health
             .lock()
@@ -633,9 +633,9 @@ fn watch(
 }
 
 /// A number from the VR feed's last health report.
-fn vr_detail(health: &Mutex<BTreeMap<String, Health>>, key: &str) -> Option<f64> {
+fn vr_detail(health: &Mutex<BTreeMap<String, Health>>, key: Detail) -> Option<f64> {
     let m = health.lock().ok()?;
-    m.get("vrfeed")?.detail.get(key)?.parse().ok()
+    m.get("vrfeed")?.detail(key)?.parse().ok()
 }
 
 /// Scores each body target of the truth against the frame's body of that name: position of

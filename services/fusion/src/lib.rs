@@ -17,7 +17,7 @@ use std::time::Duration;
 use stereoscope_pipeline::pairing::{self, Pairer};
 use stereoscope_pipeline::{Fusion, FusionSettings};
 use stereoscope_proto::messages::{
-    BodyUpdate, Message, Observation, PoseFrame, PoseUpdate, SCHEMA_VERSION, now_ns,
+    BodyUpdate, Detail, Message, Observation, PoseFrame, PoseUpdate, SCHEMA_VERSION, now_ns,
 };
 use stereoscope_proto::names::{iox as iox_names, zenoh as keys};
 use stereoscope_service::Context;
@@ -306,47 +306,22 @@ impl FusionService {
             .filter(|&c| self.pairer.live(c, now))
             .map(|c| rig.cameras[c].id.as_str())
             .collect();
-        let detail = &mut counters.detail;
-        detail.insert("cameras_live".into(), live.join(","));
-        detail.insert("late".into(), self.pairer.late.to_string());
-        if self.pairer.before_start > 0 {
-            detail.insert("before_start".into(), self.pairer.before_start.to_string());
-        }
+        counters.set(Detail::CamerasLive, live.join(","));
+        counters.set(Detail::Late, self.pairer.late);
+        counters.set_nonzero(Detail::BeforeStart, self.pairer.before_start);
         if let Some((c, sequence)) = self.pairer.last_lost {
             let camera = rig.cameras.get(c).map(|c| c.id.as_str()).unwrap_or("?");
-            detail.insert("last_lost".into(), format!("{camera} frame {sequence}"));
+            counters.set(Detail::LastLost, format!("{camera} frame {sequence}"));
         }
-        if self.pairer.short_sets > 0 {
-            detail.insert("short_sets".into(), self.pairer.short_sets.to_string());
-        }
-        detail.insert("objects".into(), self.fusion.fuser.objects().to_string());
-        if self.fusion.fuser.outside_volume > 0 {
-            detail.insert(
-                "outside_volume".into(),
-                self.fusion.fuser.outside_volume.to_string(),
-            );
-        }
-        if self.fusion.fuser.hiding_blobs > 0 {
-            detail.insert("hiding".into(), self.fusion.fuser.hiding_blobs.to_string());
-        }
-        if self.fusion.fuser.clipped > 0 {
-            detail.insert("clipped".into(), self.fusion.fuser.clipped.to_string());
-        }
-        if self.fusion.fuser.area_mismatch > 0 {
-            detail.insert(
-                "area_mismatch".into(),
-                self.fusion.fuser.area_mismatch.to_string(),
-            );
-        }
-        if self.fusion.fuser.single_view_unmatched > 0 {
-            detail.insert(
-                "single_view_unmatched".into(),
-                self.fusion.fuser.single_view_unmatched.to_string(),
-            );
-        }
-        if self.merged_blobs > 0 {
-            detail.insert("merged_blobs".into(), self.merged_blobs.to_string());
-        }
+        counters.set_nonzero(Detail::ShortSets, self.pairer.short_sets);
+        let fuser = &self.fusion.fuser;
+        counters.set(Detail::Objects, fuser.objects());
+        counters.set_nonzero(Detail::OutsideVolume, fuser.outside_volume);
+        counters.set_nonzero(Detail::Hiding, fuser.hiding_blobs);
+        counters.set_nonzero(Detail::Clipped, fuser.clipped);
+        counters.set_nonzero(Detail::AreaMismatch, fuser.area_mismatch);
+        counters.set_nonzero(Detail::SingleViewUnmatched, fuser.single_view_unmatched);
+        counters.set_nonzero(Detail::MergedBlobs, self.merged_blobs);
     }
 }
 
@@ -354,20 +329,19 @@ impl Service for FusionService {
     type Summary = u64;
     type Error = FusionError;
 
+    /// Pose frames published.
+    fn limit(&self) -> Option<u64> {
+        self.cfg.max_sets
+    }
+
     fn node(&mut self) -> &mut ServiceNode {
         &mut self.node
     }
 
     /// Waits (bounded) for observations, then fuses every set the pairer has ready.
     fn step(&mut self, _shutdown: &Shutdown) -> Result<Flow, FusionError> {
-        let done = |s: &Self| {
-            s.cfg
-                .max_sets
-                .is_some_and(|m| s.node.counters.processed >= m)
-        };
-        if done(self) {
-            return Ok(Flow::Stop);
-        }
+        // One step can fuse several sets: none past the limit.
+        let done = |s: &Self| s.limit().is_some_and(|m| s.node.counters.processed >= m);
         self.take_inputs();
         while let Some(set) = self.pairer.pop(now_ns()) {
             if set.is_empty() {

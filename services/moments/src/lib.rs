@@ -12,7 +12,7 @@ pub mod cli;
 
 use std::time::Duration;
 use stereoscope_pipeline::worker::{PREVIEW_EVERY_MS, Worker};
-use stereoscope_proto::messages::{Message, Observation, now_ns};
+use stereoscope_proto::messages::{Detail, Message, Observation, now_ns};
 use stereoscope_proto::names::{iox as iox_names, zenoh as keys};
 use stereoscope_service::Context;
 use stereoscope_transport::iox::FrameSubscriber;
@@ -153,6 +153,11 @@ impl Service for MomentsService {
     type Summary = u64;
     type Error = MomentsError;
 
+    /// Frames tracked.
+    fn limit(&self) -> Option<u64> {
+        self.cfg.max_frames
+    }
+
     fn node(&mut self) -> &mut ServiceNode {
         &mut self.node
     }
@@ -160,9 +165,6 @@ impl Service for MomentsService {
     /// Waits up to 100 ms for the newest frame, tracks it in place and publishes its
     /// observation; a frame that fails its checks is counted, named and skipped.
     fn step(&mut self, _shutdown: &Shutdown) -> Result<Flow, MomentsError> {
-        if self.cfg.max_frames.is_some_and(|m| self.processed >= m) {
-            return Ok(Flow::Stop);
-        }
         let got = match self.frames.next_newest(Duration::from_millis(100)) {
             Ok(got) => got,
             Err(e) => {
@@ -209,18 +211,15 @@ impl Service for MomentsService {
             }
         }
         if self.node.report_due() {
-            let threshold = self
-                .worker
-                .threshold()
-                .map(|t| t.to_string())
-                .unwrap_or_default();
-            let detail = &mut self.node.counters.detail;
-            detail.insert("threshold".into(), threshold);
-            detail.insert("tracked".into(), self.worker.tracked().to_string());
-            detail.insert("masked".into(), self.worker.masked().to_string());
+            let counters = &mut self.node.counters;
+            if let Some(t) = self.worker.threshold() {
+                counters.set(Detail::Threshold, t);
+            }
+            counters.set(Detail::Tracked, self.worker.tracked());
+            counters.set(Detail::Masked, self.worker.masked());
             let (settled, widened) = self.worker.core_scans();
-            detail.insert("cores_settled".into(), settled.to_string());
-            detail.insert("cores_widened".into(), widened.to_string());
+            counters.set(Detail::CoresSettled, settled);
+            counters.set(Detail::CoresWidened, widened);
         }
         Ok(Flow::Continue)
     }

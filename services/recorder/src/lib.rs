@@ -19,7 +19,7 @@ use std::io::Write;
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
 use stereoscope_proto::frame::{FrameHeader, PixelFormat};
-use stereoscope_proto::messages::{Observation, PoseFrame, now_ns};
+use stereoscope_proto::messages::{Detail, Observation, PoseFrame, now_ns};
 use stereoscope_proto::names::{iox as iox_names, zenoh as keys};
 use stereoscope_service::Context;
 use stereoscope_transport::iox::FrameSubscriber;
@@ -395,10 +395,10 @@ impl Recorder {
         let overflowed = self.poses.overflowed() + self.observations.overflowed();
         counters.dropped += overflowed.saturating_sub(self.overflow_counted);
         self.overflow_counted = overflowed;
-        counters.processed = self.n_poses;
-        counters
-            .detail
-            .insert("observations".into(), self.n_obs.to_string());
+        // Every message written counts: a recording of observations alone (no fusion running)
+        // shows its rate too.
+        counters.processed = self.n_poses + self.n_obs;
+        counters.set(Detail::Observations, self.n_obs);
     }
 }
 

@@ -20,7 +20,7 @@ pub mod cli;
 
 use std::io::Write as _;
 use std::time::{Duration, Instant};
-use stereoscope_proto::messages::PoseFrame;
+use stereoscope_proto::messages::{Detail, PoseFrame};
 use stereoscope_proto::names::zenoh as keys;
 use stereoscope_proto::serial::{SerialMode, SerialPose, encode_framed, encode_legacy};
 use stereoscope_service::Context;
@@ -219,7 +219,7 @@ impl SerialService {
         {
             Ok(p) => {
                 tracing::info!(port = %self.cfg.port, "port open");
-                counters.detail.insert("port".into(), "open".into());
+                counters.set(Detail::Port, "open");
                 self.port = Some(p);
                 true
             }
@@ -229,7 +229,7 @@ impl SerialService {
                     tracing::warn!("{m}");
                 }
                 counters.set_error(&m);
-                counters.detail.insert("port".into(), "closed".into());
+                counters.set(Detail::Port, "closed");
                 self.next_open = Instant::now() + Duration::from_secs(1);
                 false
             }
@@ -263,15 +263,17 @@ impl Service for SerialService {
     type Summary = u64;
     type Error = SerialServiceError;
 
+    /// Packets written.
+    fn limit(&self) -> Option<u64> {
+        self.cfg.max_packets
+    }
+
     fn node(&mut self) -> &mut ServiceNode {
         &mut self.node
     }
 
     /// Writes at most one packet: the next object's newest pose, when the line is free.
     fn step(&mut self, shutdown: &Shutdown) -> Result<Flow, SerialServiceError> {
-        if self.cfg.max_packets.is_some_and(|m| self.packets >= m) {
-            return Ok(Flow::Stop);
-        }
         if !self.ensure_open(shutdown) {
             return Ok(Flow::Continue);
         }
@@ -308,16 +310,14 @@ impl Service for SerialService {
                 counters.processed = self.packets;
                 if clamped > 0 {
                     self.clamped += 1;
-                    counters
-                        .detail
-                        .insert("clamped".into(), self.clamped.to_string());
+                    counters.set(Detail::Clamped, self.clamped);
                 }
             }
             Err(e) => {
                 let m = format!("{}: writing: {e}; reopening", self.cfg.port);
                 tracing::warn!("{m}");
                 counters.set_error(&m);
-                counters.detail.insert("port".into(), "closed".into());
+                counters.set(Detail::Port, "closed");
                 self.port = None;
                 self.next_open = Instant::now() + Duration::from_secs(1);
             }

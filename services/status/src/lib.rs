@@ -7,7 +7,7 @@
 use std::collections::BTreeMap;
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
-use stereoscope_proto::messages::{Health, Message, PoseFrame, now_ns};
+use stereoscope_proto::messages::{Detail, Health, Message, PoseFrame, now_ns};
 use stereoscope_proto::names::zenoh as keys;
 use stereoscope_transport::inlet::{self, Admission};
 use stereoscope_transport::net::{self, ZenohSpec};
@@ -208,8 +208,8 @@ pub fn status(cfg: StatusConfig) -> Result<Status, TransportError> {
     m.snapshot()
 }
 
-fn detail(h: &Health, k: &str) -> String {
-    h.detail.get(k).cloned().unwrap_or_else(|| "-".into())
+fn detail(h: &Health, key: Detail) -> String {
+    h.detail(key).unwrap_or("-").to_string()
 }
 
 /// The status as text tables.
@@ -222,18 +222,18 @@ pub fn to_text(s: &Status) -> String {
         let (rate, processed, dropped, rejected, det) = match &x.health {
             Some(h) => {
                 let det = match x.service.split('/').next() {
-                    Some("capture") => detail(h, "source"),
+                    Some("capture") => detail(h, Detail::Source),
                     Some("moments") => format!(
                         "threshold {} tracked {}",
-                        detail(h, "threshold"),
-                        detail(h, "tracked")
+                        detail(h, Detail::Threshold),
+                        detail(h, Detail::Tracked)
                     ),
                     Some("fusion") => format!(
                         "cameras {} objects {}",
-                        detail(h, "cameras_live"),
-                        detail(h, "objects")
+                        detail(h, Detail::CamerasLive),
+                        detail(h, Detail::Objects)
                     ),
-                    Some("serial") => format!("port {}", detail(h, "port")),
+                    Some("serial") => format!("port {}", detail(h, Detail::Port)),
                     _ => String::new(),
                 };
                 (

@@ -32,7 +32,7 @@ use std::net::SocketAddr;
 use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
-use stereoscope_proto::messages::{Health, PoseFrame, Preview, Truth, WandCoverage};
+use stereoscope_proto::messages::{Detail, Health, PoseFrame, Preview, Truth, WandCoverage};
 use stereoscope_proto::names::zenoh as keys;
 use stereoscope_rig::schema::DEFAULT_VIEWER_LISTEN;
 use stereoscope_service::Context;
@@ -282,17 +282,13 @@ impl ViewerService {
         }
         c.processed = s.pose_frames.load(Ordering::Relaxed);
         c.dropped = s.lagged.load(Ordering::Relaxed);
-        let d = &mut c.detail;
-        let mut put = |k: &str, v: u64| {
-            d.insert(k.into(), v.to_string());
-        };
-        put("clients", s.clients.load(Ordering::Relaxed) as u64);
-        put("connections", s.connections.load(Ordering::Relaxed));
-        put("refused", s.refused.load(Ordering::Relaxed));
-        put("bad_requests", s.bad_requests.load(Ordering::Relaxed));
-        put("sent_bytes", s.sent_bytes.load(Ordering::Relaxed));
-        put("previews", s.previews.load(Ordering::Relaxed));
-        d.insert("url".into(), format!("http://{}/", self.addr));
+        c.set(Detail::Clients, s.clients.load(Ordering::Relaxed));
+        c.set(Detail::Connections, s.connections.load(Ordering::Relaxed));
+        c.set(Detail::Refused, s.refused.load(Ordering::Relaxed));
+        c.set(Detail::BadRequests, s.bad_requests.load(Ordering::Relaxed));
+        c.set(Detail::SentBytes, s.sent_bytes.load(Ordering::Relaxed));
+        c.set(Detail::Previews, s.previews.load(Ordering::Relaxed));
+        c.set(Detail::Url, format!("http://{}/", self.addr));
     }
 }
 

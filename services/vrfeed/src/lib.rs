@@ -23,7 +23,7 @@ use nalgebra::{Isometry3, Point3, Quaternion, Translation3, UnitQuaternion, Vect
 use std::net::{SocketAddr, UdpSocket};
 use std::time::Duration;
 use stereoscope_bodies::filter::{PoseFilter, predict};
-use stereoscope_proto::messages::{BodyPose, PoseFrame, now_ns};
+use stereoscope_proto::messages::{BodyPose, Detail, PoseFrame, now_ns};
 use stereoscope_proto::names::zenoh as keys;
 use stereoscope_rig::vr::VrSettings;
 use stereoscope_service::Context;
@@ -135,7 +135,7 @@ impl VrFeedService {
             } else {
                 "port in use"
             };
-            node.counters.detail.insert("vrpn".into(), state.into());
+            node.counters.set(Detail::Vrpn, state);
             if vrpn.is_none() {
                 node.counters.set_error(&format!(
                     "VRPN cannot listen on {addr}: the port is in use; trying again every second"
@@ -214,10 +214,7 @@ impl VrFeedService {
         match vrpn::Server::bind(addr, self.names.clone()) {
             Ok(s) => {
                 tracing::info!("VRPN trackers {:?} on {addr} (TCP and UDP)", self.names);
-                self.node
-                    .counters
-                    .detail
-                    .insert("vrpn".into(), "listening".into());
+                self.node.counters.set(Detail::Vrpn, "listening");
                 self.vrpn = Some(s);
             }
             Err(e) => {
@@ -226,10 +223,7 @@ impl VrFeedService {
                     tracing::warn!("{m}");
                 }
                 self.node.counters.set_error(&m);
-                self.node
-                    .counters
-                    .detail
-                    .insert("vrpn".into(), "port in use".into());
+                self.node.counters.set(Detail::Vrpn, "port in use");
             }
         }
     }
@@ -341,23 +335,15 @@ impl VrFeedService {
             for (reason, message) in s.dropped.drain(..) {
                 counters.reject(reason, &message);
             }
-            counters
-                .detail
-                .insert("vrpn_clients".into(), s.clients().to_string());
+            counters.set(Detail::VrpnClients, s.clients());
         }
-        counters
-            .detail
-            .insert("send_errors".into(), self.send_errors.to_string());
+        counters.set(Detail::SendErrors, self.send_errors);
         if !self.latency_us.is_empty() {
             let mut v: Vec<f64> = self.latency_us.iter().copied().collect();
             v.sort_by(f64::total_cmp);
             let q = |p: f64| v[((v.len() - 1) as f64 * p).round() as usize];
-            counters
-                .detail
-                .insert("latency_p50_us".into(), format!("{:.0}", q(0.5)));
-            counters
-                .detail
-                .insert("latency_p99_us".into(), format!("{:.0}", q(0.99)));
+            counters.set(Detail::LatencyP50Us, format!("{:.0}", q(0.5)));
+            counters.set(Detail::LatencyP99Us, format!("{:.0}", q(0.99)));
         }
     }
 }
@@ -370,10 +356,12 @@ impl Service for VrFeedService {
         &mut self.node
     }
 
+    /// Pose frames handled.
+    fn limit(&self) -> Option<u64> {
+        self.cfg.max_frames
+    }
+
     fn step(&mut self, _shutdown: &Shutdown) -> Result<Flow, VrFeedError> {
-        if self.cfg.max_frames.is_some_and(|m| self.frames >= m) {
-            return Ok(Flow::Stop);
-        }
         self.bind_vrpn();
         // Wake for a frame, or every 5 ms to serve VRPN clients.
         let wait = Duration::from_millis(5);

@@ -5,7 +5,7 @@ use crate::TransportError;
 use crate::net::JsonPublisher;
 use std::collections::BTreeMap;
 use std::time::{Duration, Instant};
-use stereoscope_proto::messages::{Health, SCHEMA_VERSION, limits, now_ns};
+use stereoscope_proto::messages::{Detail, Health, SCHEMA_VERSION, limits, now_ns};
 use stereoscope_proto::names::zenoh as keys;
 use zenoh::Wait;
 
@@ -41,6 +41,18 @@ impl Counters {
     /// Keeps `message` as the last problem (bounded).
     pub fn set_error(&mut self, message: &str) {
         self.last_error = Some(bounded(message, limits::MAX_TEXT_BYTES));
+    }
+
+    /// Reports `value` as the service's figure `key` (`detail` in its health).
+    pub fn set(&mut self, key: Detail, value: impl std::fmt::Display) {
+        self.detail.insert(key.key().to_string(), value.to_string());
+    }
+
+    /// [`Counters::set`] for a count worth reporting only once it is not zero.
+    pub fn set_nonzero(&mut self, key: Detail, count: u64) {
+        if count > 0 {
+            self.set(key, count);
+        }
     }
 
     /// Counts one rejected input under `reason` (`detail["rejected.<reason>"]`) and keeps its
@@ -86,7 +98,7 @@ impl Counters {
         } else {
             format!("{what} frames {first}–{last}")
         };
-        self.detail.insert("last_lost".into(), frames);
+        self.set(Detail::LastLost, frames);
     }
 
     /// Keeps the error of a failed publication (or any side effect the service carries on

@@ -190,6 +190,12 @@ pub trait Service {
     /// counted and skipped inside the step).
     fn step(&mut self, shutdown: &crate::Shutdown) -> Result<Flow, Self::Error>;
 
+    /// Stop once the node's `counters.processed` reaches this (a `max_*` count: tests and
+    /// benchmarks). [`drive`] checks it before every step.
+    fn limit(&self) -> Option<u64> {
+        None
+    }
+
     /// Once after the last step, before the last health report: flush what is buffered.
     fn stop(&mut self) -> Result<(), Self::Error> {
         Ok(())
@@ -198,14 +204,19 @@ pub trait Service {
     fn summary(&self) -> Self::Summary;
 }
 
-/// The loop every service runs: step, report health when due, until shutdown is requested or
-/// a step says stop; then `stop` and a last health report, also when a step failed.
+/// The loop every service runs: step, report health when due, until shutdown is requested,
+/// the service's [`Service::limit`] is reached or a step says stop; then `stop` and a last health report, also when a step failed.
 pub fn drive<S: Service>(
     mut service: S,
     shutdown: &crate::Shutdown,
 ) -> Result<S::Summary, S::Error> {
     let stepped = loop {
         if shutdown.requested() {
+            break Ok(());
+        }
+        if let Some(limit) = service.limit()
+            && service.node().counters.processed >= limit
+        {
             break Ok(());
         }
         match service.step(shutdown) {
