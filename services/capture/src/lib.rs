@@ -151,7 +151,7 @@ impl Capture {
                 if o.camera == camera {
                     Ok(())
                 } else {
-                    Err(format!("of camera {:?}, not {camera:?}", o.camera))
+                    Err(format!("of camera {:?}, not {camera:?}", o.camera).into())
                 }
             });
             Some((sub, None))

@@ -21,6 +21,7 @@ use stereoscope_proto::messages::{
 };
 use stereoscope_proto::names::{iox as iox_names, zenoh as keys};
 use stereoscope_service::Context;
+use stereoscope_transport::inlet::Unexpected;
 use stereoscope_transport::iox::Waker;
 use stereoscope_transport::net::KeyedPublisher;
 use stereoscope_transport::{Counters, Flow, Inlet, Outlet, Service, ServiceNode, Shutdown, drive};
@@ -120,7 +121,7 @@ impl FusionService {
             let inlet = Inlet::zenoh(&node.session, &names, &rig, "observation", 256)?.expecting(
                 move |key, o: &Observation| match remote_keys.iter().find(|(k, _)| k == key) {
                     Some((_, id)) => same_camera(id, o),
-                    None => Err(format!("on {key}, which is no camera's")),
+                    None => Err(format!("on {key}, which is no camera's").into()),
                 },
             );
             Some(inlet)
@@ -371,14 +372,11 @@ impl Service for FusionService {
 
 /// Refuses an observation that names a camera other than `camera`, whose key or service it
 /// came on.
-fn same_camera(camera: &str, o: &Observation) -> Result<(), String> {
+fn same_camera(camera: &str, o: &Observation) -> Result<(), Unexpected> {
     if o.camera == camera {
         Ok(())
     } else {
-        Err(format!(
-            "of camera {:?} on camera {camera:?}'s channel",
-            o.camera
-        ))
+        Err(format!("of camera {:?} on camera {camera:?}'s channel", o.camera).into())
     }
 }
 

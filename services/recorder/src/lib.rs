@@ -284,7 +284,7 @@ impl Recorder {
             if key == keys::observations(&obs_rig, &o.camera) {
                 Ok(())
             } else {
-                Err(format!("of camera {:?} on another camera's key", o.camera))
+                Err(format!("of camera {:?} on another camera's key", o.camera).into())
             }
         });
         tracing::info!(out = %cfg.out.display(), "recording");

@@ -103,10 +103,9 @@ impl Monitor {
             Admission::<Health>::new(&cfg.rig, "health").expecting(move |k, h: &Health| {
                 match split_key(k, &health_prefix) {
                     Some((host, service)) if host == h.host && service == h.service => Ok(()),
-                    _ => Err(format!(
-                        "of {}/{} on another service's key",
-                        h.host, h.service
-                    )),
+                    _ => {
+                        Err(format!("of {}/{} on another service's key", h.host, h.service).into())
+                    }
                 }
             }),
             move |h, _| {

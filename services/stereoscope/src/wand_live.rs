@@ -159,9 +159,9 @@ pub fn observations_inlet(
     )?
     .expecting(move |key, o: &Observation| {
         if !ids.contains(&o.camera) {
-            Err(format!("of camera {:?}, not one of the rig's", o.camera))
+            Err(format!("of camera {:?}, not one of the rig's", o.camera).into())
         } else if key != keys::observations(&name, &o.camera) {
-            Err(format!("of camera {:?} on another camera's key", o.camera))
+            Err(format!("of camera {:?} on another camera's key", o.camera).into())
         } else {
             Ok(())
         }

@@ -378,7 +378,7 @@ fn subscribe(
                 if cameras.contains(&p.camera) {
                     Ok(())
                 } else {
-                    Err(format!("of camera {:?}, not one of the rig's", p.camera))
+                    Err(format!("of camera {:?}, not one of the rig's", p.camera).into())
                 }
             }),
         move |p, _| {

@@ -34,9 +34,21 @@ pub struct Refusal {
     pub message: String,
 }
 
+/// What a caller's expectation found wrong with a decoded message, for a person ("of camera
+/// \"cam1\" on camera \"cam0\"'s channel"): the message is refused as `foreign`.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("{0}")]
+pub struct Unexpected(pub String);
+
+impl From<String> for Unexpected {
+    fn from(what: String) -> Self {
+        Unexpected(what)
+    }
+}
+
 /// The caller's check of a decoded message that came on `key` (Zenoh key or iceoryx2 service
-/// name): `Err(what is wrong)` refuses it as `foreign`.
-type Expect<M> = Box<dyn Fn(&str, &M) -> Result<(), String> + Send + Sync>;
+/// name).
+type Expect<M> = Box<dyn Fn(&str, &M) -> Result<(), Unexpected> + Send + Sync>;
 
 /// What a message of type `M` must be to be taken: it decodes (JSON from Zenoh, postcard from
 /// iceoryx2 or where [`Admission::binary`] says so), it is of rig `rig`, and the caller's
@@ -75,7 +87,7 @@ impl<M: Message> Admission<M> {
     /// Refuses, as `foreign`, a message for which `expect(key, message)` says what is wrong.
     pub fn expecting(
         mut self,
-        expect: impl Fn(&str, &M) -> Result<(), String> + Send + Sync + 'static,
+        expect: impl Fn(&str, &M) -> Result<(), Unexpected> + Send + Sync + 'static,
     ) -> Self {
         self.expect = Some(Box::new(expect));
         self
@@ -213,7 +225,7 @@ impl<M: Message> Inlet<M> {
     /// Refuses, as `foreign`, a message for which `expect(key, message)` says what is wrong.
     pub fn expecting(
         mut self,
-        expect: impl Fn(&str, &M) -> Result<(), String> + Send + Sync + 'static,
+        expect: impl Fn(&str, &M) -> Result<(), Unexpected> + Send + Sync + 'static,
     ) -> Self {
         self.admission = self.admission.expecting(expect);
         self
@@ -310,5 +322,83 @@ pub fn refuse(counters: &mut Counters, refusal: &Refusal) {
             refusal.message,
             counters.rejected
         );
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use stereoscope_proto::messages::{Observation, SCHEMA_VERSION};
+
+    fn observation(rig: &str, camera: &str) -> Observation {
+        Observation {
+            schema: SCHEMA_VERSION,
+            rig: rig.into(),
+            camera: camera.into(),
+            sequence: 7,
+            timestamp_ns: 1,
+            frame_published_ns: 1,
+            published_ns: 1,
+            width_px: 640,
+            height_px: 480,
+            threshold: 100,
+            dark: false,
+            full_frame: true,
+            dropped_blobs: 0,
+            blobs: Vec::new(),
+        }
+    }
+
+    /// What an inlet takes and what it refuses, each under its reason: a message of its rig
+    /// that meets the expectation passes; another rig's, one on another camera's key, one
+    /// that does not decode and one of another schema are refused, and counted.
+    #[test]
+    fn admission_takes_the_rigs_messages_and_names_each_refusal() {
+        let a = Admission::<Observation>::new("lab", "observation").expecting(|key, o| {
+            if key.ends_with(&o.camera) {
+                Ok(())
+            } else {
+                Err(format!("of camera {:?} on {key}", o.camera).into())
+            }
+        });
+        let ok = observation("lab", "cam0");
+        assert_eq!(a.admit("obs/cam0", &ok.to_json()), Ok(ok.clone()));
+        let r = a.admit("obs/cam0", &observation("other", "cam0").to_json());
+        let r = r.unwrap_err();
+        assert_eq!(r.reason, "foreign");
+        assert!(r.message.contains("rig \"other\""), "{}", r.message);
+        let r = a.admit("obs/cam1", &ok.to_json()).unwrap_err();
+        assert_eq!(r.reason, "foreign");
+        assert!(
+            r.message.contains("of camera \"cam0\" on obs/cam1"),
+            "{}",
+            r.message
+        );
+        let r = a.admit("obs/cam0", b"{not json").unwrap_err();
+        assert!(r.message.starts_with("obs/cam0: "), "{}", r.message);
+        let mut old = ok.clone();
+        old.schema = SCHEMA_VERSION + 1;
+        let r = a.admit("obs/cam0", &old.to_json()).unwrap_err();
+        assert_ne!(r.reason, "foreign");
+        // Postcard where the admission says so.
+        let b = Admission::<Observation>::new("lab", "observation").binary();
+        assert_eq!(b.admit("iox", &ok.to_binary()), Ok(ok));
+        assert!(b.admit("iox", b"\xff\xff").is_err());
+        // Refusals are counted by reason.
+        let mut c = Counters::default();
+        refuse(&mut c, &r);
+        refuse(
+            &mut c,
+            &Refusal {
+                reason: "foreign",
+                message: "x".into(),
+            },
+        );
+        assert_eq!(c.rejected, 2);
+        assert_eq!(
+            c.detail.get("rejected.foreign").map(String::as_str),
+            Some("1")
+        );
+        assert!(c.refusals().is_some_and(|s| s.starts_with("2 refused (")));
     }
 }
