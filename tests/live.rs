@@ -153,11 +153,14 @@ fn demo_recovers_three_moving_objects_against_ground_truth() {
             t["target"],
             matched + missed
         );
-        // 0.6–1.1 mm in three runs of this test on an idle 2-core machine (2026-12-06);
-        // twice that leaves room for a loaded one.
+        // Each target 0.6–1.1 mm in 14 runs of 4 s on an idle 2-core machine (2026-12-06), one
+        // at 1.9 mm in a 3 s run (its first frames weigh more): 3 mm leaves room for that.
         let rms = t["position_rms_m"].as_f64().unwrap();
-        assert!(rms <= 0.002, "target {} RMS {rms} m: {line}", t["target"]);
+        assert!(rms <= 0.003, "target {} RMS {rms} m: {line}", t["target"]);
     }
+    // The demo's RMS over every target: 0.7–1.2 mm seen.
+    let rms = v["position_rms_m"].as_f64().unwrap();
+    assert!(rms <= 0.002, "RMS {rms} m: {line}");
     // The two double balls have a heading (0.08–0.18° seen); the single ball has none.
     for t in &targets[..2] {
         let h = t["heading_rms_deg"].as_f64().unwrap();
