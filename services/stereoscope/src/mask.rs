@@ -2,7 +2,8 @@
 //! window, a reflection on a shiny floor — found by watching a running rig with no markers in
 //! view, as motion-capture systems do before a wand wave (`docs/calibration.md`, "Masks").
 //! Every blob the moment workers report while it listens becomes a rectangle (its bounding
-//! box grown by a margin, overlapping ones joined); written into each camera's
+//! box grown by a margin, overlapping ones joined: `stereoscope_calibration::mask`); written
+//! into each camera's
 //! `moments.mask`, they make the workers ignore blobs whose centroid falls inside
 //! (`stereoscope_vision::Tracker::set_mask`). `--check` listens again and names what the
 //! cameras still see.
@@ -11,7 +12,8 @@ use anyhow::{Context as _, anyhow};
 use std::collections::BTreeMap;
 use std::io::Write;
 use std::path::{Path, PathBuf};
-use stereoscope_proto::messages::{Observation, TrackState};
+use stereoscope_calibration::mask::{Rect, join, rectangles, share_pct};
+use stereoscope_proto::messages::Observation;
 use stereoscope_rig::Rig;
 use stereoscope_rig::moments::MAX_MASK_RECTS;
 use stereoscope_transport::net::{self, ZenohSpec};
@@ -29,74 +31,6 @@ pub struct MaskOptions {
     /// Only report what the cameras see now.
     pub check: bool,
     pub tls: stereoscope_service::context::TlsArgs,
-}
-
-/// A rectangle `[x0, y0, x1, y1]`, pixels, inclusive.
-pub type Rect = [u32; 4];
-
-fn overlap(a: &Rect, b: &Rect) -> bool {
-    a[0] <= b[2] + 1 && b[0] <= a[2] + 1 && a[1] <= b[3] + 1 && b[1] <= a[3] + 1
-}
-
-/// Joins touching or overlapping rectangles until none touch.
-pub fn join(mut rects: Vec<Rect>) -> Vec<Rect> {
-    loop {
-        let mut joined = false;
-        let mut out: Vec<Rect> = Vec::with_capacity(rects.len());
-        for r in rects {
-            match out.iter_mut().find(|o| overlap(o, &r)) {
-                Some(o) => {
-                    *o = [
-                        o[0].min(r[0]),
-                        o[1].min(r[1]),
-                        o[2].max(r[2]),
-                        o[3].max(r[3]),
-                    ];
-                    joined = true;
-                }
-                None => out.push(r),
-            }
-        }
-        rects = out;
-        if !joined {
-            rects.sort();
-            return rects;
-        }
-    }
-}
-
-/// Each camera's blobs of `observations` as grown, joined rectangles inside its image.
-pub fn rectangles(
-    observations: &[Observation],
-    size_of: impl Fn(&str) -> Option<[u32; 2]>,
-    grow_px: u32,
-) -> BTreeMap<String, Vec<Rect>> {
-    let mut per: BTreeMap<String, Vec<Rect>> = BTreeMap::new();
-    for o in observations {
-        let Some([w, h]) = size_of(&o.camera) else {
-            continue;
-        };
-        let rects = per.entry(o.camera.clone()).or_default();
-        for b in o.blobs.iter().filter(|b| b.status != TrackState::Lost) {
-            let [x0, y0, x1, y1] = b.bbox_px;
-            rects.push([
-                x0.saturating_sub(grow_px),
-                y0.saturating_sub(grow_px),
-                x1.saturating_add(grow_px).min(w - 1),
-                y1.saturating_add(grow_px).min(h - 1),
-            ]);
-        }
-    }
-    per.into_iter().map(|(k, v)| (k, join(v))).collect()
-}
-
-/// Percent of a `w × h` image the rectangles (which do not overlap) cover.
-pub fn share_pct(rects: &[Rect], w: u32, h: u32) -> f64 {
-    let px: u64 = rects
-        .iter()
-        .map(|r| (r[2] - r[0] + 1) as u64 * (r[3] - r[1] + 1) as u64)
-        .sum();
-    100.0 * px as f64 / (w as f64 * h as f64)
 }
 
 /// A client session to the rig's router (or `connect`), and the endpoint asked.
@@ -311,19 +245,5 @@ mod tests {
             got.contains("moments = { max_objects = 10, mask = [[1, 2, 3, 4]] }"),
             "{got}"
         );
-    }
-
-    #[test]
-    fn touching_rectangles_are_joined() {
-        assert_eq!(
-            join(vec![
-                [0, 0, 4, 4],
-                [5, 0, 9, 2],
-                [20, 20, 21, 21],
-                [3, 3, 6, 6]
-            ]),
-            vec![[0, 0, 9, 6], [20, 20, 21, 21]]
-        );
-        assert_eq!(share_pct(&[[0, 0, 9, 9]], 100, 10), 10.0);
     }
 }

@@ -449,7 +449,7 @@ fn card(
                 reprojection_rms_px: rms,
                 samples,
                 coverage: cover[c],
-                masked: crate::mask::share_pct(mask, w, h) / 100.0,
+                masked: stereoscope_calibration::mask::share_pct(mask, w, h) / 100.0,
                 position: [at.x / scale, at.y / scale, at.z / scale],
             }
         })
