@@ -1,6 +1,6 @@
 //! The capture service: one camera's frames into shared memory, once each, for the camera's
 //! moment worker (and anything else on the PC) to read in place. The source is chosen by the
-//! camera's `source` in the rig file (`docs/services.md`): a V4L2 camera (feature `v4l`), a
+//! camera's `source` in the rig file (`docs/services.md`): a V4L2 camera, a
 //! Y4M file or pipe, a PGM/PNG sequence, or the synthetic scene — whose ground truth goes out
 //! on its own channel (iceoryx2 and Zenoh).
 //!

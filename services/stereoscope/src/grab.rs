@@ -212,11 +212,19 @@ pub fn run(opts: &GrabOptions, out: &mut impl Write) -> anyhow::Result<usize> {
     let mut index_in_source = 0u64;
     let mut kept = 0u32;
     let mut last: Option<(Vec<u8>, Observation)> = None;
+    let mut first_stamp_ns: Option<Option<u64>> = None;
     while kept < opts.count {
         let t_s = index_in_source as f64 / fps;
         let read = source
             .read(index_in_source, t_s, &mut buf)
             .with_context(|| format!("reading frame {index_in_source} of {}", opts.camera))?;
+        let (stamp_ns, camera_sequence) = match read {
+            Read::Frame {
+                timestamp_ns,
+                sequence,
+            } => (timestamp_ns, sequence),
+            Read::End => (None, None),
+        };
         if read == Read::End {
             writeln!(
                 out,
@@ -269,9 +277,17 @@ pub fn run(opts: &GrabOptions, out: &mut impl Write) -> anyhow::Result<usize> {
             }
         };
         write_file(&path, &encoded)?;
+        let first = *first_stamp_ns.get_or_insert(stamp_ns);
+        let when = match (stamp_ns, first, camera_sequence) {
+            (Some(t), Some(t0), Some(seq)) => format!(
+                "camera's frame {seq}, exposed {:.1} ms after the first saved, ",
+                (t as i128 - t0 as i128) as f64 / 1e6
+            ),
+            _ => String::new(),
+        };
         writeln!(
             out,
-            "{} (frame {this}, threshold {}, {} blobs)",
+            "{} (frame {this}, {when}threshold {}, {} blobs)",
             path.display(),
             obs.threshold,
             obs.blobs.len()
@@ -292,7 +308,19 @@ pub fn run(opts: &GrabOptions, out: &mut impl Write) -> anyhow::Result<usize> {
             "{}: over the threshold in red, blobs boxed in green, their axes in magenta",
             path.display()
         )?;
+        for b in obs
+            .blobs
+            .iter()
+            .filter(|b| b.status != stereoscope_proto::messages::TrackState::Lost)
+        {
+            writeln!(
+                out,
+                "blob {}: centroid ({:.2}, {:.2}) px, area {:.0} px², orientation {:.1}°",
+                b.track_id, b.x_px, b.y_px, b.area_px, b.orientation_deg
+            )?;
+        }
         writeln!(out, "{}", exposure_advice(&frame, format, max_level, &obs))?;
+        writeln!(out, "{}", source.describe())?;
     }
     Ok(0)
 }

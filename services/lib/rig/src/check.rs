@@ -135,6 +135,9 @@ fn bits_of(source: Option<&SourceSpec>) -> Option<u32> {
     }
 }
 
+/// The most controls one camera's source sets.
+pub const MAX_CONTROLS: usize = 64;
+
 /// Checks everything of `file` but its cameras' optics (`cameras.rs`); `base` is the rig
 /// file's folder, where relative source paths start.
 /// The rig's bodies in metres, as the bodies library takes them.
@@ -316,9 +319,35 @@ pub(crate) fn check(file: &RigFile, base: Option<&Path>, sources: bool) -> Resul
                     )?;
                 }
             }
-            Some(SourceSpec::V4l { fps, device, .. }) => {
+            Some(SourceSpec::V4l {
+                fps,
+                device,
+                controls,
+                ..
+            }) => {
                 if let Some(f) = fps {
                     fps_in_range(&fps_key, *f)?;
+                }
+                if controls.len() > MAX_CONTROLS {
+                    return Err(err(
+                        format!("{key}.source.controls"),
+                        format!("{} controls; at most {MAX_CONTROLS}", controls.len()),
+                    ));
+                }
+                for name in controls.keys() {
+                    let ok = !name.is_empty()
+                        && name.len() <= 32
+                        && name
+                            .bytes()
+                            .all(|b| b.is_ascii_lowercase() || b.is_ascii_digit() || b == b'_');
+                    if !ok {
+                        return Err(err(
+                            format!("{key}.source.controls.{name}"),
+                            "a control's name as `v4l2-ctl --list-ctrls` shows it: lower case, \
+                             digits and _, at most 32 characters"
+                                .to_string(),
+                        ));
+                    }
                 }
                 if !devices.insert((c.host.as_deref(), device.as_str())) {
                     return Err(err(
@@ -588,4 +617,42 @@ fn check_synthetic(s: &SyntheticSpec, bodies: &[BodySpec]) -> Result<(), RigErro
         }
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    fn rig(source: &str) -> String {
+        format!(
+            "name = \"t\"\nunits = \"mm\"\n[[camera]]\nid = \"c\"\nimage_size = [640, 480]\n\
+             focal_length_mm = 4.0\npixel_pitch_um = [3.0, 3.0]\n\
+             pose = {{ position = [0.0, 0.0, 2000.0], look_at = [0.0, 0.0, 0.0], up = [0.0, 1.0, 0.0] }}\n\
+             source = {source}\n"
+        )
+    }
+
+    #[test]
+    fn v4l2_controls_are_named_as_v4l2_ctl_names_them() {
+        let ok = crate::Rig::from_toml(&rig(
+            "{ kind = \"v4l\", device = \"/dev/video0\", controls = { white_balance_automatic = false, \
+             power_line_frequency = \"Disabled\", brightness = 12 } }",
+        ))
+        .unwrap();
+        let Some(crate::schema::SourceSpec::V4l { controls, .. }) = &ok.spec.cameras[0].source
+        else {
+            panic!("not a V4L2 source")
+        };
+        assert_eq!(
+            controls.get("brightness"),
+            Some(&crate::schema::ControlValue::Integer(12))
+        );
+        assert_eq!(
+            controls.get("white_balance_automatic"),
+            Some(&crate::schema::ControlValue::Bool(false))
+        );
+        let e = crate::Rig::from_toml(&rig(
+            "{ kind = \"v4l\", device = \"/dev/video0\", controls = { \"White Balance\" = 1 } }",
+        ))
+        .unwrap_err();
+        assert_eq!(e.key, "camera[0].source.controls.White Balance", "{e}");
+    }
 }

@@ -1,5 +1,5 @@
 //! Where a camera's frames come from, as a rig file describes it (`docs/services.md`,
-//! "capture"): a V4L2 camera (feature `v4l`), a Y4M file or pipe ([`y4m`]), a PGM/PNG sequence
+//! "capture"): a V4L2 camera ([`v4l2`], Linux), a Y4M file or pipe ([`y4m`]), a PGM/PNG sequence
 //! ([`images`]), or the synthetic scene ([`synthetic`], rendered with its ground truth). Each
 //! is a [`FrameSource`]: the capture service publishes what it reads into shared memory, and
 //! the benches, examples and offline processing read the same sources in process.
@@ -7,8 +7,8 @@
 pub mod images;
 pub mod source;
 pub mod synthetic;
-#[cfg(feature = "v4l")]
-pub mod v4l;
+#[cfg(target_os = "linux")]
+pub mod v4l2;
 pub mod y4m;
 
 pub use source::{BadFrame, FrameSource, Read, SourceError};
@@ -32,14 +32,14 @@ pub enum OpenError {
         got_px: (u32, u32),
         rig_px: (u32, u32),
     },
-    #[error("camera {camera}: {source}")]
+    #[error("camera {camera}")]
     Source {
         camera: String,
         #[source]
         source: SourceError,
     },
     /// The rig asks for what this build cannot do.
-    #[error("camera {camera}: {source}")]
+    #[error("camera {camera}")]
     Unsupported {
         camera: String,
         #[source]
@@ -47,11 +47,11 @@ pub enum OpenError {
     },
 }
 
-/// Refuses a rig whose cameras among `cameras` need what this build lacks (V4L2 without the
-/// `v4l` feature): a configuration error, found before any service starts.
+/// Refuses a rig whose cameras among `cameras` need what this build lacks (V4L2 anywhere but
+/// Linux): a configuration error, found before any service starts.
 pub fn check_supported(rig: &Rig, cameras: &[String]) -> Result<(), OpenError> {
     for (i, c) in rig.spec.cameras.iter().enumerate() {
-        if cfg!(not(feature = "v4l"))
+        if cfg!(not(target_os = "linux"))
             && cameras.contains(&c.id)
             && let Some(SourceSpec::V4l { device, .. }) = &c.source
         {
@@ -62,6 +62,7 @@ pub fn check_supported(rig: &Rig, cameras: &[String]) -> Result<(), OpenError> {
 }
 
 /// Camera `index` of `rig` wants V4L2 device `device`, which this build cannot open.
+#[cfg_attr(target_os = "linux", allow(dead_code))]
 fn no_v4l(rig: &Rig, index: usize, device: &str) -> OpenError {
     OpenError::Unsupported {
         camera: rig
@@ -74,7 +75,8 @@ fn no_v4l(rig: &Rig, index: usize, device: &str) -> OpenError {
             file: rig.path.clone(),
             key: format!("camera[{index}].source"),
             message: format!(
-                "{device}: this build has no V4L2 support; build with `--features v4l` (needs libclang-dev)"
+                "{device}: V4L2 cameras are Linux's; this build is for {}",
+                std::env::consts::OS
             ),
         },
     }
@@ -132,18 +134,29 @@ pub fn open(rig: &Rig, camera: &str) -> Result<Box<dyn FrameSource>, OpenError> 
         } => {
             Box::new(images::ImageSource::open(&rel(path), *fps, *realtime, *repeat).map_err(wrap)?)
         }
-        #[cfg(feature = "v4l")]
+        #[cfg(target_os = "linux")]
         SourceSpec::V4l {
             device,
             format,
             fps,
             exposure,
             gain,
+            controls,
         } => Box::new(
-            v4l::V4lSource::open(device, format.map(|f| f.fourcc()), *fps, *exposure, *gain)
-                .map_err(wrap)?,
+            v4l2::V4lSource::open(
+                device,
+                &v4l2::V4lRequest {
+                    format: format.map(|f| f.fourcc()),
+                    size_px: Some((spec.image_size[0], spec.image_size[1])),
+                    fps: *fps,
+                    exposure: *exposure,
+                    gain: *gain,
+                    controls: controls.iter().map(|(k, v)| (k.as_str(), v)).collect(),
+                },
+            )
+            .map_err(wrap)?,
         ),
-        #[cfg(not(feature = "v4l"))]
+        #[cfg(not(target_os = "linux"))]
         SourceSpec::V4l { device, .. } => {
             return Err(no_v4l(rig, index, device));
         }

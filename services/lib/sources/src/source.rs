@@ -44,6 +44,13 @@ pub enum SourceError {
         device: String,
         problem: FormatProblem,
     },
+    /// A control the rig sets that the camera lacks, or a value it refuses.
+    #[error("{device}: control {control}: {problem}")]
+    Control {
+        device: String,
+        control: String,
+        problem: String,
+    },
     #[error("the rig file has no [synthetic] scene")]
     NoScene,
     #[error("rendering the synthetic scene")]
@@ -64,7 +71,7 @@ impl SourceError {
 }
 
 /// What is wrong with a V4L2 camera's formats.
-#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum FormatProblem {
     #[error("format {requested:?} is not GREY, Y16, YUYV or MJPG")]
     Unsupported { requested: String },
@@ -77,6 +84,12 @@ pub enum FormatProblem {
     NoneUsable { offered: Vec<String> },
     #[error("driver chose format {chosen}")]
     DriverChose { chosen: String },
+    #[error("the camera gives {got} fps at {}×{}, not the {requested} fps asked", .size_px.0, .size_px.1)]
+    RateRefused {
+        requested: f64,
+        got: f64,
+        size_px: (u32, u32),
+    },
 }
 
 /// Why one frame was skipped.

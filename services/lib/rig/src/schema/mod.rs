@@ -5,6 +5,7 @@
 //! the thesis's lab as a worked example.
 
 use serde::{Deserialize, Serialize};
+use std::collections::BTreeMap;
 
 mod bodies;
 pub use bodies::*;
@@ -76,6 +77,26 @@ pub enum V4lFormat {
     Yuyv,
     /// Motion JPEG, decoded to grey.
     Mjpg,
+}
+
+/// A V4L2 control's value in a rig file.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(untagged)]
+pub enum ControlValue {
+    Bool(bool),
+    Integer(i64),
+    /// A menu item, by its name.
+    Item(String),
+}
+
+impl std::fmt::Display for ControlValue {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            ControlValue::Bool(b) => write!(f, "{b}"),
+            ControlValue::Integer(i) => write!(f, "{i}"),
+            ControlValue::Item(s) => write!(f, "{s:?}"),
+        }
+    }
 }
 
 impl V4lFormat {
@@ -326,7 +347,7 @@ pub enum SourceSpec {
         #[serde(default, skip_serializing_if = "Option::is_none")]
         bit_depth: Option<u32>,
     },
-    /// A V4L2 camera (`--features v4l`).
+    /// A V4L2 camera (Linux).
     V4l {
         device: String,
         /// "GREY", "Y16", "YUYV" or "MJPG"; the first the camera offers if absent.
@@ -339,6 +360,11 @@ pub enum SourceSpec {
         exposure: Option<i64>,
         #[serde(default, skip_serializing_if = "Option::is_none")]
         gain: Option<i64>,
+        /// Any other of the camera's controls, by the name `v4l2-ctl --list-ctrls` shows
+        /// (`white_balance_automatic = false`, `power_line_frequency = "Disabled"`): a number,
+        /// a boolean, or a menu item's name. Set in name order after exposure and gain.
+        #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+        controls: BTreeMap<String, ControlValue>,
     },
     /// A YUV4MPEG2 file or pipe (a FIFO that `ffmpeg … -f yuv4mpegpipe` writes).
     Y4m {

@@ -1,0 +1,849 @@
+//! V4L2 cameras, in every build on Linux (no bindgen, no libclang: the kernel interface is
+//! written out in `sys.rs`). Memory-mapped streaming with four buffers; GREY and Y16 frames are
+//! copied row by row into the frame buffer, YUYV gives its luma bytes, MJPEG is decoded to grey.
+//! The frame size is the rig's `image_size`, asked of the driver; exposure and gain through the
+//! standard controls; the frame rate through the capture parameters.
+//!
+//! **Timestamps.** A frame's `timestamp_ns` is its mid-exposure on the rig's clock (the
+//! system's real-time clock, as every service stamps): the driver's buffer timestamp (on
+//! `CLOCK_MONOTONIC`) is moved onto the real-time clock by the two clocks' offset read at
+//! dequeue, then to mid-exposure — half the exposure later when the driver stamps the start of
+//! exposure, half earlier when it stamps the end of the frame (most drivers, UVC included;
+//! the sensor's readout time is not known to V4L2 and is not subtracted). The exposure is the
+//! camera's `exposure_time_absolute` when it has one, else unknown, and then the stamp stays
+//! the driver's. A driver that does not stamp on the monotonic clock is stamped at dequeue.
+//! [`V4lSource::describe`] says which applies. The driver's sequence number numbers the frame,
+//! so frames the driver dropped are counted by the moment worker as gaps.
+
+pub(crate) mod sys;
+
+use crate::source::{BadFrame, FormatProblem, FrameSource, Read, SourceError};
+use std::os::fd::{AsRawFd, FromRawFd, OwnedFd};
+use stereoscope_proto::frame::PixelFormat;
+use stereoscope_rig::schema::ControlValue;
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Wire {
+    Grey,
+    Y16,
+    Yuyv,
+    Mjpg,
+}
+
+fn wire_of(code: &str) -> Option<Wire> {
+    match code.trim_end() {
+        "GREY" => Some(Wire::Grey),
+        "Y16" => Some(Wire::Y16),
+        "YUYV" => Some(Wire::Yuyv),
+        "MJPG" => Some(Wire::Mjpg),
+        _ => None,
+    }
+}
+
+/// What the rig asks of a V4L2 camera.
+#[derive(Debug, Clone, Default)]
+pub struct V4lRequest<'a> {
+    /// "GREY", "Y16", "YUYV" or "MJPG"; the first of those the camera offers if absent.
+    pub format: Option<&'a str>,
+    /// The frame size (the rig's `image_size`); the driver's current size if absent.
+    pub size_px: Option<(u32, u32)>,
+    pub fps: Option<f64>,
+    /// Exposure, 100 µs units (V4L2's `exposure_time_absolute`); manual exposure when given.
+    pub exposure: Option<i64>,
+    pub gain: Option<i64>,
+    /// Other controls by name (see [`stereoscope_rig::schema::ControlValue`]).
+    pub controls: Vec<(&'a str, &'a ControlValue)>,
+}
+
+/// How a frame's time is found (see the module's header).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Stamp {
+    /// The driver's monotonic stamp; `+1` start of exposure, `-1` end of frame.
+    Driver { start_of_exposure: bool },
+    /// When the buffer was dequeued.
+    Dequeue,
+}
+
+struct Mapped {
+    ptr: *mut libc::c_void,
+    len: usize,
+}
+
+// SAFETY: the mapping is owned by the source and only read through `&mut self`.
+unsafe impl Send for Mapped {}
+
+impl Drop for Mapped {
+    fn drop(&mut self) {
+        // SAFETY: `ptr`/`len` are a mapping this source made and nothing else unmaps.
+        unsafe {
+            libc::munmap(self.ptr, self.len);
+        }
+    }
+}
+
+pub struct V4lSource {
+    device: String,
+    card: String,
+    // Declared before `fd`: unmapped before the device is closed.
+    buffers: Vec<Mapped>,
+    fd: OwnedFd,
+    wire: Wire,
+    width: u32,
+    height: u32,
+    stride: usize,
+    fps: Option<f64>,
+    exposure_ns: Option<u64>,
+    stamp: Option<Stamp>,
+    sequence: Sequence,
+    streaming: bool,
+}
+
+impl std::fmt::Debug for V4lSource {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "V4lSource({})", self.device)
+    }
+}
+
+fn ioctl<T>(fd: &OwnedFd, request: libc::c_ulong, arg: &mut T) -> std::io::Result<()> {
+    loop {
+        // SAFETY: `arg` is the structure `request` is defined with (sys.rs pairs them), and
+        // lives across the call.
+        let r = unsafe { libc::ioctl(fd.as_raw_fd(), request as _, arg as *mut T) };
+        if r != -1 {
+            return Ok(());
+        }
+        let e = std::io::Error::last_os_error();
+        if e.kind() != std::io::ErrorKind::Interrupted {
+            return Err(e);
+        }
+    }
+}
+
+fn clock_ns(clock: libc::clockid_t) -> i128 {
+    let mut ts = libc::timespec {
+        tv_sec: 0,
+        tv_nsec: 0,
+    };
+    // SAFETY: `ts` is a valid timespec to write.
+    unsafe { libc::clock_gettime(clock, &mut ts) };
+    ts.tv_sec as i128 * 1_000_000_000 + ts.tv_nsec as i128
+}
+
+impl V4lSource {
+    pub fn open(device: &str, want: &V4lRequest) -> Result<Self, SourceError> {
+        let io = |doing: &str, e| SourceError::io(device, doing, e);
+        let format_problem = |problem| SourceError::Format {
+            device: device.to_string(),
+            problem,
+        };
+        let path = std::ffi::CString::new(device).map_err(|_| {
+            io(
+                "opening",
+                std::io::Error::new(std::io::ErrorKind::InvalidInput, "a NUL in the path"),
+            )
+        })?;
+        // SAFETY: a NUL-terminated path; the descriptor is owned below.
+        let raw = unsafe { libc::open(path.as_ptr(), libc::O_RDWR | libc::O_NONBLOCK) };
+        if raw < 0 {
+            return Err(io("opening", std::io::Error::last_os_error()));
+        }
+        // SAFETY: `raw` is an open descriptor nothing else owns.
+        let fd = unsafe { OwnedFd::from_raw_fd(raw) };
+
+        let mut cap: sys::Capability = sys::zeroed();
+        ioctl(&fd, sys::VIDIOC_QUERYCAP, &mut cap)
+            .map_err(|e| io("asking what it is (VIDIOC_QUERYCAP; not a V4L2 device?)", e))?;
+        let caps = if cap.capabilities & sys::CAP_DEVICE_CAPS != 0 {
+            cap.device_caps
+        } else {
+            cap.capabilities
+        };
+        if caps & sys::CAP_VIDEO_CAPTURE == 0 || caps & sys::CAP_STREAMING == 0 {
+            return Err(io(
+                "opening",
+                std::io::Error::new(
+                    std::io::ErrorKind::Unsupported,
+                    format!(
+                        "{} is not a video capture device with streaming I/O",
+                        sys::c_name(&cap.card)
+                    ),
+                ),
+            ));
+        }
+        let card = format!("{}: {}", sys::c_name(&cap.driver), sys::c_name(&cap.card));
+
+        let mut offered = Vec::new();
+        for index in 0..256 {
+            let mut d: sys::FmtDesc = sys::zeroed();
+            d.index = index;
+            d.type_ = sys::BUF_TYPE_VIDEO_CAPTURE;
+            if ioctl(&fd, sys::VIDIOC_ENUM_FMT, &mut d).is_err() {
+                break;
+            }
+            offered.push(sys::fourcc_str(d.pixelformat));
+        }
+        let wanted = match want.format {
+            Some(f) => {
+                if wire_of(f).is_none() {
+                    return Err(format_problem(FormatProblem::Unsupported {
+                        requested: f.to_string(),
+                    }));
+                }
+                if !offered.iter().any(|o| o.trim_end() == f.trim_end()) {
+                    return Err(format_problem(FormatProblem::NotOffered {
+                        requested: f.to_string(),
+                        offered,
+                    }));
+                }
+                f.to_string()
+            }
+            None => offered
+                .iter()
+                .find(|o| wire_of(o).is_some())
+                .cloned()
+                .ok_or_else(|| {
+                    format_problem(FormatProblem::NoneUsable {
+                        offered: offered.clone(),
+                    })
+                })?,
+        };
+        let mut code = [b' '; 4];
+        for (c, b) in code.iter_mut().zip(wanted.bytes()) {
+            *c = b;
+        }
+
+        let mut fmt: sys::Format = sys::zeroed();
+        fmt.type_ = sys::BUF_TYPE_VIDEO_CAPTURE;
+        ioctl(&fd, sys::VIDIOC_G_FMT, &mut fmt).map_err(|e| io("reading the format", e))?;
+        // SAFETY: a capture format's union holds `pix`.
+        let mut pix = unsafe { fmt.fmt.pix };
+        pix.pixelformat = sys::fourcc(&code);
+        if let Some((w, h)) = want.size_px {
+            pix.width = w;
+            pix.height = h;
+        }
+        pix.field = sys::FIELD_NONE;
+        pix.bytesperline = 0;
+        pix.sizeimage = 0;
+        fmt.fmt.pix = pix;
+        ioctl(&fd, sys::VIDIOC_S_FMT, &mut fmt)
+            .map_err(|e| io(&format!("setting format {}", wanted.trim_end()), e))?;
+        // SAFETY: as above; the driver wrote back what it chose.
+        let pix = unsafe { fmt.fmt.pix };
+        let got = sys::fourcc_str(pix.pixelformat);
+        let wire = wire_of(&got).ok_or_else(|| {
+            format_problem(FormatProblem::DriverChose {
+                chosen: got.clone(),
+            })
+        })?;
+
+        if let Some(f) = want.fps {
+            let mut parm: sys::StreamParm = sys::zeroed();
+            parm.type_ = sys::BUF_TYPE_VIDEO_CAPTURE;
+            // Frame intervals as a fraction of seconds: 1/f, in thousandths for 29.97 and the like.
+            parm.parm.capture = sys::CaptureParm {
+                timeperframe: sys::Fract {
+                    numerator: 1000,
+                    denominator: (f * 1000.0).round().clamp(1.0, u32::MAX as f64) as u32,
+                },
+                ..sys::zeroed()
+            };
+            ioctl(&fd, sys::VIDIOC_S_PARM, &mut parm)
+                .map_err(|e| io(&format!("setting {f} fps"), e))?;
+        }
+        let set = |id: u32, value: i64, what: &str| -> Result<(), SourceError> {
+            let value = i32::try_from(value).map_err(|_| {
+                io(
+                    what,
+                    std::io::Error::new(std::io::ErrorKind::InvalidInput, "out of range"),
+                )
+            })?;
+            ioctl(&fd, sys::VIDIOC_S_CTRL, &mut sys::Control { id, value }).map_err(|e| io(what, e))
+        };
+        if let Some(x) = want.exposure {
+            set(
+                sys::CID_EXPOSURE_AUTO,
+                sys::EXPOSURE_MANUAL as i64,
+                "setting manual exposure",
+            )?;
+            set(
+                sys::CID_EXPOSURE_ABSOLUTE,
+                x,
+                &format!("setting exposure {x} (100 µs units)"),
+            )?;
+        }
+        if let Some(g) = want.gain {
+            set(sys::CID_GAIN, g, &format!("setting gain {g}"))?;
+        }
+        if !want.controls.is_empty() {
+            let known = list_controls(&fd);
+            for (name, value) in &want.controls {
+                let (id, v) = control_value(&fd, &known, name, value).map_err(|problem| {
+                    SourceError::Control {
+                        device: device.to_string(),
+                        control: name.to_string(),
+                        problem,
+                    }
+                })?;
+                set(id, v, &format!("setting control {name} = {value}"))?;
+            }
+        }
+        let mut parm: sys::StreamParm = sys::zeroed();
+        parm.type_ = sys::BUF_TYPE_VIDEO_CAPTURE;
+        let fps = match ioctl(&fd, sys::VIDIOC_G_PARM, &mut parm) {
+            // SAFETY: a capture stream's union holds `capture`.
+            Ok(()) => {
+                let t = unsafe { parm.parm.capture.timeperframe };
+                (t.numerator > 0 && t.denominator > 0)
+                    .then(|| t.denominator as f64 / t.numerator as f64)
+            }
+            Err(_) => None,
+        }
+        .or(want.fps);
+        if let (Some(asked), Some(got)) = (want.fps, fps)
+            && (got - asked).abs() > 0.01 * asked
+        {
+            return Err(format_problem(FormatProblem::RateRefused {
+                requested: asked,
+                got: (got * 1000.0).round() / 1000.0,
+                size_px: (pix.width, pix.height),
+            }));
+        }
+        let mut exposure = sys::Control {
+            id: sys::CID_EXPOSURE_ABSOLUTE,
+            value: 0,
+        };
+        let exposure_ns = ioctl(&fd, sys::VIDIOC_G_CTRL, &mut exposure)
+            .ok()
+            .filter(|_| exposure.value > 0)
+            .map(|_| exposure.value as u64 * 100_000);
+
+        let mut req = sys::RequestBuffers {
+            count: 4,
+            type_: sys::BUF_TYPE_VIDEO_CAPTURE,
+            memory: sys::MEMORY_MMAP,
+            ..sys::zeroed()
+        };
+        ioctl(&fd, sys::VIDIOC_REQBUFS, &mut req).map_err(|e| io("asking for buffers", e))?;
+        if req.count == 0 {
+            return Err(io(
+                "asking for buffers",
+                std::io::Error::new(std::io::ErrorKind::OutOfMemory, "the driver gave none"),
+            ));
+        }
+        let mut buffers = Vec::with_capacity(req.count as usize);
+        for index in 0..req.count {
+            let mut b: sys::Buffer = sys::zeroed();
+            b.index = index;
+            b.type_ = sys::BUF_TYPE_VIDEO_CAPTURE;
+            b.memory = sys::MEMORY_MMAP;
+            ioctl(&fd, sys::VIDIOC_QUERYBUF, &mut b)
+                .map_err(|e| io(&format!("querying buffer {index}"), e))?;
+            // SAFETY: maps the driver's buffer at the offset it gave; checked for failure.
+            let ptr = unsafe {
+                libc::mmap(
+                    std::ptr::null_mut(),
+                    b.length as usize,
+                    libc::PROT_READ | libc::PROT_WRITE,
+                    libc::MAP_SHARED,
+                    fd.as_raw_fd(),
+                    b.m.offset as libc::off_t,
+                )
+            };
+            if ptr == libc::MAP_FAILED {
+                return Err(io(
+                    &format!("mapping buffer {index}"),
+                    std::io::Error::last_os_error(),
+                ));
+            }
+            buffers.push(Mapped {
+                ptr,
+                len: b.length as usize,
+            });
+            ioctl(&fd, sys::VIDIOC_QBUF, &mut b)
+                .map_err(|e| io(&format!("queueing buffer {index}"), e))?;
+        }
+        let mut kind = sys::BUF_TYPE_VIDEO_CAPTURE as i32;
+        ioctl(&fd, sys::VIDIOC_STREAMON, &mut kind).map_err(|e| io("starting the stream", e))?;
+        Ok(V4lSource {
+            device: device.to_string(),
+            card,
+            buffers,
+            fd,
+            wire,
+            width: pix.width,
+            height: pix.height,
+            stride: pix.bytesperline as usize,
+            fps,
+            exposure_ns,
+            stamp: None,
+            sequence: Sequence::default(),
+            streaming: true,
+        })
+    }
+
+    /// Waits up to two seconds for a frame and dequeues it.
+    fn dequeue(&mut self) -> Result<sys::Buffer, SourceError> {
+        let mut pfd = libc::pollfd {
+            fd: self.fd.as_raw_fd(),
+            events: libc::POLLIN,
+            revents: 0,
+        };
+        loop {
+            // SAFETY: one valid pollfd.
+            let r = unsafe { libc::poll(&mut pfd, 1, 2000) };
+            if r > 0 {
+                break;
+            }
+            if r == 0 {
+                return Err(SourceError::io(
+                    &self.device,
+                    "reading a frame",
+                    std::io::Error::new(
+                        std::io::ErrorKind::TimedOut,
+                        "no frame from the camera in 2 s",
+                    ),
+                ));
+            }
+            let e = std::io::Error::last_os_error();
+            if e.kind() != std::io::ErrorKind::Interrupted {
+                return Err(SourceError::io(&self.device, "waiting for a frame", e));
+            }
+        }
+        let mut b: sys::Buffer = sys::zeroed();
+        b.type_ = sys::BUF_TYPE_VIDEO_CAPTURE;
+        b.memory = sys::MEMORY_MMAP;
+        ioctl(&self.fd, sys::VIDIOC_DQBUF, &mut b)
+            .map_err(|e| SourceError::io(&self.device, "dequeueing a frame", e))?;
+        Ok(b)
+    }
+
+    /// The frame's mid-exposure on the real-time clock (the module's header).
+    fn timestamp_ns(&mut self, b: &sys::Buffer) -> u64 {
+        let realtime = clock_ns(libc::CLOCK_REALTIME);
+        let monotonic = clock_ns(libc::CLOCK_MONOTONIC);
+        let stamp = *self.stamp.get_or_insert(
+            if b.flags & sys::BUF_FLAG_TIMESTAMP_MASK == sys::BUF_FLAG_TIMESTAMP_MONOTONIC {
+                Stamp::Driver {
+                    start_of_exposure: b.flags & sys::BUF_FLAG_TSTAMP_SRC_MASK
+                        == sys::BUF_FLAG_TSTAMP_SRC_SOE,
+                }
+            } else {
+                Stamp::Dequeue
+            },
+        );
+        let driver_ns =
+            b.timestamp.tv_sec as i128 * 1_000_000_000 + b.timestamp.tv_usec as i128 * 1_000;
+        mid_exposure_ns(stamp, driver_ns, self.exposure_ns, realtime, monotonic)
+    }
+
+    /// How frames are stamped, in words.
+    fn stamp_words(&self) -> String {
+        match self.stamp {
+            None => "stamps: not yet known".into(),
+            Some(Stamp::Dequeue) => {
+                "stamped at dequeue (the driver's clock is not monotonic)".into()
+            }
+            Some(Stamp::Driver { start_of_exposure }) => {
+                let edge = if start_of_exposure {
+                    "start of exposure"
+                } else {
+                    "end of frame"
+                };
+                match self.exposure_ns {
+                    Some(e) => format!(
+                        "the driver's {edge} stamp moved to mid-exposure ({:.1} ms)",
+                        e as f64 / 1e6
+                    ),
+                    None => format!("the driver's {edge} stamp (exposure unknown)"),
+                }
+            }
+        }
+    }
+}
+
+/// A control's name as `v4l2-ctl` shows it: lower case, runs of anything but letters and
+/// digits as one `_` ("Exposure Time, Absolute" → `exposure_time_absolute`).
+fn control_name(driver_name: &str) -> String {
+    let mut out = String::new();
+    for c in driver_name.chars() {
+        if c.is_ascii_alphanumeric() {
+            out.push(c.to_ascii_lowercase());
+        } else if !out.is_empty() && !out.ends_with('_') {
+            out.push('_');
+        }
+    }
+    out.trim_end_matches('_').to_string()
+}
+
+/// The device's controls (enabled ones), by the driver's enumeration.
+fn list_controls(fd: &OwnedFd) -> Vec<sys::QueryCtrl> {
+    let mut out = Vec::new();
+    let mut id = sys::CTRL_FLAG_NEXT_CTRL;
+    // Bounded: a driver lists a few dozen.
+    for _ in 0..1024 {
+        let mut q: sys::QueryCtrl = sys::zeroed();
+        q.id = id;
+        if ioctl(fd, sys::VIDIOC_QUERYCTRL, &mut q).is_err() {
+            break;
+        }
+        id = q.id | sys::CTRL_FLAG_NEXT_CTRL;
+        if q.flags & sys::CTRL_FLAG_DISABLED == 0 && q.type_ != sys::CTRL_TYPE_CTRL_CLASS {
+            out.push(q);
+        }
+    }
+    out
+}
+
+/// The id and value of control `name` = `value`, checked against what the driver says of it.
+fn control_value(
+    fd: &OwnedFd,
+    known: &[sys::QueryCtrl],
+    name: &str,
+    value: &ControlValue,
+) -> Result<(u32, i64), String> {
+    let Some(q) = known
+        .iter()
+        .find(|q| control_name(&sys::c_name(&q.name)) == name)
+    else {
+        let names: Vec<String> = known
+            .iter()
+            .map(|q| control_name(&sys::c_name(&q.name)))
+            .filter(|n| !n.is_empty())
+            .collect();
+        return Err(format!("the camera has no such control; it has {names:?}"));
+    };
+    let (min, max) = (q.minimum as i64, q.maximum as i64);
+    let v = match value {
+        ControlValue::Bool(b) => *b as i64,
+        ControlValue::Integer(i) => *i,
+        ControlValue::Item(item) => {
+            if q.type_ != sys::CTRL_TYPE_MENU {
+                return Err(format!(
+                    "{item:?} is a menu item's name, and this control is not a menu (a number \
+                     from {min} to {max})"
+                ));
+            }
+            let mut items = Vec::new();
+            for index in q.minimum.max(0)..=q.maximum.min(255) {
+                let mut m: sys::QueryMenu = sys::zeroed();
+                m.id = q.id;
+                m.index = index as u32;
+                if ioctl(fd, sys::VIDIOC_QUERYMENU, &mut m).is_ok() {
+                    let text = sys::c_name(&{ m.name });
+                    if control_name(&text) == control_name(item) {
+                        return Ok((q.id, index as i64));
+                    }
+                    items.push(text);
+                }
+            }
+            return Err(format!("no menu item {item:?}; the items are {items:?}"));
+        }
+    };
+    if !(min..=max).contains(&v) {
+        return Err(format!("{value} is outside the control's {min} to {max}"));
+    }
+    Ok((q.id, v))
+}
+
+/// A frame's mid-exposure on the real-time clock: the driver's stamp (`driver_ns`, monotonic)
+/// moved by half the exposure towards its middle, then by the clocks' offset (`realtime_ns` and
+/// `monotonic_ns` read together).
+fn mid_exposure_ns(
+    stamp: Stamp,
+    driver_ns: i128,
+    exposure_ns: Option<u64>,
+    realtime_ns: i128,
+    monotonic_ns: i128,
+) -> u64 {
+    let ns = match stamp {
+        Stamp::Dequeue => realtime_ns,
+        Stamp::Driver { start_of_exposure } => {
+            let half = exposure_ns.unwrap_or(0) as i128 / 2;
+            let mid = if start_of_exposure {
+                driver_ns + half
+            } else {
+                driver_ns - half
+            };
+            realtime_ns - (monotonic_ns - mid)
+        }
+    };
+    ns.clamp(0, u64::MAX as i128) as u64
+}
+
+/// The driver's 32-bit sequence number, continued past its wrap.
+#[derive(Debug, Default)]
+struct Sequence {
+    last: Option<u32>,
+    wraps: u64,
+}
+
+impl Sequence {
+    fn extend(&mut self, seq: u32) -> u64 {
+        if let Some(last) = self.last
+            && seq < last
+            && last - seq > u32::MAX / 2
+        {
+            self.wraps += 1;
+        }
+        self.last = Some(seq);
+        (self.wraps << 32) | seq as u64
+    }
+}
+
+impl Drop for V4lSource {
+    fn drop(&mut self) {
+        if self.streaming {
+            let mut kind = sys::BUF_TYPE_VIDEO_CAPTURE as i32;
+            let _ = ioctl(&self.fd, sys::VIDIOC_STREAMOFF, &mut kind);
+        }
+    }
+}
+
+impl FrameSource for V4lSource {
+    fn describe(&self) -> String {
+        format!(
+            "v4l2 {} ({}) {:?} {}×{}{}, {}",
+            self.device,
+            self.card,
+            self.wire,
+            self.width,
+            self.height,
+            self.fps.map(|f| format!(" {f:.1} fps")).unwrap_or_default(),
+            self.stamp_words()
+        )
+    }
+
+    fn format(&self) -> PixelFormat {
+        if self.wire == Wire::Y16 {
+            PixelFormat::Gray16
+        } else {
+            PixelFormat::Gray8
+        }
+    }
+
+    fn size(&self) -> (u32, u32) {
+        (self.width, self.height)
+    }
+
+    fn fps(&self) -> Option<f64> {
+        self.fps
+    }
+
+    fn realtime(&self) -> bool {
+        false
+    }
+
+    fn read(&mut self, _i: u64, _t: f64, out: &mut [u8]) -> Result<Read, SourceError> {
+        let mut b = self.dequeue()?;
+        let timestamp_ns = self.timestamp_ns(&b);
+        let sequence = self.sequence.extend(b.sequence);
+        let converted = match self.buffers.get(b.index as usize) {
+            Some(m) if b.flags & sys::BUF_FLAG_ERROR == 0 => {
+                // SAFETY: the driver handed this mapped buffer back and does not write it
+                // until it is queued again below.
+                let all = unsafe { std::slice::from_raw_parts(m.ptr as *const u8, m.len) };
+                let data = &all[..(b.bytesused as usize).min(all.len())];
+                convert(
+                    self.wire,
+                    data,
+                    self.width as usize,
+                    self.height as usize,
+                    self.stride,
+                    out,
+                )
+            }
+            Some(_) => Err(ConvertError::DriverError),
+            None => Err(ConvertError::NoSuchBuffer { index: b.index }),
+        };
+        if (b.index as usize) < self.buffers.len() {
+            ioctl(&self.fd, sys::VIDIOC_QBUF, &mut b)
+                .map_err(|e| SourceError::io(&self.device, "queueing a buffer again", e))?;
+        }
+        converted.map_err(|e| BadFrame::Camera {
+            device: self.device.clone(),
+            source: Box::new(e),
+        })?;
+        Ok(Read::Frame {
+            timestamp_ns: Some(timestamp_ns),
+            sequence: Some(sequence),
+        })
+    }
+}
+
+/// Why a camera buffer is not a frame.
+#[derive(Debug, thiserror::Error)]
+enum ConvertError {
+    #[error("frame of {got} bytes, {need} expected")]
+    Short { got: usize, need: usize },
+    #[error("MJPEG frame")]
+    Jpeg(#[source] jpeg_decoder::Error),
+    #[error("MJPEG frame is {got_w}×{got_h}, the stream {w}×{h}")]
+    JpegSize {
+        got_w: u16,
+        got_h: u16,
+        w: usize,
+        h: usize,
+    },
+    #[error("the driver flagged the buffer as corrupted")]
+    DriverError,
+    #[error("the driver returned buffer {index}, which it never gave")]
+    NoSuchBuffer { index: u32 },
+}
+
+/// One camera buffer (`stride` bytes per row as the driver gives them) into tight grey rows.
+fn convert(
+    wire: Wire,
+    data: &[u8],
+    w: usize,
+    h: usize,
+    stride: usize,
+    out: &mut [u8],
+) -> Result<(), ConvertError> {
+    let short = |need: usize| ConvertError::Short {
+        got: data.len(),
+        need,
+    };
+    match wire {
+        Wire::Grey | Wire::Y16 => {
+            let bpp = if wire == Wire::Y16 { 2 } else { 1 };
+            let stride = stride.max(w * bpp);
+            if h == 0 || data.len() < stride * (h - 1) + w * bpp {
+                return Err(short(stride * h));
+            }
+            crate::source::copy_rows(data, stride, w * bpp, h, out);
+        }
+        Wire::Yuyv => {
+            let stride = stride.max(w * 2);
+            if h == 0 || data.len() < stride * (h - 1) + w * 2 {
+                return Err(short(stride * h));
+            }
+            for (y, row) in out.chunks_exact_mut(w).enumerate() {
+                let src = &data[y * stride..y * stride + 2 * w];
+                for (d, s) in row.iter_mut().zip(src.iter().step_by(2)) {
+                    *d = *s;
+                }
+            }
+        }
+        Wire::Mjpg => {
+            let mut dec = jpeg_decoder::Decoder::new(data);
+            let pixels = dec.decode().map_err(ConvertError::Jpeg)?;
+            let info = dec.info().ok_or_else(|| short(w * h))?;
+            if info.width as usize != w || info.height as usize != h {
+                return Err(ConvertError::JpegSize {
+                    got_w: info.width,
+                    got_h: info.height,
+                    w,
+                    h,
+                });
+            }
+            match pixels.len() / (w * h).max(1) {
+                1 => out.copy_from_slice(&pixels[..w * h]),
+                3 => {
+                    for (d, p) in out.iter_mut().zip(pixels.chunks_exact(3)) {
+                        // BT.601 luma.
+                        *d = ((77 * p[0] as u32 + 150 * p[1] as u32 + 29 * p[2] as u32) >> 8) as u8;
+                    }
+                }
+                _ => return Err(short(w * h * 3)),
+            }
+        }
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn wire_formats_become_grey_rows() {
+        // GREY with padded rows.
+        let data = [1, 2, 3, 0, 4, 5, 6, 0];
+        let mut out = [0u8; 6];
+        convert(Wire::Grey, &data, 3, 2, 4, &mut out).unwrap();
+        assert_eq!(out, [1, 2, 3, 4, 5, 6]);
+        // Y16: two bytes a pixel, little-endian, kept as bytes.
+        let data = [1, 0, 2, 0, 3, 1, 4, 1];
+        let mut out = [0u8; 8];
+        convert(Wire::Y16, &data, 2, 2, 4, &mut out).unwrap();
+        assert_eq!(out, data);
+        // YUYV: the Y bytes.
+        let data = [10, 128, 11, 129, 12, 128, 13, 129];
+        let mut out = [0u8; 4];
+        convert(Wire::Yuyv, &data, 2, 2, 4, &mut out).unwrap();
+        assert_eq!(out, [10, 11, 12, 13]);
+        // Short buffers and broken JPEG are bad frames, not panics.
+        assert!(matches!(
+            convert(Wire::Grey, &[1, 2], 3, 2, 3, &mut [0; 6]),
+            Err(ConvertError::Short { got: 2, .. })
+        ));
+        assert!(convert(Wire::Yuyv, &[1; 7], 2, 2, 4, &mut [0; 4]).is_err());
+        assert!(matches!(
+            convert(Wire::Mjpg, &[0xff, 0xd8, 0, 1], 2, 2, 2, &mut [0; 4]),
+            Err(ConvertError::Jpeg(_))
+        ));
+        assert_eq!(wire_of("Y16 "), Some(Wire::Y16));
+        assert_eq!(wire_of("NV12"), None);
+        assert_eq!(sys::fourcc_str(sys::fourcc(b"Y16 ")), "Y16 ");
+    }
+
+    #[test]
+    fn stamps_move_to_mid_exposure_on_the_real_time_clock() {
+        // The clocks 1,000 s apart; the driver stamped 5 ms before the dequeue.
+        let (real, mono) = (1_001_000_000_000i128, 1_000_000_000i128);
+        let driver = mono - 5_000_000;
+        let eof = Stamp::Driver {
+            start_of_exposure: false,
+        };
+        let soe = Stamp::Driver {
+            start_of_exposure: true,
+        };
+        let at = |s, e| mid_exposure_ns(s, driver, e, real, mono) as i128;
+        assert_eq!(at(eof, None), real - 5_000_000);
+        assert_eq!(at(eof, Some(2_000_000)), real - 6_000_000);
+        assert_eq!(at(soe, Some(2_000_000)), real - 4_000_000);
+        assert_eq!(at(Stamp::Dequeue, Some(2_000_000)), real);
+    }
+
+    #[test]
+    fn sequence_numbers_go_on_past_the_drivers_wrap() {
+        let mut s = Sequence::default();
+        assert_eq!(s.extend(u32::MAX - 1), u32::MAX as u64 - 1);
+        assert_eq!(s.extend(u32::MAX), u32::MAX as u64);
+        assert_eq!(s.extend(1), (1u64 << 32) + 1);
+        // A driver that restarts at a small step back is not a wrap.
+        assert_eq!(s.extend(0), 1u64 << 32);
+    }
+
+    #[test]
+    fn control_names_are_v4l2_ctls() {
+        assert_eq!(
+            control_name("Exposure Time, Absolute"),
+            "exposure_time_absolute"
+        );
+        assert_eq!(control_name("Test Pattern"), "test_pattern");
+        assert_eq!(
+            control_name("White Balance, Automatic "),
+            "white_balance_automatic"
+        );
+        assert_eq!(control_name("100% Black"), "100_black");
+    }
+
+    #[test]
+    fn a_missing_device_is_named() {
+        let e = V4lSource::open("/dev/video-none", &V4lRequest::default()).unwrap_err();
+        assert!(e.to_string().contains("/dev/video-none"), "{e}");
+        assert!(
+            matches!(&e, SourceError::Io { source, .. } if source.kind() == std::io::ErrorKind::NotFound),
+            "{e:?}"
+        );
+    }
+
+    #[test]
+    fn a_file_that_is_no_camera_is_named() {
+        let e = V4lSource::open("/dev/null", &V4lRequest::default()).unwrap_err();
+        assert!(e.to_string().contains("/dev/null"), "{e}");
+        assert!(e.to_string().contains("VIDIOC_QUERYCAP"), "{e}");
+    }
+}

@@ -1,2 +1,0 @@
-//! Empty: its build-dependencies only unify features (see Cargo.toml).
-fn main() {}
