@@ -1,14 +1,18 @@
 #!/usr/bin/env bash
-# The live system's benchmark with OpenCV timed on the moment worker's frames in the same run
-# (the table in docs/performance.md, "Live system").
+# The moment worker against OpenCV from C++ on the same frames (docs/performance.md, "Moment
+# worker against OpenCV"):
 #
 #   services/stereoscope/benches/compare-live.sh [--quick] [--rounds N]
 #
-# With --rounds N, N paired rounds follow the report: in each, every scene's worker and then
-# OpenCV on the same frames, one right after the other, and the report adds each scene's
-# median ratio of the rounds and their range. This machine's speed moves within minutes; a
-# ratio of two figures taken seconds apart moves with it far less than one of figures taken
-# minutes apart (the main table's: the worker's four scenes first, then OpenCV's).
+# Builds opencv_worker.cpp against Debian's OpenCV (installs libopencv-dev, nlohmann-json3-dev
+# and g++ if missing), runs the worker's bench (`cargo bench -p stereoscope --bench live --
+# --worker-only`), which writes each scene's 120 frames and what the worker found in each, then
+# OpenCV on those frames: full frame (threshold + contours + moments every frame) and windowed
+# (the same in windows round the last frame's blobs, a full pass every 10th frame), each checked
+# to find the worker's blobs in every frame, each timed from memory, just written by its own
+# thread, and handed over by another thread, as the worker is. Then N paired rounds: each
+# scene's worker and OpenCV back to back, the ratio taken within the round; the median and the
+# worst round are reported.
 set -euo pipefail
 here=$(cd "$(dirname "$0")" && pwd)
 root=$(cd "$here/../../.." && pwd)
@@ -23,65 +27,49 @@ while [ $# -gt 0 ]; do
   esac
   shift
 done
+if ! pkg-config --exists opencv4 || [ ! -f /usr/include/nlohmann/json.hpp ] || ! command -v g++ >/dev/null; then
+  apt-get install -y -qq libopencv-dev nlohmann-json3-dev g++ pkg-config
+fi
 rm -rf "$out" && mkdir -p "$out/frames"
-. "$root/services/lib/vision/benches/opencv-venv.sh"
+# shellcheck disable=SC2046
+g++ -O2 -std=c++17 "$here/opencv_worker.cpp" $(pkg-config --cflags --libs opencv4) -lpthread -o "$out/opencv_worker"
 cd "$root"
-cargo bench -p stereoscope --bench live -- "${quick[@]}" --frames-dir "$out/frames" --json "$out/live.json" | tee "$out/report.md"
-# OpenCV on the worker's own frames, after checking it finds the same blobs in each.
-for scene in targets markers; do
-  for size in 640x480 1920x1080; do
-    "$venv/bin/python" "$here/opencv_worker.py" "$out/frames/worker-$scene-$size" "$out/frames/worker-$scene-$size.json" "$out/opencv-$scene-$size.json" "${quick[@]}"
-  done
-done
-"$venv/bin/python" - "$out"/opencv-*.json <<'PY' | tee -a "$out/report.md"
-import json, sys
-rows = [json.load(open(p)) for p in sys.argv[1:]]
-print("\n## Moment worker against OpenCV on the same frames (one thread), ms per frame")
-print("Both on the same %d frames (a second at 120 fps); the same blobs found in every frame (checked: centroids within 0.5 px); both take the threshold from a histogram of the same rows every 30th frame by the same rule (checked: the same threshold from every frame)." % rows[0]["frames"])
-print("Frames from memory: all 120 read in turn, each cold in the cache. Frames just written: each copied into a buffer by the timing thread itself just before it is timed, on both sides (the frame in that core's cache). Last columns: the worker's frames handed over by another thread instead (another core's cache, as a capture process hands them over), against OpenCV's same figure as before (its own thread's copy).")
-print("| scene | frame | worker (threshold every 30, search every 10, windows) | OpenCV (calcHist + the auto rule every 30; threshold+contours+moments every frame) | OpenCV / worker | worker, frames just written | OpenCV, frames just written | OpenCV / worker, frames just written | worker, frames from another thread | OpenCV (own thread) / worker (another thread) | blobs matched | worst centroid px |")
-print("|---|---|---|---|---|---|---|---|---|---|---|---|")
-for p, r in sorted(zip(sys.argv[1:], rows), key=lambda x: (x[1]["scene"], len(x[1]["frame"]))):
-    print("| %s | %s | %.4f | %.4f | %.1f× | %.4f | %.4f | %.1f× | %.4f | %.1f× | %d | %.3f |" % (r["scene"], r["frame"], r["worker_ms"], r["contours_ms"], r["contours_ms"] / r["worker_ms"], r["worker_ms_copied"], r["contours_ms_delivered"], r["contours_ms_delivered"] / r["worker_ms_copied"], r["worker_ms_delivered"], r["contours_ms_delivered"] / r["worker_ms_delivered"], r["blobs_matched"], r["worst_centroid_px"]))
-PY
-
-# Paired rounds: the worker (its median pass, as in the main table) and OpenCV on the same
-# scene back to back, each round's two ratios kept.
-if [ "$rounds" -gt 0 ]; then
-  pairs="$out/paired.tsv"
-  : > "$pairs"
-  for r in $(seq "$rounds"); do
-    for scene in targets markers; do
-      for size in 640x480 1920x1080; do
-        row=$(cargo bench -q -p stereoscope --bench live -- --worker-only --only "$scene-$size" 2>/dev/null | grep "^| $scene ")
-        "$venv/bin/python" "$here/opencv_worker.py" "$out/frames/worker-$scene-$size" "$out/frames/worker-$scene-$size.json" "$out/paired-opencv.json" >/dev/null
-        "$venv/bin/python" - "$out/paired-opencv.json" "$row" "$r" >> "$pairs" <<'PY'
+scenes=(targets-640x480 targets-1920x1080 markers-640x480 markers-1920x1080)
+cargo bench -p stereoscope --bench live -- "${quick[@]}" --worker-only --frames-dir "$out/frames" | tee "$out/report.md"
+pairs="$out/paired.tsv"
+: > "$pairs"
+# One round: each scene's worker (its table row: median pass from memory, handed over, just
+# written) and then OpenCV on the same frames.
+round() {
+  for s in "${scenes[@]}"; do
+    row=$(cargo bench -q -p stereoscope --bench live -- "${quick[@]}" --worker-only --only "$s" 2>/dev/null | grep "^| ${s%%-*} ")
+    "$out/opencv_worker" "$out/frames/worker-$s" "$out/frames/worker-$s.json" "$out/opencv.json" "${quick[@]}"
+    python3 - "$out/opencv.json" "$row" "$1" "$s" >> "$pairs" <<'PY'
 import json, sys
 o = json.load(open(sys.argv[1]))
 cells = [c.strip() for c in sys.argv[2].strip().strip("|").split("|")]
-worker_ms, worker_handed_ms, worker_written_ms = float(cells[2]), float(cells[3]), float(cells[4])
-print("\t".join([sys.argv[3], o["scene"], o["frame"], "%.4f" % worker_ms, "%.4f" % o["contours_ms"], "%.4f" % worker_written_ms, "%.4f" % o["contours_ms_delivered"], "%.4f" % worker_handed_ms]))
+mem, handed, written = float(cells[2]), float(cells[3]), float(cells[4])
+print("\t".join([sys.argv[3], sys.argv[4], o["opencv_version"], str(o["blobs_matched_full"]), str(o["blobs_matched_windowed"]),
+                 "%.3f" % max(o["worst_centroid_px_full"], o["worst_centroid_px_windowed"])]
+                + ["%.5f" % v for v in (mem, written, handed, o["full_ms"], o["full_ms_written"], o["full_ms_handed"],
+                                        o["windowed_ms"], o["windowed_ms_written"], o["windowed_ms_handed"])]))
 PY
-      done
-    done
   done
-  "$venv/bin/python" - "$pairs" "$rounds" <<'PY' | tee -a "$out/report.md"
+}
+for r in $(seq "$(( rounds > 0 ? rounds : 1 ))"); do round "$r"; done
+python3 - "$pairs" <<'PY' | tee -a "$out/report.md"
 import statistics, sys
 rows = [l.split("\t") for l in open(sys.argv[1]).read().splitlines() if l]
-print("\n## Paired rounds: the worker and OpenCV on each scene back to back, %s rounds" % sys.argv[2])
-print("Each round runs each scene's worker (median pass, frames from memory, just written by its own thread, and handed over by another thread) and then OpenCV on the same frames; the ratio is taken within the round. Median of the rounds' ratios, and their range.")
-print("| scene | frame | OpenCV / worker (median) | range | worker ms (median) | OpenCV ms (median) | OpenCV / worker, frames just written (median) | range | OpenCV (own thread) / worker (frames from another thread) (median) | range |")
+n = len({r[0] for r in rows})
+print("\n## Moment worker against OpenCV %s from C++, one thread, same frames, %d round(s)" % (rows[0][2], n))
+print("Ratio = OpenCV ms / worker ms within a round; median of the rounds (worst round). Both sides: the same 120 frames played forward and back, 25 passes, median pass; the same blobs checked in every frame.")
+print("| scene | worker ms (memory / written / handed) | OpenCV full / worker: memory | written | handed | OpenCV windowed / worker: memory | written | handed | blobs checked (full, windowed) | worst centroid px |")
 print("|---|---|---|---|---|---|---|---|---|---|")
-keys = sorted({(r[1], r[2]) for r in rows}, key=lambda k: (k[0], len(k[1])))
-for scene, frame in keys:
-    rs = [r for r in rows if (r[1], r[2]) == (scene, frame)]
-    mem = [float(r[4]) / float(r[3]) for r in rs]
-    written = [float(r[6]) / float(r[5]) for r in rs]
-    handed = [float(r[6]) / float(r[7]) for r in rs]
-    print("| %s | %s | %.1f× | %.1f–%.1f× | %.4f | %.4f | %.1f× | %.1f–%.1f× | %.1f× | %.1f–%.1f× |" % (
-        scene, frame, statistics.median(mem), min(mem), max(mem),
-        statistics.median(float(r[3]) for r in rs), statistics.median(float(r[4]) for r in rs),
-        statistics.median(written), min(written), max(written),
-        statistics.median(handed), min(handed), max(handed)))
+for s in sorted({r[1] for r in rows}, key=lambda s: (s.split("-")[0], len(s))):
+    rs = [r for r in rows if r[1] == s]
+    v = lambda r, i: float(r[6 + i])
+    cell = lambda num, den: "%.1f× (%.1f×)" % (statistics.median(v(r, num) / v(r, den) for r in rs), min(v(r, num) / v(r, den) for r in rs))
+    print("| %s | %.4f / %.4f / %.4f | %s | %s | %s | %s | %s | %s | %s, %s | %s |" % (
+        s, statistics.median(v(r, 0) for r in rs), statistics.median(v(r, 1) for r in rs), statistics.median(v(r, 2) for r in rs),
+        cell(3, 0), cell(4, 1), cell(5, 2), cell(6, 0), cell(7, 1), cell(8, 2), rs[0][3], rs[0][4], max(r[5] for r in rs)))
 PY
-fi
