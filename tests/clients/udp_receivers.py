@@ -2,7 +2,8 @@
 python-osc's server for VirtualMotionTracker (/VMT/Room/Driver) and VMC (/VMC/Ext/Tra/Pos),
 and opentrack's "UDP over network" packet decoded as opentrack's UDP input reads it (48
 bytes: six little-endian doubles, x y z yaw pitch roll). Listens for SECONDS and prints one
-JSON line per message: {"feed": "vmt" | "vmc" | "opentrack", "values": [...]}.
+JSON line per message: {"feed": "vmt" | "vmc" | "opentrack", "values": [...], "receipt_ns"},
+receipt_ns the system clock when the message was decoded (the latency bench's end point).
 
 usage: udp_receivers.py VMT_PORT VMC_PORT OPENTRACK_PORT SECONDS
 """
@@ -19,7 +20,8 @@ from pythonosc.osc_server import ThreadingOSCUDPServer
 
 def osc_server(port, address, feed):
     d = Dispatcher()
-    d.map(address, lambda _addr, *args: print(json.dumps({"feed": feed, "values": list(args)}), flush=True))
+    d.map(address, lambda _addr, *args: print(json.dumps(
+        {"feed": feed, "values": list(args), "receipt_ns": time.time_ns()}), flush=True))
     server = ThreadingOSCUDPServer(("127.0.0.1", port), d)
     threading.Thread(target=server.serve_forever, daemon=True).start()
     return server
@@ -40,7 +42,8 @@ def main():
         except socket.timeout:
             continue
         if len(data) == 48:
-            print(json.dumps({"feed": "opentrack", "values": list(struct.unpack("<6d", data))}), flush=True)
+            values = list(struct.unpack("<6d", data))
+            print(json.dumps({"feed": "opentrack", "values": values, "receipt_ns": time.time_ns()}), flush=True)
     for server in servers:
         server.shutdown()
 

@@ -12,6 +12,7 @@ pub mod grab;
 pub mod live;
 pub mod mask;
 pub mod progress;
+pub mod sessions;
 pub mod target;
 
 pub mod triangulate;

@@ -266,7 +266,7 @@ fn main() -> ExitCode {
             rig: Some(rig),
             out: Some(out),
             ..
-        }) => finish(stereoscope::live::refuse_with_rig(session, rig, out)),
+        }) => finish(stereoscope::sessions::refuse_with_rig(session, rig, out)),
         Command::Replay(args::ReplayArgs {
             session,
             publish,
@@ -274,7 +274,7 @@ fn main() -> ExitCode {
             speed,
             json,
             ..
-        }) => finish(stereoscope::live::replay_frames(
+        }) => finish(stereoscope::sessions::replay_frames(
             session,
             publish,
             speed,
@@ -287,12 +287,14 @@ fn main() -> ExitCode {
             max_speed,
             json,
             ..
-        }) => finish(stereoscope::live::replay(session, publish, max_speed, json)),
+        }) => finish(stereoscope::sessions::replay(
+            session, publish, max_speed, json,
+        )),
         Command::Export(args::ExportArgs {
             session,
             format,
             out,
-        }) => finish(stereoscope::live::export(session, &format, out)),
+        }) => finish(stereoscope::sessions::export(session, &format, out)),
         Command::Demo(args::DemoArgs {
             seconds,
             rig,

@@ -6,14 +6,13 @@
 //! and writes the rig file with the poses (`docs/calibration.md`).
 
 use anyhow::{Context, anyhow, bail};
-use nalgebra::{Isometry3, Point2, Point3};
-use serde::Serialize;
+use nalgebra::{Isometry3, Point2};
 use std::collections::BTreeMap;
 use std::io::Write;
 use std::path::{Path, PathBuf};
 use stereoscope_geometry::Camera;
 use stereoscope_geometry::GeometryError;
-use stereoscope_geometry::wand::{Wand, WandConfig, WandFrame, WandSolution, calibrate_wand};
+use stereoscope_geometry::wand::{Wand, WandConfig, WandFrame, calibrate_wand};
 use stereoscope_proto::messages::{Observation, TrackState};
 use stereoscope_rig::{Rig, Units};
 
@@ -22,12 +21,8 @@ use stereoscope_rig::{Rig, Units};
 pub const MAX_ROWS: usize = 20_000_000;
 /// A camera's view with more blobs than this in one frame is not the wand (left out).
 pub const MAX_BLOBS_PER_VIEW: usize = 16;
-/// Image coverage is counted on a grid of this many cells across and down each image.
-pub(crate) const COVERAGE_CELLS: (usize, usize) = (8, 6);
-/// A solution with a camera reprojecting worse than this did not converge, and is refused.
-pub const MAX_SOLVED_RMS_PX: f64 = 5.0;
-/// A camera whose wand samples cover less of its image than this is warned about.
-const MIN_COVERAGE: f64 = 0.5;
+pub use stereoscope_calibration::wand::{COVERAGE_CELLS, MAX_SOLVED_RMS_PX, cell_of, share};
+use stereoscope_calibration::wand::{CameraView, RigView, WandRefusal};
 
 /// Where the wand's blobs come from.
 #[derive(Debug, Clone)]
@@ -53,85 +48,6 @@ pub struct WandOptions {
     /// Write `wand-report.md` and `wand-report.json` into this folder.
     pub report: Option<PathBuf>,
     pub json: bool,
-}
-
-#[derive(Debug, Clone, Serialize)]
-pub struct CameraCard {
-    pub id: String,
-    pub reprojection_rms_px: f64,
-    pub samples: usize,
-    /// Share of the image's grid cells with wand samples.
-    pub coverage: f64,
-    /// Share of the image the camera's masks cover (`moments.mask`: nothing is seen there).
-    pub masked: f64,
-    /// The camera's position in camera 0's frame, the rig's unit.
-    pub position: [f64; 3],
-}
-
-#[derive(Debug, Clone, Serialize)]
-pub struct RegionCard {
-    /// `"+x-y+z"`: which side of the median along camera 0's x, y and z.
-    pub octant: String,
-    pub samples: usize,
-    pub mean_error_mm: f64,
-    pub sd_mm: f64,
-}
-
-/// The wand's length error (measured − true) in each octant of the swept volume.
-fn regions(sol: &WandSolution, length_m: f64) -> Vec<RegionCard> {
-    let median = |i: usize| {
-        let mut v: Vec<f64> = sol.lengths.iter().map(|(p, _)| p[i]).collect();
-        v.sort_by(f64::total_cmp);
-        v.get(v.len() / 2).copied().unwrap_or(0.0)
-    };
-    let mid = [median(0), median(1), median(2)];
-    let mut errs: Vec<Vec<f64>> = vec![Vec::new(); 8];
-    for (p, l) in &sol.lengths {
-        let k = (0..3).fold(0, |k, i| k | (usize::from(p[i] >= mid[i]) << i));
-        errs[k].push((l - length_m) * 1e3);
-    }
-    errs.iter()
-        .enumerate()
-        .filter(|(_, e)| !e.is_empty())
-        .map(|(k, e)| {
-            let n = e.len() as f64;
-            let mean = e.iter().sum::<f64>() / n;
-            let sd =
-                (e.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (n - 1.0).max(1.0)).sqrt();
-            let sign =
-                |i: usize, axis: char| format!("{}{axis}", if k >> i & 1 == 1 { '+' } else { '-' });
-            RegionCard {
-                octant: format!("{}{}{}", sign(0, 'x'), sign(1, 'y'), sign(2, 'z')),
-                samples: e.len(),
-                mean_error_mm: mean,
-                sd_mm: sd,
-            }
-        })
-        .collect()
-}
-
-#[derive(Debug, Clone, Serialize)]
-pub struct WandReport {
-    pub rig: String,
-    pub units: String,
-    pub frames_read: usize,
-    pub frames_used: usize,
-    pub frames_unusable: usize,
-    pub frames_outliers: usize,
-    /// The wand's length; `None` (and the two below too) for a one-marker wand.
-    pub wand_length_mm: Option<f64>,
-    pub wand_length_mean_error_mm: Option<f64>,
-    pub wand_length_sd_mm: Option<f64>,
-    /// False for a one-marker wand: the poses' scale is arbitrary until `calibrate floor
-    /// --scale` sets it from the L-frame.
-    pub scale_known: bool,
-    pub cameras: Vec<CameraCard>,
-    /// The wand's length error by region of the volume: the volume the wand swept cut at its
-    /// median along each of camera 0's axes into eight octants.
-    pub regions: Vec<RegionCard>,
-    pub warnings: Vec<String>,
-    /// The world until `calibrate floor` sets one: camera 0's frame.
-    pub world: String,
 }
 
 /// The rig file's text with a placeholder pose for each camera that has none (the pose is what
@@ -312,234 +228,6 @@ fn frames_from_csv(
         .collect())
 }
 
-/// The coverage cell (row by row) of pixel `p` in camera `cam`'s image.
-pub(crate) fn cell_of(cam: &Camera, p: &Point2<f64>) -> usize {
-    let (cx, cy) = COVERAGE_CELLS;
-    let (w, h) = (cam.intrinsics.width as f64, cam.intrinsics.height as f64);
-    let i = ((p.x / w * cx as f64).floor() as isize).clamp(0, cx as isize - 1);
-    let j = ((p.y / h * cy as f64).floor() as isize).clamp(0, cy as isize - 1);
-    j as usize * cx + i as usize
-}
-
-/// Share of cells with a sample.
-pub(crate) fn share(counts: &[u32]) -> f64 {
-    counts.iter().filter(|&&n| n > 0).count() as f64 / counts.len().max(1) as f64
-}
-
-/// Share of each camera's image cells that hold a sample of the wand (frames used).
-fn coverage(cams: &[Camera], frames: &[WandFrame], wand: &Wand) -> Vec<f64> {
-    let (cx, cy) = COVERAGE_CELLS;
-    cams.iter()
-        .enumerate()
-        .map(|(c, cam)| {
-            let mut counts = vec![0u32; cx * cy];
-            for f in frames
-                .iter()
-                .filter(|f| f.pixels[c].len() == wand.markers())
-            {
-                for p in &f.pixels[c] {
-                    counts[cell_of(cam, p)] += 1;
-                }
-            }
-            share(&counts)
-        })
-        .collect()
-}
-
-/// Tiles of the heat map, pixels.
-const TILE: (usize, usize) = (160, 120);
-
-/// The report's picture (`wand-coverage.png`): one tile per camera, left to right in the rig's
-/// order, each its image shrunk to 160 × 120 with the wand's samples as heat (none: black;
-/// few: blue; many: yellow) on a 32 × 24 grid, and the 8 × 6 coverage cells outlined in grey.
-fn heat_map(cams: &[Camera], frames: &[WandFrame], wand: &Wand) -> anyhow::Result<Vec<u8>> {
-    let (tw, th) = TILE;
-    let (gx, gy) = (32usize, 24usize);
-    let gap = 4;
-    let width = cams.len() * (tw + gap) - gap;
-    let mut rgb = vec![30u8; width * th * 3];
-    for (c, cam) in cams.iter().enumerate() {
-        let (w, h) = (cam.intrinsics.width as f64, cam.intrinsics.height as f64);
-        let mut counts = vec![0u32; gx * gy];
-        for f in frames
-            .iter()
-            .filter(|f| f.pixels[c].len() == wand.markers())
-        {
-            for p in &f.pixels[c] {
-                let i = ((p.x / w * gx as f64).floor() as isize).clamp(0, gx as isize - 1);
-                let j = ((p.y / h * gy as f64).floor() as isize).clamp(0, gy as isize - 1);
-                counts[j as usize * gx + i as usize] += 1;
-            }
-        }
-        let top = counts.iter().copied().max().unwrap_or(0).max(1) as f64;
-        let (cx, cy) = COVERAGE_CELLS;
-        for y in 0..th {
-            for x in 0..tw {
-                let n = counts[(y * gy / th) * gx + x * gx / tw] as f64;
-                // Log scale: a single sample shows.
-                let t = if n > 0.0 {
-                    (1.0 + n).ln() / (1.0 + top).ln()
-                } else {
-                    0.0
-                };
-                let mut px = if n > 0.0 {
-                    [
-                        (255.0 * t) as u8,
-                        (255.0 * t) as u8,
-                        (255.0 * (1.0 - t)) as u8,
-                    ]
-                } else {
-                    [0, 0, 0]
-                };
-                if x % (tw / cx) == 0 || y % (th / cy) == 0 || x == tw - 1 || y == th - 1 {
-                    px = [90, 90, 90];
-                }
-                let i = 3 * (y * width + c * (tw + gap) + x);
-                rgb[i..i + 3].copy_from_slice(&px);
-            }
-        }
-    }
-    Ok(stereoscope_imageio::encode_png_rgb8(
-        &rgb,
-        width as u32,
-        th as u32,
-    )?)
-}
-
-/// The report card of a solution.
-fn card(
-    rig: &Rig,
-    sol: &WandSolution,
-    frames: &[WandFrame],
-    wand: &Wand,
-    cams: &[Camera],
-) -> WandReport {
-    let scale = rig.spec.units.metres();
-    let cover = coverage(cams, frames, wand);
-    let mut warnings = Vec::new();
-    let cameras: Vec<CameraCard> = rig
-        .cameras
-        .iter()
-        .enumerate()
-        .map(|(c, rc)| {
-            let at = sol.cam_from_ref[c].inverse() * Point3::origin();
-            let (rms, samples) = sol.per_camera[c];
-            if cover[c] < MIN_COVERAGE {
-                warnings.push(format!(
-                    "camera {}: the wand covered {:.0} % of its image (less than {:.0} %): wave it into the corners this camera sees",
-                    rc.id,
-                    cover[c] * 100.0,
-                    MIN_COVERAGE * 100.0
-                ));
-            }
-            if rms > 1.0 {
-                warnings.push(format!(
-                    "camera {}: reprojection RMS {rms:.2} px (above 1 px): check its intrinsics and distortion",
-                    rc.id
-                ));
-            }
-            let [w, h] = rig.spec.cameras[c].image_size;
-            let mask = rig.spec.cameras[c]
-                .moments
-                .as_ref()
-                .map(|m| m.mask.as_slice())
-                .unwrap_or_default();
-            CameraCard {
-                id: rc.id.clone(),
-                reprojection_rms_px: rms,
-                samples,
-                coverage: cover[c],
-                masked: stereoscope_calibration::mask::share_pct(mask, w, h) / 100.0,
-                position: [at.x / scale, at.y / scale, at.z / scale],
-            }
-        })
-        .collect();
-    let length = sol.length_mean_m.zip(sol.length_sd_m);
-    if let Some((mean, sd)) = length {
-        let err_mm = (mean - wand.length_m()) * 1e3;
-        if err_mm.abs() > 1.0 || sd * 1e3 > 2.0 {
-            warnings.push(format!(
-                "the wand measures {:.2} ± {:.2} mm against {:.2} mm: check its length and the cameras' intrinsics",
-                mean * 1e3,
-                sd * 1e3,
-                wand.length_m() * 1e3
-            ));
-        }
-    }
-    if !sol.scale_known {
-        warnings.push(format!(
-            "a one-marker wand gives no scale: camera {} is put 1 m from camera {}; set the scale with `stereoscope calibrate floor --l-frame LONG,SHORT --scale` before using the rig",
-            rig.cameras[sol.scale_anchor].id, rig.cameras[0].id
-        ));
-    }
-    WandReport {
-        rig: rig.name.clone(),
-        units: rig.spec.units.to_string(),
-        frames_read: frames.len(),
-        frames_used: sol.frames_used,
-        frames_unusable: sol.frames_unusable,
-        frames_outliers: sol.frames_outliers,
-        wand_length_mm: wand.has_length().then(|| wand.length_m() * 1e3),
-        wand_length_mean_error_mm: length.map(|(mean, _)| (mean - wand.length_m()) * 1e3),
-        wand_length_sd_mm: length.map(|(_, sd)| sd * 1e3),
-        scale_known: sol.scale_known,
-        cameras,
-        regions: regions(sol, wand.length_m()),
-        warnings,
-        world: format!(
-            "camera {}'s frame (x right, y down, z along its axis); set the floor with `stereoscope calibrate floor`",
-            rig.cameras[0].id
-        ),
-    }
-}
-
-fn markdown(r: &WandReport) -> String {
-    let wand = match (
-        r.wand_length_mm,
-        r.wand_length_mean_error_mm,
-        r.wand_length_sd_mm,
-    ) {
-        (Some(length), Some(err), Some(sd)) => {
-            format!("Wand: {length:.2} mm; measured {err:+.3} mm off on average, SD {sd:.3} mm.")
-        }
-        _ => "Wand: one marker; the scale is not known yet.".to_string(),
-    };
-    let mut s = format!(
-        "# Wand calibration of rig {}\n\nFrames: {} read, {} used, {} unusable (the wand whole in fewer than two cameras), {} outliers.\n\n{wand}\n\n| camera | reprojection RMS px | samples | image coverage | masked | position ({}) |\n|---|---|---|---|---|---|\n",
-        r.rig, r.frames_read, r.frames_used, r.frames_unusable, r.frames_outliers, r.units
-    );
-    for c in &r.cameras {
-        s.push_str(&format!(
-            "| {} | {:.3} | {} | {:.0} % | {:.1} % | {:.2}, {:.2}, {:.2} |\n",
-            c.id,
-            c.reprojection_rms_px,
-            c.samples,
-            c.coverage * 100.0,
-            c.masked * 100.0,
-            c.position[0],
-            c.position[1],
-            c.position[2]
-        ));
-    }
-    if !r.regions.is_empty() {
-        s.push_str("\nThe wand's length error by region (octants of the swept volume about its median, camera 0's axes):\n\n| octant | samples | mean error mm | SD mm |\n|---|---|---|---|\n");
-    }
-    for g in &r.regions {
-        s.push_str(&format!(
-            "| {} | {} | {:+.3} | {:.3} |\n",
-            g.octant, g.samples, g.mean_error_mm, g.sd_mm
-        ));
-    }
-    s.push_str(&format!("\nWorld: {}.\n", r.world));
-    if !r.warnings.is_empty() {
-        s.push_str("\nWarnings:\n\n");
-        for w in &r.warnings {
-            s.push_str(&format!("- {w}\n"));
-        }
-    }
-    s
-}
-
 /// The rig file's text with every camera's pose set to `cam_from_ref` (rotation rows and
 /// translation in the file's unit); the rest of the file, comments included, as it was.
 pub(crate) fn with_poses(
@@ -622,16 +310,14 @@ pub fn run(
         })?
     };
     let (text, rig) = rig_without_poses(&opts.rig)?;
+    let units_name = rig.spec.units.to_string();
     let ids: Vec<String> = rig.cameras.iter().map(|c| c.id.clone()).collect();
     let sizes: Vec<[u32; 2]> = rig.spec.cameras.iter().map(|c| c.image_size).collect();
     let cams: Vec<Camera> = rig.cameras.iter().map(|c| c.camera).collect();
-    let skew_ns = (rig
-        .spec
-        .fusion
-        .as_ref()
-        .and_then(|f| f.max_skew_ms)
-        .unwrap_or(5.0)
-        * 1e6) as u64;
+    // Frames are grouped as fusion groups them.
+    let skew_ns = stereoscope_pipeline::fusion::FusionSettings::of_rig(&rig.spec)
+        .pairing
+        .max_skew_ns;
     let (source, frames) = match &opts.input {
         WandInput::File(path) => {
             let is_csv = path
@@ -673,51 +359,56 @@ pub fn run(
     };
     let sol = calibrate_wand(&cams, &frames, &wand, &cfg).map_err(|e| match e {
         GeometryError::WandUnplaced { cameras, .. } => {
-            anyhow!("{source}: {}", unplaced(&cameras, &ids, &frames, &wand))
+            anyhow!(
+                "{source}: {}",
+                stereoscope_calibration::wand::unplaced(&cameras, &ids, &frames, &wand)
+            )
         }
         e => anyhow!("{source}: {e}"),
     })?;
-    if let (Some(middle), 3) = (sol.middle_mean_m, wand.markers()) {
-        let said = wand.offsets_m[1];
-        if (middle - said).abs() > (0.002f64).max(0.02 * said) {
-            bail!(
-                "{source}: the wand's middle marker measures {:.1} mm from its end marker, not {:.1} mm (--wand {:?}): measure the wand's distances again, centre to centre, from the end marker nearer the middle one",
-                middle * 1e3,
-                said * 1e3,
-                opts.wand
-            );
-        }
-    }
-    let report = card(&rig, &sol, &frames, &wand, &cams);
-    // A solve that did not converge (too few frames, or all of them in one plane) is refused,
-    // not written.
-    if let Some(c) = report
-        .cameras
-        .iter()
-        .find(|c| !(c.reprojection_rms_px <= MAX_SOLVED_RMS_PX))
-    {
-        bail!(
-            "{source}: the solve did not converge: camera {} reprojects {:.1} px RMS (over {MAX_SOLVED_RMS_PX} px). Collect more frames, and move the wand through more of the volume, turning it, not in one plane",
-            c.id,
-            c.reprojection_rms_px
-        );
-    }
+    let view = RigView {
+        name: &rig.name,
+        units: &units_name,
+        metres_per_unit: rig.spec.units.metres(),
+        cameras: rig
+            .cameras
+            .iter()
+            .zip(&rig.spec.cameras)
+            .map(|(c, spec)| CameraView {
+                id: &c.id,
+                image_size: spec.image_size,
+                mask: spec
+                    .moments
+                    .as_ref()
+                    .map(|m| m.mask.as_slice())
+                    .unwrap_or_default(),
+            })
+            .collect(),
+    };
+    let report = stereoscope_calibration::wand::card(&view, &sol, &frames, &wand, &cams);
+    // A solve that did not converge (too few frames, or all of them in one plane), or a wand
+    // not as the user described it, is refused, not written.
+    stereoscope_calibration::wand::accept(&sol, &wand, &report).map_err(|e| match e {
+        WandRefusal::MiddleMarker { .. } => anyhow!("{source}: {e} (--wand {:?})", opts.wand),
+        e => anyhow!("{source}: {e}"),
+    })?;
     if opts.json {
         writeln!(out, "{}", serde_json::to_string(&report)?)?;
     } else {
-        write!(out, "{}", markdown(&report))?;
+        write!(out, "{}", stereoscope_calibration::wand::markdown(&report))?;
     }
     if let Some(dir) = &opts.report {
         std::fs::create_dir_all(dir)
             .with_context(|| format!("{}: cannot create", dir.display()))?;
         let md = dir.join("wand-report.md");
-        std::fs::write(&md, markdown(&report))
+        std::fs::write(&md, stereoscope_calibration::wand::markdown(&report))
             .with_context(|| format!("{}: cannot write", md.display()))?;
         let js = dir.join("wand-report.json");
         std::fs::write(&js, serde_json::to_string_pretty(&report)?)
             .with_context(|| format!("{}: cannot write", js.display()))?;
         let png = dir.join("wand-coverage.png");
-        std::fs::write(&png, heat_map(&cams, &frames, &wand)?)
+        let (rgb, w, h) = stereoscope_calibration::wand::heat_map(&cams, &frames, &wand);
+        std::fs::write(&png, stereoscope_imageio::encode_png_rgb8(&rgb, w, h)?)
             .with_context(|| format!("{}: cannot write", png.display()))?;
     }
     if let Some(path) = &opts.out {
@@ -736,51 +427,6 @@ pub fn run(
     Ok(0)
 }
 
-/// Why cameras `unplaced` (rig indices) could not be placed, by id: a frame is the wand's only
-/// where a camera sees exactly its markers, so each camera's frames are counted by how many
-/// blobs it saw ("cam2: 12 frames with the wand's 2 markers, 1 830 with 3 blobs").
-fn unplaced(unplaced: &[usize], ids: &[String], frames: &[WandFrame], wand: &Wand) -> String {
-    let per_camera: Vec<String> = unplaced
-        .iter()
-        .map(|&c| {
-            let mut by_count = std::collections::BTreeMap::<usize, usize>::new();
-            for f in frames {
-                *by_count
-                    .entry(f.pixels.get(c).map_or(0, Vec::len))
-                    .or_default() += 1;
-            }
-            let right = by_count.remove(&wand.markers()).unwrap_or(0);
-            let others: Vec<String> = by_count
-                .iter()
-                .rev()
-                .map(|(blobs, n)| {
-                    format!(
-                        "{n} with {blobs} blob{}",
-                        if *blobs == 1 { "" } else { "s" }
-                    )
-                })
-                .collect();
-            format!(
-                "{}: {right} frames with the wand's {} markers{}{}",
-                ids.get(c).map_or("?", String::as_str),
-                wand.markers(),
-                if others.is_empty() { "" } else { ", " },
-                others.join(", ")
-            )
-        })
-        .collect();
-    let names: Vec<&str> = unplaced
-        .iter()
-        .map(|&c| ids.get(c).map_or("?", String::as_str))
-        .collect();
-    format!(
-        "camera{} {} share{} too few wand frames (8 at least) with the others to be placed — {}. A frame counts where a camera sees exactly the wand's markers: remove other bright things from view (or mask them, `calibrate mask`), and wave the wand where each of these cameras sees it together with another camera",
-        if names.len() == 1 { "" } else { "s" },
-        names.join(", "),
-        if names.len() == 1 { "s" } else { "" },
-        per_camera.join("; ")
-    )
-}
 #[cfg(test)]
 mod tests {
     use super::*;

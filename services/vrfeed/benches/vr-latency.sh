@@ -2,10 +2,12 @@
 # The VR feed's latency benchmark (docs/performance.md, "VR feed"): two synthetic 640 × 480
 # cameras at 240 fps (480 frames rendered once and played back and forth), three rigid bodies
 # and four loose markers, the whole chain as processes (`stereoscope demo --rig`), a VRPN
-# client the project did not write (libmotioncapture) connected throughout. Prints the demo's
-# JSON summary per run: vr_latency_p50_us / vr_latency_p99_us are the VR feed's own figures,
-# newest frame published into shared memory → VRPN, VMT and opentrack bytes handed to the
-# sockets, over its last 4096 frames.
+# client the project did not write (libmotioncapture) and UDP receivers for VMT (python-osc)
+# and opentrack connected throughout. Prints per run the demo's summary (vr_latency_p50_us /
+# p99: the feed's own figure, newest frame published → bytes handed to the sockets) and, per
+# protocol, the latency from the pose frame's oldest exposure to its receipt at the client:
+# the feed's trace (STEREOSCOPE_VR_TRACE) joined with what the clients received
+# (vr_latency_join.py).
 #
 #   services/vrfeed/benches/vr-latency.sh [RUNS] [SECONDS] [BINARY]
 set -euo pipefail
@@ -16,7 +18,11 @@ seconds=${2:-20}
 bin=${3:-$root/target/release/stereoscope}
 out="$root/target/bench-vr"
 mkdir -p "$out"
-port=$(python3 -c 'import socket; s=socket.socket(); s.bind(("127.0.0.1",0)); print(s.getsockname()[1])')
+free() { python3 -c 'import socket; s=socket.socket(); s.bind(("127.0.0.1",0)); print(s.getsockname()[1])'; }
+port=$(free)
+vmt=$(free)
+vmc=$(free)
+ot=$(free)
 cat > "$out/rig.toml" <<RIG
 name = "vrbench"
 units = "cm"
@@ -60,6 +66,8 @@ tolerance = 0.5
 
 [vr]
 vrpn = { listen = "127.0.0.1:$port" }
+vmt = { send_to = "127.0.0.1:$vmt" }
+opentrack = { send_to = "127.0.0.1:$ot", body = "head" }
 
 [synthetic]
 seed = 3
@@ -112,7 +120,9 @@ fi
 for r in $(seq "$runs"); do
   # The client connects once the feed listens, and stays until the run ends.
   ( sleep 4; timeout $((seconds + 10)) "$py" "$root/tests/clients/vrpn_client.py" "127.0.0.1:$port" "$((seconds - 2))" > "$out/vrpn-$r.jsonl" 2> "$out/vrpn-$r.log" || true ) &
-  "$bin" demo --rig "$out/rig.toml" --seconds "$seconds" --json 2> "$out/demo-$r.log" | tail -1 > "$out/summary-$r.json"
+  ( timeout $((seconds + 10)) "$py" "$root/tests/clients/udp_receivers.py" "$vmt" "$vmc" "$ot" "$((seconds + 2))" > "$out/udp-$r.jsonl" 2> "$out/udp-$r.log" || true ) &
+  rm -f "$out/trace-$r.jsonl"
+  STEREOSCOPE_VR_TRACE="$out/trace-$r.jsonl" "$bin" demo --rig "$out/rig.toml" --seconds "$seconds" --json 2> "$out/demo-$r.log" | tail -1 > "$out/summary-$r.json"
   wait
   python3 - "$out/summary-$r.json" "$out/vrpn-$r.jsonl" <<'PY'
 import json, sys
@@ -122,4 +132,5 @@ bodies = ", ".join(f"{b['name']} {b['matched']}/{b['matched'] + b['missed']} {b[
 print(f"pose frames/s {s['poses_per_s']:.1f}; poses p50 {s['latency_p50_ms']:.3f} ms p99 {s['latency_p99_ms']:.3f} ms; "
       f"VR feed p50 {s['vr_latency_p50_us']} µs p99 {s['vr_latency_p99_us']} µs; VRPN poses received {n}; bodies: {bodies}")
 PY
+  python3 "$here/vr_latency_join.py" "$out/trace-$r.jsonl" "$out/vrpn-$r.jsonl" "$out/udp-$r.jsonl"
 done

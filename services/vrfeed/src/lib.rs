@@ -52,6 +52,12 @@ pub enum VrFeedError {
     Udp(#[source] std::io::Error),
     #[error("vrfeed")]
     Transport(#[from] stereoscope_transport::TransportError),
+    #[error("vrfeed: {}: opening the trace file ({TRACE_ENV})", .path.display())]
+    Trace {
+        path: std::path::PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
 }
 
 /// What the VR feed did: pose frames handled and the latency distribution, microseconds.
@@ -91,6 +97,43 @@ pub struct VrFeedService {
     frames: u64,
     latency_us: std::collections::VecDeque<f64>,
     send_errors: u64,
+    trace: Option<Trace>,
+}
+
+/// The environment variable naming a file the feed appends one JSON line to per pose frame
+/// it sends (the latency bench joins it with what clients received: `benches/vr-latency.sh`).
+pub const TRACE_ENV: &str = "STEREOSCOPE_VR_TRACE";
+
+/// Per pose frame: its exposure (the oldest frame of its set), when its bytes went to the
+/// sockets, and each protocol's positions as sent (VRPN by body name, VMT by tracker index,
+/// opentrack its one body) to match with what a client decodes.
+struct Trace {
+    out: std::io::BufWriter<std::fs::File>,
+    line: String,
+}
+
+impl Trace {
+    fn open() -> Result<Option<Trace>, VrFeedError> {
+        let Some(path) = std::env::var_os(TRACE_ENV) else {
+            return Ok(None);
+        };
+        let file = std::fs::OpenOptions::new()
+            .create(true)
+            .append(true)
+            .open(&path)
+            .map_err(|source| VrFeedError::Trace {
+                path: std::path::PathBuf::from(&path),
+                source,
+            })?;
+        tracing::info!(
+            "tracing what is sent to {}",
+            std::path::Path::new(&path).display()
+        );
+        Ok(Some(Trace {
+            out: std::io::BufWriter::new(file),
+            line: String::new(),
+        }))
+    }
 }
 
 impl std::fmt::Debug for VrFeedService {
@@ -193,6 +236,7 @@ impl VrFeedService {
             frames: 0,
             latency_us: std::collections::VecDeque::with_capacity(LATENCY_WINDOW),
             send_errors: 0,
+            trace: Trace::open()?,
         })
     }
 
@@ -271,6 +315,8 @@ impl VrFeedService {
         }
         // The UDP datagrams of this frame, sent once every body is encoded.
         let mut datagrams: Vec<(Vec<u8>, SocketAddr)> = Vec::new();
+        let mut sent: Vec<(&'static str, String, [f64; 3])> = Vec::new();
+        let tracing_sends = self.trace.is_some();
         for b in &frame.bodies {
             let Some(index) = self.names.iter().position(|n| *n == b.name) else {
                 continue;
@@ -283,6 +329,9 @@ impl VrFeedService {
                     Vector3::from(b.angular_velocity_rad_per_s) * VEL_QUAT_DT_S,
                 ));
                 let v = f.consumer_from_world * Vector3::from(b.velocity_m_per_s) * f.units_per_m;
+                if tracing_sends {
+                    sent.push(("vrpn", b.name.clone(), c.position));
+                }
                 if let Some(s) = self.vrpn.as_mut() {
                     s.send(
                         index,
@@ -297,6 +346,9 @@ impl VrFeedService {
                 && let Some(k) = bodies.iter().position(|&x| x == index)
             {
                 let c = feeds::in_frame(f, &position, &pose.rotation);
+                if tracing_sends {
+                    sent.push(("vmt", k.to_string(), c.position));
+                }
                 datagrams.push((feeds::vmt_room_driver(k as i32, &c), *to));
             }
             if let Some((to, f)) = &self.settings.vmc {
@@ -307,6 +359,9 @@ impl VrFeedService {
                 && *body == index
             {
                 let c = feeds::in_frame(f, &position, &pose.rotation);
+                if tracing_sends {
+                    sent.push(("opentrack", String::new(), c.position));
+                }
                 datagrams.push((feeds::opentrack(&c).to_vec(), *to));
             }
         }
@@ -317,6 +372,30 @@ impl VrFeedService {
             s.flush();
         }
         let now = now_ns();
+        if let Some(t) = self.trace.as_mut()
+            && !sent.is_empty()
+        {
+            use std::fmt::Write as _;
+            t.line.clear();
+            let _ = write!(
+                t.line,
+                "{{\"exposure_ns\":{},\"sent_ns\":{now},\"sent\":[",
+                frame.timestamp_ns
+            );
+            for (i, (feed, key, p)) in sent.iter().enumerate() {
+                let sep = if i == 0 { "" } else { "," };
+                let _ = write!(
+                    t.line,
+                    "{sep}[\"{feed}\",{key:?},{:?},{:?},{:?}]",
+                    p[0], p[1], p[2]
+                );
+            }
+            t.line.push_str("]}\n");
+            if let Err(e) = std::io::Write::write_all(&mut t.out, t.line.as_bytes()) {
+                tracing::warn!("writing the trace: {e}; tracing stops");
+                self.trace = None;
+            }
+        }
         if !frame.bodies.is_empty() && frame.frame_published_ns > 0 {
             if self.latency_us.len() >= LATENCY_WINDOW {
                 self.latency_us.pop_front();
