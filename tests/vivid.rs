@@ -5,8 +5,9 @@
 //! the camera as a rig describes it (format, size, rate, controls by name) and prints what
 //! the moment worker finds; the serial console brings that back.
 //!
-//! Needs the Debian packages `qemu-system-x86`, `linux-image-amd64` and `busybox-static`
-//! (`.ci/run` installs them); fails, naming them, without.
+//! Needs the Debian packages `qemu-system-x86` and `busybox-static`, and a Debian kernel
+//! (`linux-image-amd64` installed, or unpacked into `target/vivid-kernel`): `.ci/run` sees to
+//! all three; the test fails, naming them, without.
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)] // test helpers may fail loudly
 
 use std::io::{Read as _, Write as _};
@@ -14,27 +15,35 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
-/// The newest installed Debian kernel and its modules folder.
+/// The newest Debian kernel with the vivid module, and its modules folder: installed, or
+/// unpacked from its package into `target/vivid-kernel` (what `.ci/run` does).
 fn kernel() -> (PathBuf, PathBuf) {
-    let mut found: Vec<(PathBuf, PathBuf)> = std::fs::read_dir("/boot")
-        .into_iter()
-        .flatten()
-        .flatten()
-        .filter_map(|e| {
-            let name = e.file_name().to_string_lossy().to_string();
-            let version = name.strip_prefix("vmlinuz-")?.to_string();
-            let modules = PathBuf::from("/lib/modules").join(&version);
-            modules
-                .join("kernel/drivers/media/test-drivers/vivid/vivid.ko")
-                .exists()
-                .then_some((e.path(), modules))
+    let unpacked = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../target/vivid-kernel");
+    let mut found: Vec<(PathBuf, PathBuf)> = [PathBuf::from("/"), unpacked]
+        .iter()
+        .flat_map(|root| {
+            std::fs::read_dir(root.join("boot"))
+                .into_iter()
+                .flatten()
+                .flatten()
+                .filter_map(|e| {
+                    let name = e.file_name().to_string_lossy().to_string();
+                    let version = name.strip_prefix("vmlinuz-")?.to_string();
+                    let modules = root.join("lib/modules").join(&version);
+                    modules
+                        .join("kernel/drivers/media/test-drivers/vivid/vivid.ko")
+                        .exists()
+                        .then_some((e.path(), modules))
+                })
+                .collect::<Vec<_>>()
         })
         .collect();
     found.sort();
     found.pop().unwrap_or_else(|| {
         panic!(
-            "this test needs a kernel with the vivid module: install the Debian package \
-             `linux-image-amd64` (.ci/run does)"
+            "this test needs a Debian kernel with the vivid module: install the package \
+             `linux-image-amd64`, or unpack it into target/vivid-kernel (.ci/run does: \
+             `apt-get download` and `dpkg-deb -x`)"
         )
     })
 }

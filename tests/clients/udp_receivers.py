@@ -18,10 +18,19 @@ from pythonosc.dispatcher import Dispatcher
 from pythonosc.osc_server import ThreadingOSCUDPServer
 
 
+PRINT = threading.Lock()
+
+
+def emit(feed, values, receipt_ns):
+    """One line per message; the servers' threads print whole lines, one at a time."""
+    line = json.dumps({"feed": feed, "values": values, "receipt_ns": receipt_ns})
+    with PRINT:
+        print(line, flush=True)
+
+
 def osc_server(port, address, feed):
     d = Dispatcher()
-    d.map(address, lambda _addr, *args: print(json.dumps(
-        {"feed": feed, "values": list(args), "receipt_ns": time.time_ns()}), flush=True))
+    d.map(address, lambda _addr, *args: emit(feed, list(args), time.time_ns()))
     server = ThreadingOSCUDPServer(("127.0.0.1", port), d)
     threading.Thread(target=server.serve_forever, daemon=True).start()
     return server
@@ -34,7 +43,7 @@ def main():
     s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     s.bind(("127.0.0.1", opentrack))
     s.settimeout(0.1)
-    print(json.dumps({"feed": "ready", "values": []}), flush=True)
+    emit("ready", [], time.time_ns())
     end = time.time() + seconds
     while time.time() < end:
         try:
@@ -42,8 +51,8 @@ def main():
         except socket.timeout:
             continue
         if len(data) == 48:
-            values = list(struct.unpack("<6d", data))
-            print(json.dumps({"feed": "opentrack", "values": values, "receipt_ns": time.time_ns()}), flush=True)
+            receipt_ns = time.time_ns()
+            emit("opentrack", list(struct.unpack("<6d", data)), receipt_ns)
     for server in servers:
         server.shutdown()
 

@@ -6,15 +6,23 @@ the latency from the pose frame's oldest exposure to its receipt at the client, 
 feed's own part (exposure to the bytes handed to the socket).
 
 A received pose is matched to the sent pose of the same body (VRPN: name; VMT: tracker index;
-opentrack: its one body) whose position is nearest, among those sent in the second before its
-receipt; it counts only within 1e-5 of the position's size (VRPN and VMT carry 32-bit floats).
+opentrack: its one body) with the same position — bit for bit: opentrack's doubles as sent,
+VRPN's and VMT's as the 32-bit floats the clients hand over — among those sent in the second
+before its receipt. A pose sent more than once
+(a body held while unseen repeats its last pose) matches several sends: it is counted as
+ambiguous and left out, not guessed.
 
 usage: vr_latency_join.py TRACE.jsonl VRPN.jsonl UDP.jsonl
 """
 import bisect
 import json
 import statistics
+import struct
 import sys
+
+
+def f32(v):
+    return struct.unpack("<f", struct.pack("<f", v))[0]
 
 
 def pct(v, p):
@@ -45,18 +53,19 @@ def main():
         rows = sent.get((feed, key), [])
         lo = bisect.bisect_left(rows, (receipt - 1_000_000_000,))
         hi = bisect.bisect_right(rows, (receipt, float("inf")))
-        best = None
-        for s_ns, e_ns, p in rows[lo:hi]:
-            d = max(abs(a - b) for a, b in zip(p, pos))
-            if best is None or d < best[0]:
-                best = (d, s_ns, e_ns, p)
-        o = out.setdefault(feed, {"received": 0, "matched": 0, "total": [], "feed": [], "wire": []})
+        exact = (lambda p: tuple(p)) if feed == "opentrack" else (lambda p: tuple(f32(c) for c in p))
+        want = tuple(pos)
+        hits = [(s_ns, e_ns) for s_ns, e_ns, p in rows[lo:hi] if exact(p) == want]
+        o = out.setdefault(feed, {"received": 0, "matched": 0, "ambiguous": 0, "total": [], "feed": [], "wire": []})
         o["received"] += 1
-        if best and best[0] <= 1e-5 * max(1.0, max(abs(c) for c in best[3])):
+        if len({e for _, e in hits}) > 1:
+            o["ambiguous"] += 1
+        elif hits:
+            s_ns, e_ns = hits[-1]
             o["matched"] += 1
-            o["total"].append((receipt - best[2]) / 1e3)
-            o["feed"].append((best[1] - best[2]) / 1e3)
-            o["wire"].append((receipt - best[1]) / 1e3)
+            o["total"].append((receipt - e_ns) / 1e3)
+            o["feed"].append((s_ns - e_ns) / 1e3)
+            o["wire"].append((receipt - s_ns) / 1e3)
     sent_n = {f: sum(len(v) for (g, _), v in sent.items() if g == f) for f, _ in sent}
     for feed in ("vrpn", "vmt", "opentrack"):
         o = out.get(feed)
@@ -64,7 +73,7 @@ def main():
             print(f"{feed}: nothing matched ({sent_n.get(feed, 0)} sent, {o['received'] if o else 0} received)")
             continue
         t, f, w = o["total"], o["feed"], o["wire"]
-        print(f"{feed}: {o['matched']} of {o['received']} received matched ({sent_n.get(feed, 0)} sent); "
+        print(f"{feed}: {o['matched']} of {o['received']} received matched, {o['ambiguous']} ambiguous ({sent_n.get(feed, 0)} sent); "
               f"oldest exposure → client receipt p50 {statistics.median(t):.0f} µs, p99 {pct(t, 99):.0f} µs, "
               f"worst {max(t):.0f} µs; of which exposure → socket p50 {statistics.median(f):.0f} µs, "
               f"socket → client p50 {statistics.median(w):.0f} µs p99 {pct(w, 99):.0f} µs")

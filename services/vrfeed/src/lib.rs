@@ -104,8 +104,8 @@ pub struct VrFeedService {
 /// it sends (the latency bench joins it with what clients received: `benches/vr-latency.sh`).
 pub const TRACE_ENV: &str = "STEREOSCOPE_VR_TRACE";
 
-/// Per pose frame: its exposure (the oldest frame of its set), when its bytes went to the
-/// sockets, and each protocol's positions as sent (VRPN by body name, VMT by tracker index,
+/// Per pose frame: its exposure (the oldest frame of its set), when its bytes began to go to
+/// the sockets, and each protocol's positions as sent (VRPN by body name, VMT by tracker index,
 /// opentrack its one body) to match with what a client decodes.
 struct Trace {
     out: std::io::BufWriter<std::fs::File>,
@@ -365,6 +365,8 @@ impl VrFeedService {
                 datagrams.push((feeds::opentrack(&c).to_vec(), *to));
             }
         }
+        // The trace's send time: just before the first byte goes to a socket.
+        let sending_ns = if tracing_sends { now_ns() } else { 0 };
         for (bytes, to) in datagrams {
             self.send_udp(&bytes, to);
         }
@@ -379,7 +381,7 @@ impl VrFeedService {
             t.line.clear();
             let _ = write!(
                 t.line,
-                "{{\"exposure_ns\":{},\"sent_ns\":{now},\"sent\":[",
+                "{{\"exposure_ns\":{},\"sent_ns\":{sending_ns},\"sent\":[",
                 frame.timestamp_ns
             );
             for (i, (feed, key, p)) in sent.iter().enumerate() {
