@@ -126,6 +126,62 @@ fn parents(cpio: &mut Cpio, made: &mut std::collections::BTreeSet<String>, path:
     }
 }
 
+/// A module's `depends=` (its `.modinfo` entry: the modules it needs, by name).
+fn depends(module: &Path) -> Vec<String> {
+    let bytes = std::fs::read(module).unwrap();
+    let key = b"depends=";
+    let Some(at) = bytes.windows(key.len()).position(|w| w == key) else {
+        return Vec::new();
+    };
+    let rest = &bytes[at + key.len()..];
+    let end = rest.iter().position(|&b| b == 0).unwrap_or(rest.len());
+    String::from_utf8_lossy(&rest[..end])
+        .split(',')
+        .filter(|s| !s.is_empty())
+        .map(str::to_string)
+        .collect()
+}
+
+/// vivid and every module it needs, each after its own needs: from each module's `depends=`
+/// (what depmod reads), so an unpacked kernel package without `modules.dep` serves as well.
+fn load_order(modules: &Path) -> Vec<PathBuf> {
+    fn walk(dir: &Path, out: &mut std::collections::BTreeMap<String, PathBuf>) {
+        for e in std::fs::read_dir(dir).into_iter().flatten().flatten() {
+            let p = e.path();
+            if p.is_dir() {
+                walk(&p, out);
+            } else if let Some(stem) = p
+                .file_name()
+                .and_then(|n| n.to_str())
+                .and_then(|n| n.strip_suffix(".ko"))
+            {
+                out.insert(stem.replace('-', "_"), p);
+            }
+        }
+    }
+    fn visit(
+        name: &str,
+        all: &std::collections::BTreeMap<String, PathBuf>,
+        done: &mut Vec<PathBuf>,
+    ) {
+        let path = all
+            .get(&name.replace('-', "_"))
+            .unwrap_or_else(|| panic!("module {name} is not in the kernel's modules"));
+        if done.contains(path) {
+            return;
+        }
+        for d in depends(path) {
+            visit(&d, all, done);
+        }
+        done.push(path.clone());
+    }
+    let mut all = std::collections::BTreeMap::new();
+    walk(&modules.join("kernel"), &mut all);
+    let mut done = Vec::new();
+    visit("vivid", &all, &mut done);
+    done
+}
+
 /// The shared libraries `binary` loads, by `ldd`.
 fn libraries(binary: &Path) -> Vec<PathBuf> {
     let out = Command::new("ldd")
@@ -187,22 +243,12 @@ fn boot(runs: &[(&str, String, &str)]) -> Vec<(String, String, i32)> {
     for tool in ["sh", "mount", "insmod", "sleep", "poweroff", "echo"] {
         cpio.link(&format!("bin/{tool}"), "busybox");
     }
-    // vivid after what it needs (modules.dep lists a module's dependencies, the deepest last).
-    let deps = std::fs::read_to_string(modules.join("modules.dep")).unwrap();
-    let line = deps
-        .lines()
-        .find(|l| l.starts_with("kernel/drivers/media/test-drivers/vivid/vivid.ko:"))
-        .expect("vivid in modules.dep");
-    let mut order: Vec<&str> = line
-        .split_once(':')
-        .map(|(_, d)| d.split_whitespace().rev().collect())
-        .unwrap_or_default();
-    order.push("kernel/drivers/media/test-drivers/vivid/vivid.ko");
-    for (i, m) in order.iter().enumerate() {
-        let name = Path::new(m).file_name().unwrap().to_string_lossy();
+    // vivid after what it needs, in load order.
+    for (i, m) in load_order(&modules).iter().enumerate() {
+        let name = m.file_name().unwrap().to_string_lossy();
         cpio.file(
             &format!("modules/{i:02}-{name}"),
-            &std::fs::read(modules.join(m)).unwrap(),
+            &std::fs::read(m).unwrap(),
             false,
         );
     }
