@@ -1730,6 +1730,32 @@ fn recorded_frames_replay_through_the_services_to_the_same_poses() {
         v["matched_frames"].as_u64().unwrap() as usize + 2 >= recorded,
         "{v}"
     );
+    // The same frames without the recorded poses and observations (frames recorded without
+    // fusion, or written by another program): paired as live frames, not as recorded sets —
+    // it used to form none and exit 0.
+    std::fs::remove_file(session.join("poses.jsonl")).unwrap();
+    std::fs::remove_file(session.join("observations.jsonl")).unwrap();
+    let o = run_with_limit(
+        &["replay", &session_s, "--frames", "--speed", "3", "--json"],
+        Duration::from_secs(90),
+    );
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(
+        stderr(&o).contains("poses.jsonl: none (a session of frames only?)"),
+        "{}",
+        stderr(&o)
+    );
+    let out = String::from_utf8_lossy(&o.stdout);
+    let v: serde_json::Value = serde_json::from_str(out.lines().last().unwrap()).unwrap();
+    eprintln!("frames-only replay: {v}");
+    assert_eq!(v["recorded_frames"], 0, "{v}");
+    // The live chain's sets again, but for the frame the cut left and the start (fusion
+    // confirms an object over its first sets before publishing it).
+    assert!(
+        v["replayed_frames"].as_u64().unwrap() as usize + 5 >= recorded,
+        "{v}"
+    );
+    assert!(v["objects"].as_u64().unwrap() > 0, "{v}");
     // A session without frames is refused, naming the files.
     std::fs::remove_file(session.join("frames-cam1.y4m")).unwrap();
     let o = run_with_limit(&["replay", &session_s, "--frames"], Duration::from_secs(30));

@@ -457,7 +457,8 @@ pub fn frames_file(session_dir: &std::path::Path, camera: &str) -> std::path::Pa
 /// A one-PC rig that feeds a session's recorded frames through the services: the session's
 /// rig with every camera reading its `frames-<camera>.y4m` at `speed` × the recorded pace, the session's
 /// start at wall-clock `start_wall_ns`, every camera on that one clock (each frame keeps its
-/// recorded exposure time, so fusion pairs them as it did live), one host `replay` whose router listens on
+/// recorded exposure time, so fusion forms the recorded sets; a session without pose frames
+/// has its frames stamped with their replay time, paired as live), one host `replay` whose router listens on
 /// `listen` with iceoryx2 prefix `iox_prefix`, and no serial outputs. Every camera needs its
 /// frames: an error names the files missing.
 pub fn frames_rig(
@@ -480,6 +481,10 @@ pub fn frames_rig(
     if !missing.is_empty() {
         return Err(ReplayError::NoFrames(missing));
     }
+    // A session with frames and no pose frames (recorded without fusion, or written by
+    // another program) has no sets to follow: its frames are stamped with their replay time
+    // and paired as live ones.
+    let frames_only = session.poses.is_empty();
     for c in &mut file.cameras {
         let path = frames_file(session_dir, &c.id);
         let path = std::path::absolute(&path).unwrap_or(path);
@@ -492,10 +497,15 @@ pub fn frames_rig(
                 recorded_ns: session.info.started_ns,
                 wall_ns: start_wall_ns,
                 speed,
+                restamp: frames_only,
             }),
         });
     }
-    if let Some(f) = &mut file.fusion {
+    if let (Some(f), true) = (&mut file.fusion, frames_only) {
+        f.host = None;
+        // The files run out; a camera is not gone meanwhile.
+        f.camera_timeout_ms = Some(10_000.0);
+    } else if let Some(f) = &mut file.fusion {
         f.host = None;
         // Sets as they were recorded, not as frames happen to arrive on a loaded machine:
         // fusion forms each recorded set with the cameras it had, waiting for each (up to

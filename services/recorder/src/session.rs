@@ -204,8 +204,28 @@ impl Session {
             });
         }
         let mut warnings = Vec::new();
-        let poses = read_lines(&dir.join("poses.jsonl"), &mut warnings)?;
-        let observations = read_lines(&dir.join("observations.jsonl"), &mut warnings)?;
+        // A session of frames alone (recorded without fusion, or written by another
+        // program) has neither file: read as empty, and said.
+        let optional = |name: &str, warnings: &mut Vec<String>| {
+            let path = dir.join(name);
+            if path.exists() {
+                Ok(Some(path))
+            } else {
+                warnings.push(format!(
+                    "{}: none (a session of frames only?)",
+                    path.display()
+                ));
+                Ok::<_, SessionError>(None)
+            }
+        };
+        let poses = match optional("poses.jsonl", &mut warnings)? {
+            Some(p) => read_lines(&p, &mut warnings)?,
+            None => Vec::new(),
+        };
+        let observations = match optional("observations.jsonl", &mut warnings)? {
+            Some(p) => read_lines(&p, &mut warnings)?,
+            None => Vec::new(),
+        };
         Ok(Session {
             info,
             poses,

@@ -295,6 +295,28 @@ pub fn replay_frames(
     let _ = std::fs::remove_dir_all(&work);
     result??;
     let replayed = replayed.lock().map(|v| v.clone()).unwrap_or_default();
+    if total == 0 {
+        // Nothing recorded to compare with: the sets were formed as live fusion forms them.
+        let objects: usize = replayed.iter().map(|p| p.poses.len()).sum();
+        if json {
+            println!(
+                "{}",
+                serde_json::json!({"replayed_frames": replayed.len(), "recorded_frames": 0, "objects": objects})
+            );
+        } else {
+            println!(
+                "{} pose frames ({objects} object poses) from the frames; the session recorded no pose frames to compare with",
+                replayed.len()
+            );
+        }
+        if replayed.is_empty() {
+            anyhow::bail!(
+                "{}: no pose frame formed from its frames (is any marker seen by two cameras?)",
+                session.display()
+            );
+        }
+        return Ok(0);
+    }
     let c = compare_frames(&s.poses, &replayed);
     let losses = health.lock().map(|h| losses(&h)).unwrap_or_default();
     for r in refused.lock().map(|v| v.clone()).unwrap_or_default() {

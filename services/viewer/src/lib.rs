@@ -34,7 +34,6 @@ use std::sync::{Arc, Mutex};
 use std::time::Duration;
 use stereoscope_proto::messages::{Detail, Health, PoseFrame, Preview, Truth, WandCoverage};
 use stereoscope_proto::names::zenoh as keys;
-use stereoscope_rig::schema::DEFAULT_VIEWER_LISTEN;
 use stereoscope_service::Context;
 use stereoscope_transport::inlet::{self, Admission};
 use stereoscope_transport::{Flow, Refusal, Service, ServiceNode, Shutdown, drive, net};
@@ -45,7 +44,7 @@ const INDEX_HTML: &str = include_str!(concat!(env!("OUT_DIR"), "/index.html"));
 const APP_JS: &str = include_str!(concat!(env!("OUT_DIR"), "/app.bundle.js"));
 
 /// Browsers at once when the rig does not say.
-pub const DEFAULT_MAX_CLIENTS: usize = 16;
+pub use stereoscope_rig::settings::DEFAULT_VIEWER_MAX_CLIENTS as DEFAULT_MAX_CLIENTS;
 /// Largest message a browser may send, bytes (its requests are a few dozen).
 pub const MAX_CLIENT_MESSAGE_BYTES: usize = 4096;
 /// Bad messages after which a browser's socket is closed.
@@ -201,14 +200,13 @@ impl std::fmt::Debug for ViewerService {
 impl ViewerService {
     pub fn setup(cfg: ViewerConfig) -> Result<Self, ViewerError> {
         let ctx = &cfg.ctx;
-        let spec = ctx.rig.spec.viewer.clone().unwrap_or_default();
+        let spec = stereoscope_rig::settings::ViewerSettings::of_rig(&ctx.rig.spec);
         let addr = match cfg.listen {
             Some(a) => a,
-            None => {
-                let text = spec.listen.as_deref().unwrap_or(DEFAULT_VIEWER_LISTEN);
-                text.parse()
-                    .map_err(|_| ViewerError::Listen(text.to_string()))?
-            }
+            None => spec
+                .listen
+                .parse()
+                .map_err(|_| ViewerError::Listen(spec.listen.clone()))?,
         };
         let listener = std::net::TcpListener::bind(addr)
             .and_then(|l| l.set_nonblocking(true).map(|()| l))
@@ -224,7 +222,7 @@ impl ViewerService {
             rig: rig.clone(),
             cameras: cameras.clone(),
             rig_json: scene::rig_json(&ctx.rig).to_string(),
-            max_clients: spec.max_clients.map_or(DEFAULT_MAX_CLIENTS, |m| m as usize),
+            max_clients: spec.max_clients,
             tx,
             previews: Mutex::new(HashMap::new()),
             health: Mutex::new(BTreeMap::new()),

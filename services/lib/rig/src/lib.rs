@@ -12,6 +12,7 @@ pub mod error;
 pub mod moments;
 pub mod schema;
 pub mod security;
+pub mod settings;
 pub mod truth;
 pub mod vr;
 

@@ -146,26 +146,27 @@ impl SyntheticSource {
         bit_depth: Option<u32>,
     ) -> Result<Self, SourceError> {
         let spec = file.synthetic.as_ref().ok_or(SourceError::NoScene)?;
+        let render = stereoscope_rig::settings::SyntheticRender::of(spec);
         let scale = file.units.metres();
         let (actors, has_axis): (Vec<Actor>, Vec<bool>) =
             actors(spec, &file.bodies, scale).into_iter().unzip();
         let base = Scene {
             background: Background {
-                level: spec.background.unwrap_or(20.0),
+                level: render.background,
                 gradient_per_px: (0.0, 0.0),
             },
-            light: match spec.light {
+            light: match render.light {
                 SyntheticLight::Overhead => Scene::default().light,
                 SyntheticLight::Ring => Light::Ring,
             },
             ..Scene::default()
         };
         let opts = RenderOptions {
-            samples: spec.samples.unwrap_or(3),
-            blur_sigma_px: spec.blur_sigma_px.unwrap_or(0.6),
-            noise_sigma: spec.noise_sigma.unwrap_or(2.0),
+            samples: render.samples,
+            blur_sigma_px: render.blur_sigma_px,
+            noise_sigma: render.noise_sigma,
             shot_noise_gain: None,
-            seed: spec.seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ camera_index as u64,
+            seed: render.seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ camera_index as u64,
         };
         let format = if bit_depth == Some(16) {
             PixelFormat::Gray16

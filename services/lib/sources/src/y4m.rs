@@ -236,8 +236,17 @@ impl FrameSource for Y4mSource {
             .into());
         }
         self.frames_read += 1;
-        let timestamp_ns = frame_timestamp(&line);
+        let mut timestamp_ns = frame_timestamp(&line);
         let sequence = frame_sequence(&line);
+        // A file without recorded times, restamped on a replay clock: its frames are timed by
+        // their index and the file's rate from the clock's start, so files of several cameras
+        // stay in step frame by frame whatever the machine's load.
+        if let (Some(clock), None, Some(fps)) = (self.replay_clock, timestamp_ns, self.fps)
+            && clock.restamp
+            && fps > 0.0
+        {
+            timestamp_ns = Some(clock.recorded_ns + (frame_no as f64 * 1e9 / fps) as u64);
+        }
         if let (Some(clock), Some(ts)) = (self.replay_clock, timestamp_ns) {
             // Due at the replay's wall-clock time for this recorded time.
             let speed = if clock.speed.is_finite() && clock.speed > 0.0 {
@@ -249,6 +258,12 @@ impl FrameSource for Y4mSource {
             let now = stereoscope_proto::messages::now_ns();
             if due > now {
                 std::thread::sleep(std::time::Duration::from_nanos(due - now));
+            }
+            if clock.restamp {
+                return Ok(Read::Frame {
+                    timestamp_ns: Some(due),
+                    sequence,
+                });
             }
         }
         Ok(Read::Frame {
@@ -343,6 +358,70 @@ mod tests {
             parse_header("YUV4MPEG2 Wx H3").unwrap_err(),
             Y4mHeaderError::NotANumber { field: "width", .. }
         ));
+    }
+
+    #[test]
+    fn a_restamped_replay_times_frames_by_index_or_recorded_time() {
+        let dir = std::env::temp_dir().join(format!("y4m-restamp-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let frame = vec![10u8; 12];
+        // The replay started 10 s ago: no frame waits.
+        let wall_ns = stereoscope_proto::messages::now_ns() - 10_000_000_000;
+        let clock = |restamp| stereoscope_rig::schema::ReplayClock {
+            recorded_ns: 5_000_000_000,
+            wall_ns,
+            speed: 1.0,
+            restamp,
+        };
+        let stamps = |bytes: &[u8], restamp: bool| {
+            let p = dir.join("clip.y4m");
+            std::fs::write(&p, bytes).unwrap();
+            let mut s = Y4mSource::open(p.to_str().unwrap(), false, false)
+                .unwrap()
+                .with_replay_clock(Some(clock(restamp)));
+            let mut out = vec![0u8; 12];
+            (0..3)
+                .map(|i| match s.read(i, 0.0, &mut out).unwrap() {
+                    Read::Frame { timestamp_ns, .. } => timestamp_ns,
+                    Read::End => None,
+                })
+                .collect::<Vec<_>>()
+        };
+        // No recorded times: by index at the file's 25 fps from the clock's start.
+        let plain = encode_mono(4, 3, 25, &[&frame, &frame, &frame]);
+        assert_eq!(
+            stamps(&plain, true),
+            vec![
+                Some(wall_ns),
+                Some(wall_ns + 40_000_000),
+                Some(wall_ns + 80_000_000)
+            ]
+        );
+        // Not restamped, a file without times stays without.
+        assert_eq!(stamps(&plain, false), vec![None, None, None]);
+        // Recorded times: moved onto the replay clock when restamped, kept otherwise.
+        let mut timed = b"YUV4MPEG2 W4 H3 F25:1 Ip A1:1 Cmono\n".to_vec();
+        for t in [5_000_000_000u64, 5_050_000_000, 5_070_000_000] {
+            timed.extend_from_slice(format!("FRAME Xts={t}\n").as_bytes());
+            timed.extend_from_slice(&frame);
+        }
+        assert_eq!(
+            stamps(&timed, true),
+            vec![
+                Some(wall_ns),
+                Some(wall_ns + 50_000_000),
+                Some(wall_ns + 70_000_000)
+            ]
+        );
+        assert_eq!(
+            stamps(&timed, false),
+            vec![
+                Some(5_000_000_000),
+                Some(5_050_000_000),
+                Some(5_070_000_000)
+            ]
+        );
+        let _ = std::fs::remove_dir_all(&dir);
     }
 
     #[test]

@@ -257,8 +257,7 @@ pub struct ViewerSpec {
     pub max_clients: Option<u32>,
 }
 
-/// Where the viewer listens when the rig does not say.
-pub const DEFAULT_VIEWER_LISTEN: &str = "127.0.0.1:8750";
+pub use crate::settings::DEFAULT_VIEWER_LISTEN;
 
 /// A supervised recorder: each start (the first, and every restart after a crash) records a
 /// new session folder inside `folder`.
@@ -402,6 +401,11 @@ pub struct ReplayClock {
     /// 1 = the recorded pace (default); 2 = twice as fast.
     #[serde(default = "one", skip_serializing_if = "is_one")]
     pub speed: f64,
+    /// Stamp each frame with the time it is published at instead of its recorded time, so
+    /// fusion pairs the frames as it pairs live ones (a session with no recorded sets to
+    /// follow; every camera on the one clock keeps them in step).
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub restamp: bool,
 }
 
 fn one() -> f64 {
