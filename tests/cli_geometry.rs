@@ -1093,6 +1093,8 @@ fn a_printed_dot_grid_is_found_at_true_size_with_its_axes() {
             "30",
             "--units",
             "mm",
+            "--page",
+            "any",
             "--out",
             page.to_str().unwrap(),
         ]);
@@ -1154,4 +1156,37 @@ fn a_printed_dot_grid_is_found_at_true_size_with_its_axes() {
         "g.svg",
     ]);
     assert!(stderr(&o).contains("2 × 2"), "{}", stderr(&o));
+    // The page fits A4 and Letter unless told otherwise: 30 mm is refused with the spacing
+    // that fits; without --spacing the largest whole millimetre that fits is chosen.
+    let o = run(&[
+        "target",
+        "dot-grid",
+        "7x5",
+        "--spacing",
+        "30",
+        "--out",
+        "g.svg",
+    ]);
+    assert!(!o.status.success());
+    assert!(
+        stderr(&o).contains("makes a 260 × 228 mm page, larger than A4 and Letter")
+            && stderr(&o).contains("--spacing 27 or less"),
+        "{}",
+        stderr(&o)
+    );
+    let fitted = dir.0.join("fitted.svg");
+    let o = run(&[
+        "target",
+        "dot-grid",
+        "7x5",
+        "--out",
+        fitted.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let said = String::from_utf8_lossy(&o.stdout);
+    assert!(
+        said.contains("236 x 210 mm, fits A4 and Letter (landscape)")
+            && said.contains("--dot-grid 7x5 --spacing 27 --units mm"),
+        "{said}"
+    );
 }

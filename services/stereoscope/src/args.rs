@@ -309,12 +309,15 @@ pub struct DotGridTargetArgs {
     /// COLSxROWS: dots along x (the rows run right from the big dot), dots along y.
     #[arg(value_parser = parse_size)]
     pub size: (u32, u32),
-    /// Dot spacing, in --units.
+    /// Dot spacing, in --units (default: the largest whole millimetre whose page fits --page).
     #[arg(long)]
-    pub spacing: f64,
+    pub spacing: Option<f64>,
     /// Unit of --spacing: m, cm or mm.
     #[arg(long, default_value = "mm")]
     pub units: stereoscope_rig::Units,
+    /// The paper the page must fit, either way round: a4-letter (both), a4, letter, or any.
+    #[arg(long, value_enum, default_value = "a4-letter")]
+    pub page: stereoscope::target::Paper,
     /// The page to write: FILE.svg or FILE.pdf.
     #[arg(long)]
     pub out: PathBuf,
@@ -326,6 +329,7 @@ impl DotGridTargetArgs {
             cols: self.size.0 as usize,
             rows: self.size.1 as usize,
             spacing: self.spacing,
+            paper: self.page,
             units: self.units,
             out: self.out,
         };

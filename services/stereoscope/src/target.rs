@@ -15,7 +15,9 @@ use stereoscope_rig::Units;
 pub struct TargetOptions {
     pub cols: usize,
     pub rows: usize,
-    pub spacing: f64,
+    /// In `units`; the largest whole millimetre that fits `paper` when absent.
+    pub spacing: Option<f64>,
+    pub paper: Paper,
     pub units: Units,
     /// `.svg` or `.pdf`.
     pub out: PathBuf,
@@ -312,32 +314,132 @@ pub fn pdf(grid: &DotGrid, unit_mm: f64) -> Vec<u8> {
     out.into_bytes()
 }
 
+/// The paper the page must fit, either way round.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum Paper {
+    /// Both A4 (210 × 297 mm) and US Letter (215.9 × 279.4 mm): 210 × 279.4 mm.
+    A4Letter,
+    A4,
+    Letter,
+    /// Any size (a plotter, or a board printed by a shop).
+    Any,
+}
+
+impl Paper {
+    /// Width and height, mm, portrait.
+    fn size_mm(self) -> Option<(f64, f64)> {
+        match self {
+            Paper::A4Letter => Some((210.0, 279.4)),
+            Paper::A4 => Some((210.0, 297.0)),
+            Paper::Letter => Some((215.9, 279.4)),
+            Paper::Any => None,
+        }
+    }
+
+    fn name(self) -> &'static str {
+        match self {
+            Paper::A4Letter => "A4 and Letter",
+            Paper::A4 => "A4",
+            Paper::Letter => "Letter",
+            Paper::Any => "any paper",
+        }
+    }
+
+    /// Whether a page of `w` × `h` mm fits, either way round.
+    pub fn fits(self, w: f64, h: f64) -> bool {
+        match self.size_mm() {
+            None => true,
+            Some((pw, ph)) => (w <= pw && h <= ph) || (w <= ph && h <= pw),
+        }
+    }
+}
+
+/// The page's format, named by its file's extension, is not one this writes.
+fn not_a_page_format(out: &std::path::Path) -> anyhow::Result<Vec<u8>> {
+    bail!("{}: the page is written as .svg or .pdf", out.display())
+}
+
+/// The largest whole-millimetre spacing whose page fits `paper` (at least 5 mm).
+pub fn largest_spacing_mm(cols: usize, rows: usize, paper: Paper) -> Option<f64> {
+    (5..=200).rev().map(f64::from).find(|&s| {
+        DotGrid::new(cols, rows, s).is_ok_and(|g| {
+            let p = page(&g, 1.0);
+            paper.fits(p.width_mm, p.height_mm)
+        })
+    })
+}
+
 /// Runs the command; `Ok(0)` when the page was written.
 pub fn run(opts: &TargetOptions, out: &mut impl Write) -> anyhow::Result<usize> {
-    let grid = DotGrid::new(opts.cols, opts.rows, opts.spacing)?;
     let unit_mm = opts.units.metres() * 1000.0;
     let ext = opts
         .out
         .extension()
         .and_then(|e| e.to_str())
         .map(str::to_ascii_lowercase);
+    if !matches!(ext.as_deref(), Some("svg" | "pdf")) {
+        not_a_page_format(&opts.out)?;
+    }
+    let spacing = match opts.spacing {
+        Some(s) => s,
+        None => {
+            if opts.paper == Paper::Any {
+                bail!("--page any needs --spacing: no paper size to fit the grid to");
+            }
+            let mm = largest_spacing_mm(opts.cols, opts.rows, opts.paper).ok_or_else(|| {
+                anyhow::anyhow!(
+                    "a {}x{} grid does not fit {} even at 5 mm spacing: fewer dots, or --page any with --spacing",
+                    opts.cols,
+                    opts.rows,
+                    opts.paper.name()
+                )
+            })?;
+            mm / unit_mm
+        }
+    };
+    let grid = DotGrid::new(opts.cols, opts.rows, spacing)?;
+    let laid = page(&grid, unit_mm);
+    if !opts.paper.fits(laid.width_mm, laid.height_mm) {
+        let hint = largest_spacing_mm(opts.cols, opts.rows, opts.paper)
+            .map(|mm| format!("--spacing {} or less ({mm} mm)", mm / unit_mm))
+            .unwrap_or_else(|| "fewer dots".into());
+        bail!(
+            "a {}x{} grid at spacing {spacing} {} makes a {:.0} × {:.0} mm page, larger than {} either way round: use {hint}, or --page any to print it larger",
+            opts.cols,
+            opts.rows,
+            opts.units,
+            laid.width_mm,
+            laid.height_mm,
+            opts.paper.name()
+        );
+    }
     let bytes = match ext.as_deref() {
         Some("svg") => svg(&grid, unit_mm).into_bytes(),
         Some("pdf") => pdf(&grid, unit_mm),
-        _ => bail!(
-            "{}: the page is written as .svg or .pdf",
-            opts.out.display()
-        ),
+        _ => not_a_page_format(&opts.out)?,
     };
     std::fs::write(&opts.out, bytes)
         .with_context(|| format!("{}: cannot write", opts.out.display()))?;
     let p = page(&grid, unit_mm);
     writeln!(
         out,
-        "wrote {}: {:.0} x {:.0} mm",
+        "wrote {}: {:.0} x {:.0} mm{}",
         opts.out.display(),
         p.width_mm,
-        p.height_mm
+        p.height_mm,
+        if opts.paper == Paper::Any {
+            String::new()
+        } else {
+            format!(
+                ", fits {}{}",
+                opts.paper.name(),
+                if p.width_mm > p.height_mm {
+                    " (landscape)"
+                } else {
+                    ""
+                }
+            )
+        }
     )?;
     for line in legend(&grid, &p) {
         writeln!(out, "  {line}")?;
@@ -352,7 +454,7 @@ pub fn run(opts: &TargetOptions, out: &mut impl Write) -> anyhow::Result<usize> 
     writeln!(
         out,
         "  calibrate with: stereoscope calibrate --dot-grid {}x{} --spacing {} --units {} IMAGES...",
-        opts.cols, opts.rows, opts.spacing, opts.units
+        opts.cols, opts.rows, spacing, opts.units
     )?;
     Ok(0)
 }
