@@ -6,8 +6,9 @@
 //!
 //! **Timestamps.** A frame's `timestamp_ns` is its mid-exposure on the rig's clock (the
 //! system's real-time clock, as every service stamps): the driver's buffer timestamp (on
-//! `CLOCK_MONOTONIC`) is moved onto the real-time clock by the two clocks' offset read at
-//! dequeue, then to mid-exposure — half the exposure later when the driver stamps the start of
+//! `CLOCK_MONOTONIC`) is moved onto the real-time clock by the two clocks' offset, read once
+//! when the stream starts (a later step of the real-time clock, by NTP or by hand, is not
+//! followed: restart the capture), then to mid-exposure — half the exposure later when the driver stamps the start of
 //! exposure, half earlier when it stamps the end of the frame (most drivers, UVC included;
 //! the sensor's readout time is not known to V4L2 and is not subtracted). The exposure is the
 //! camera's `exposure_time_absolute` when it has one, else unknown, and then the stamp stays
@@ -94,6 +95,8 @@ pub struct V4lSource {
     fps: Option<f64>,
     exposure_ns: Option<u64>,
     stamp: Option<Stamp>,
+    /// The real-time clock minus the monotonic one, read once when the stream started.
+    realtime_minus_monotonic_ns: i128,
     sequence: Sequence,
     streaming: bool,
 }
@@ -117,6 +120,20 @@ fn ioctl<T>(fd: &OwnedFd, request: libc::c_ulong, arg: &mut T) -> std::io::Resul
             return Err(e);
         }
     }
+}
+
+/// The real-time clock minus the monotonic one: of five readings of the pair, the one read
+/// closest together (the least disturbed by a preemption between the two reads).
+fn clock_offset_ns() -> i128 {
+    (0..5)
+        .map(|_| {
+            let m0 = clock_ns(libc::CLOCK_MONOTONIC);
+            let r = clock_ns(libc::CLOCK_REALTIME);
+            let m1 = clock_ns(libc::CLOCK_MONOTONIC);
+            (m1 - m0, r - (m0 + m1) / 2)
+        })
+        .min_by_key(|&(spread, _)| spread)
+        .map_or(0, |(_, offset)| offset)
 }
 
 fn clock_ns(clock: libc::clockid_t) -> i128 {
@@ -377,6 +394,7 @@ impl V4lSource {
             fps,
             exposure_ns,
             stamp: None,
+            realtime_minus_monotonic_ns: clock_offset_ns(),
             sequence: Sequence::default(),
             streaming: true,
         })
@@ -420,8 +438,8 @@ impl V4lSource {
 
     /// The frame's mid-exposure on the real-time clock (the module's header).
     fn timestamp_ns(&mut self, b: &sys::Buffer) -> u64 {
-        let realtime = clock_ns(libc::CLOCK_REALTIME);
         let monotonic = clock_ns(libc::CLOCK_MONOTONIC);
+        let realtime = monotonic + self.realtime_minus_monotonic_ns;
         let stamp = *self.stamp.get_or_insert(
             if b.flags & sys::BUF_FLAG_TIMESTAMP_MASK == sys::BUF_FLAG_TIMESTAMP_MONOTONIC {
                 Stamp::Driver {
