@@ -115,7 +115,11 @@ impl Capture {
         };
         let ctx = &cfg.ctx;
         let rig = &ctx.rig.name;
-        let source = stereoscope_sources::open(&ctx.rig, &cam)?;
+        // Under a launcher, the run's start (its session) gives its file sources one clock.
+        let run_start_ns = std::env::var(stereoscope_proto::names::SESSION_ENV)
+            .ok()
+            .and_then(|s| s.parse().ok());
+        let source = stereoscope_sources::open_in_run(&ctx.rig, &cam, run_start_ns)?;
         let (w, h) = source.size();
         let header0 = FrameHeader::new(&cam, source.format(), w, h).map_err(|source| {
             CaptureError::Header {

@@ -12,7 +12,7 @@ pub mod v4l2;
 pub mod y4m;
 
 pub use source::{BadFrame, FrameSource, Read, SourceError};
-use stereoscope_rig::schema::SourceSpec;
+use stereoscope_rig::schema::{ReplayClock, SourceSpec};
 use stereoscope_rig::{Rig, RigError, RigErrorKind};
 
 /// Why a camera's source could not be opened.
@@ -85,6 +85,51 @@ fn no_v4l(rig: &Rig, index: usize, device: &str) -> OpenError {
 /// Opens camera `camera`'s source as the rig file describes it, and checks its frame size
 /// against the rig's `image_size`.
 pub fn open(rig: &Rig, camera: &str) -> Result<Box<dyn FrameSource>, OpenError> {
+    open_in_run(rig, camera, None)
+}
+
+/// How long after a run's start its files' first frames are due: the launcher starts every
+/// service within it.
+pub const RUN_CLOCK_LEAD_NS: u64 = 2_000_000_000;
+
+/// The replay clock a rig's Y4M files share in a run that started at `run_start_ns` (the
+/// launcher's session): the earliest recorded time (`Xts`) of the first frames of the rig's
+/// files this PC can read — every capture computes the same — played from `RUN_CLOCK_LEAD_NS`
+/// after the start, each frame restamped (by its `Xts`, or by its index and the file's rate).
+pub fn run_clock(rig: &Rig, run_start_ns: u64) -> ReplayClock {
+    let recorded_ns = rig
+        .spec
+        .cameras
+        .iter()
+        .filter_map(|c| match &c.source {
+            Some(SourceSpec::Y4m {
+                path,
+                replay_clock: None,
+                ..
+            }) => y4m::first_frame_timestamp(&rig.source_path(path)),
+            _ => None,
+        })
+        .min()
+        .unwrap_or(0);
+    ReplayClock {
+        recorded_ns,
+        wall_ns: run_start_ns + RUN_CLOCK_LEAD_NS,
+        speed: 1.0,
+        restamp: true,
+    }
+}
+
+/// [`open`], in a run that started at `run_start_ns` (`None`: not under a launcher). In a run,
+/// a Y4M file paced in real time (`realtime`, the default, and not `repeat`) without a replay
+/// clock of its own plays on [`run_clock`]: files recorded together stay in step by their
+/// recorded times, and files without times by frame index, whatever the machine's load
+/// (each frame waits for its moment worker); otherwise each capture would start its file at
+/// its own moment and fusion pair frames a frame apart.
+pub fn open_in_run(
+    rig: &Rig,
+    camera: &str,
+    run_start_ns: Option<u64>,
+) -> Result<Box<dyn FrameSource>, OpenError> {
     let index = rig
         .camera_index(camera)
         .ok_or_else(|| OpenError::UnknownCamera {
@@ -121,11 +166,18 @@ pub fn open(rig: &Rig, camera: &str) -> Result<Box<dyn FrameSource>, OpenError> 
             realtime,
             repeat,
             replay_clock,
-        } => Box::new(
-            y4m::Y4mSource::open(&rel(path), *realtime, *repeat)
-                .map_err(wrap)?
-                .with_replay_clock(*replay_clock),
-        ),
+        } => {
+            let clock = match (replay_clock, run_start_ns) {
+                (Some(c), _) => Some(*c),
+                (None, Some(start)) if *realtime && !*repeat => Some(run_clock(rig, start)),
+                (None, _) => None,
+            };
+            Box::new(
+                y4m::Y4mSource::open(&rel(path), *realtime, *repeat)
+                    .map_err(wrap)?
+                    .with_replay_clock(clock),
+            )
+        }
         SourceSpec::Images {
             path,
             fps,

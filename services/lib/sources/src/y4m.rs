@@ -279,6 +279,21 @@ pub fn frame_timestamp(frame_line: &[u8]) -> Option<u64> {
     frame_parameter(frame_line, "Xts=")
 }
 
+/// The recorded time (`Xts`) of a Y4M file's first frame, if it has one and can be read.
+pub fn first_frame_timestamp(path: &std::path::Path) -> Option<u64> {
+    let file = File::open(path).ok()?;
+    let mut reader = BufReader::new(file);
+    let mut header = Vec::new();
+    // Bounded reads: a header or frame line is a few dozen bytes.
+    (&mut reader)
+        .take(4096)
+        .read_until(b'\n', &mut header)
+        .ok()?;
+    let mut line = Vec::new();
+    (&mut reader).take(4096).read_until(b'\n', &mut line).ok()?;
+    frame_timestamp(&line)
+}
+
 /// The live camera's sequence number a FRAME line carries as `Xseq=<n>` (the recorder's);
 /// a replay publishes the frame under it, so the moment workers schedule their thresholds and
 /// searches on the frames the live ones did.
