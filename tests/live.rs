@@ -2293,4 +2293,60 @@ fn files_without_times_run_in_step_by_frame_index() {
         got.len(),
         worst * 1e3
     );
+
+    // The same files offline (`process`): every frame, frame k of one camera with frame k of
+    // the other, each within 3 mm of the truth at k; the same bytes from a second run; a
+    // session `export` reads.
+    let sessions: Vec<std::path::PathBuf> = (0..2)
+        .map(|r| {
+            let out = dir.0.join(format!("processed{r}"));
+            let o = run_with_limit(
+                &["process", &path, "--out", out.to_str().unwrap(), "--json"],
+                Duration::from_secs(60),
+            );
+            assert!(o.status.success(), "{}", stderr(&o));
+            let v: serde_json::Value =
+                serde_json::from_str(String::from_utf8_lossy(&o.stdout).trim()).unwrap();
+            assert_eq!(v["frames"], N, "{v}");
+            eprintln!("process: {v}");
+            out
+        })
+        .collect();
+    let poses = std::fs::read_to_string(sessions[0].join("poses.jsonl")).unwrap();
+    assert_eq!(
+        poses,
+        std::fs::read_to_string(sessions[1].join("poses.jsonl")).unwrap(),
+        "two runs of process differ"
+    );
+    let mut fused = 0;
+    for line in poses.lines() {
+        let p = PoseFrame::from_json(line.as_bytes()).unwrap();
+        if p.poses.len() >= 3 {
+            fused += 1;
+            let e = rms_at(&p, p.sequence as usize);
+            assert!(
+                e < 0.003,
+                "processed frame {}: {:.1} mm",
+                p.sequence,
+                e * 1e3
+            );
+        }
+    }
+    assert!(
+        fused + 5 >= N,
+        "{fused} of {N} processed frames with the three targets"
+    );
+    let c3d = dir.0.join("processed.c3d");
+    let o = run_with_limit(
+        &[
+            "export",
+            sessions[0].to_str().unwrap(),
+            "--format",
+            "c3d",
+            "--out",
+            c3d.to_str().unwrap(),
+        ],
+        Duration::from_secs(30),
+    );
+    assert!(o.status.success(), "{}", stderr(&o));
 }

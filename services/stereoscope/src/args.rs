@@ -431,6 +431,38 @@ impl GrabArgs {
     }
 }
 
+/// `stereoscope process`: a rig's recorded video fused offline.
+#[derive(clap::Args, Debug)]
+pub struct ProcessArgs {
+    /// The rig file (its cameras' sources: Y4M files, image folders or the synthetic scene).
+    pub rig: PathBuf,
+    /// The session folder to write (session.json, poses.jsonl, observations.jsonl).
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Stop after this many frames of each camera.
+    #[arg(long)]
+    pub frames: Option<u64>,
+    /// Print the summary as JSON.
+    #[arg(long)]
+    pub json: bool,
+}
+
+impl ProcessArgs {
+    pub fn run(self) -> ExitCode {
+        let opts = stereoscope::process::ProcessOptions {
+            rig: self.rig,
+            out: self.out,
+            max_frames: self.frames,
+        };
+        finish(stereoscope::process::run(
+            &opts,
+            self.json,
+            &mut std::io::stdout().lock(),
+            &mut std::io::stderr().lock(),
+        ))
+    }
+}
+
 /// `stereoscope view`: the live view of a running rig.
 #[derive(clap::Args, Debug)]
 pub struct ViewArgs {

@@ -61,6 +61,9 @@ enum Command {
     /// Save frames of one camera (for calibration) and a preview of what its moment worker
     /// finds in them, to aim the camera and set its exposure.
     Grab(args::GrabArgs),
+    /// Fuse a rig's recorded video offline, as fast as the machine goes: every camera's file
+    /// (Y4M, images, the synthetic scene) frame by frame in step, into a session folder.
+    Process(args::ProcessArgs),
     /// Calibration targets to print.
     #[command(subcommand)]
     Target(TargetCommand),
@@ -189,6 +192,7 @@ fn main() -> ExitCode {
         Command::Calibrate(a) => a.run(),
         Command::Target(TargetCommand::DotGrid(a)) => a.run(),
         Command::Grab(a) => a.run(),
+        Command::Process(a) => a.run(),
         Command::Reproduce(a) => a.run(),
         Command::FitDepth(args::FitDepthArgs { samples, json }) => finish(
             fitdepth::run(
