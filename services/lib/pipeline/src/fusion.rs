@@ -74,6 +74,48 @@ impl FusionSettings {
 pub struct Fusion {
     pub fuser: Fuser,
     pub bodies: Bodies,
+    /// Move each camera's blobs to the set's instant before triangulating (on by default;
+    /// see [`Fusion::fuse`]).
+    pub interpolate: bool,
+    /// Each camera's last observation, as it came (for the interpolation).
+    last: Vec<Option<Observation>>,
+}
+
+/// Camera `o`'s blobs moved to `t_ns`: each blob tracked in `prev` too (same track id, neither
+/// lost nor merged) goes along the straight line between its two centroids, to where it was at
+/// `t_ns` — between the frames when `prev` is older than `t_ns`, as a set's instant (its oldest
+/// exposure) always is for a camera exposed after it. Blobs new in `o`, and an `o` at `t_ns`
+/// already, are left as they are.
+pub fn interpolated(o: &Observation, prev: Option<&Observation>, t_ns: u64) -> Observation {
+    let mut out = o.clone();
+    let Some(prev) = prev else {
+        return out;
+    };
+    if o.timestamp_ns <= t_ns || prev.timestamp_ns >= o.timestamp_ns {
+        return out;
+    }
+    let span = (o.timestamp_ns - prev.timestamp_ns) as f64;
+    let back = (o.timestamp_ns - t_ns) as f64 / span;
+    // Beyond the previous frame it would be extrapolation: not done.
+    if back > 1.0 {
+        return out;
+    }
+    use stereoscope_proto::messages::TrackState;
+    for b in out
+        .blobs
+        .iter_mut()
+        .filter(|b| b.status == TrackState::Tracked && !b.merged)
+    {
+        if let Some(p) = prev
+            .blobs
+            .iter()
+            .find(|p| p.track_id == b.track_id && p.status != TrackState::Lost && !p.merged)
+        {
+            b.x_px -= back * (b.x_px - p.x_px);
+            b.y_px -= back * (b.y_px - p.y_px);
+        }
+    }
+    out
 }
 
 impl Fusion {
@@ -82,6 +124,8 @@ impl Fusion {
         Fusion {
             fuser: Fuser::new(cameras, settings.fuser),
             bodies,
+            interpolate: true,
+            last: vec![None; cameras.len()],
         }
     }
 
@@ -94,16 +138,115 @@ impl Fusion {
 
     /// Fuses one set (`(rig camera index, observation)`, at `timestamp_ns`, its oldest
     /// exposure): the objects' poses (bodies' markers labelled) and the bodies' poses.
+    /// Cameras that are not synchronised expose at different instants: with `interpolate`,
+    /// each later camera's blobs are first moved back to the set's instant along their track
+    /// from that camera's previous frame ([`interpolated`]), so a moving marker is
+    /// triangulated from where every camera saw it at one instant.
     pub fn fuse(
         &mut self,
         set: &[(usize, Observation)],
         timestamp_ns: u64,
     ) -> (Vec<Pose>, Vec<BodyPose>) {
+        let moved: Vec<(usize, Observation)>;
+        let originals = set;
+        let set = if self.interpolate && set.iter().any(|(_, o)| o.timestamp_ns > timestamp_ns) {
+            moved = set
+                .iter()
+                .map(|(c, o)| {
+                    let prev = self.last.get(*c).and_then(|p| p.as_ref());
+                    (*c, interpolated(o, prev, timestamp_ns))
+                })
+                .collect();
+            &moved[..]
+        } else {
+            set
+        };
+        for (c, o) in originals {
+            if let Some(slot) = self.last.get_mut(*c) {
+                *slot = Some(o.clone());
+            }
+        }
         let mut poses = self.fuser.fuse(set, timestamp_ns);
         let found = self
             .bodies
             .update_refined(&mut poses, timestamp_ns, self.fuser.sightings());
         self.fuser.expect_unseen(timestamp_ns, found.unseen);
         (poses, found.bodies)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use stereoscope_proto::messages::{BlobObservation, SCHEMA_VERSION, TrackState};
+
+    fn obs(t_ns: u64, blobs: &[(u32, f64, TrackState)]) -> Observation {
+        Observation {
+            schema: SCHEMA_VERSION,
+            rig: "r".into(),
+            camera: "c".into(),
+            sequence: 0,
+            timestamp_ns: t_ns,
+            frame_published_ns: t_ns,
+            published_ns: t_ns,
+            width_px: 640,
+            height_px: 480,
+            threshold: 100,
+            dark: false,
+            full_frame: false,
+            dropped_blobs: 0,
+            blobs: blobs
+                .iter()
+                .map(|&(id, x, status)| BlobObservation {
+                    track_id: id,
+                    status,
+                    area_px: 20.0,
+                    x_px: x,
+                    y_px: 2.0 * x,
+                    mu20: 1.0,
+                    mu02: 1.0,
+                    mu11: 0.0,
+                    orientation_deg: 0.0,
+                    roundness: 1.0,
+                    heading_deg: 0.0,
+                    directed: false,
+                    heading_ambiguous: false,
+                    clipped: false,
+                    merged: false,
+                    window_px: [0, 0, 639, 479],
+                    bbox_px: [0, 0, 10, 10],
+                })
+                .collect(),
+        }
+    }
+
+    #[test]
+    fn blobs_move_back_along_their_track_to_the_sets_instant() {
+        let prev = obs(
+            1_000,
+            &[
+                (1, 100.0, TrackState::Tracked),
+                (2, 50.0, TrackState::Tracked),
+            ],
+        );
+        let now = obs(
+            2_000,
+            &[
+                (1, 110.0, TrackState::Tracked),
+                (2, 60.0, TrackState::New),
+                (3, 70.0, TrackState::Tracked),
+            ],
+        );
+        let at = interpolated(&now, Some(&prev), 1_250);
+        // Tracked in both: a quarter of the way from the previous centroid.
+        assert_eq!((at.blobs[0].x_px, at.blobs[0].y_px), (102.5, 205.0));
+        // New, or not in the previous frame: as seen.
+        assert_eq!(at.blobs[1].x_px, 60.0);
+        assert_eq!(at.blobs[2].x_px, 70.0);
+        // At the set's instant already, without a previous frame, or further back than it:
+        // unchanged.
+        assert_eq!(interpolated(&now, Some(&prev), 2_000), now);
+        assert_eq!(interpolated(&now, None, 1_250), now);
+        assert_eq!(interpolated(&now, Some(&prev), 500), now);
     }
 }

@@ -43,9 +43,13 @@ pub struct PairingConfig {
 /// Why [`Pairer::push`] refused an observation.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
 pub enum Refused {
-    #[error("stamped {ahead_ms} ms ahead of this PC's clock (more than {limit_ms} ms)")]
+    #[error(
+        "stamped {ahead_ms} ms ahead of this PC's clock (more than {limit_ms} ms): is its PC's clock synchronised with this one's (chrony, PTP)?"
+    )]
     Future { ahead_ms: u64, limit_ms: u64 },
-    #[error("stamped {behind_ms} ms behind this PC's clock (more than {limit_ms} ms)")]
+    #[error(
+        "stamped {behind_ms} ms behind this PC's clock (more than {limit_ms} ms): is its PC's clock synchronised with this one's (chrony, PTP), or is it replaying old times?"
+    )]
     Stale { behind_ms: u64, limit_ms: u64 },
 }
 
