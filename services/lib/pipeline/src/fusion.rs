@@ -77,42 +77,68 @@ pub struct Fusion {
     /// Move each camera's blobs to the set's instant before triangulating (on by default;
     /// see [`Fusion::fuse`]).
     pub interpolate: bool,
-    /// Each camera's last observation, as it came (for the interpolation).
-    last: Vec<Option<Observation>>,
+    /// Each camera's last two observations, as they came, the newer first (for the
+    /// interpolation).
+    last: Vec<[Option<Observation>; 2]>,
 }
 
 /// Camera `o`'s blobs moved to `t_ns`: each blob tracked in `prev` too (same track id, neither
-/// lost nor merged) goes along the straight line between its two centroids, to where it was at
-/// `t_ns` — between the frames when `prev` is older than `t_ns`, as a set's instant (its oldest
-/// exposure) always is for a camera exposed after it. Blobs new in `o`, and an `o` at `t_ns`
-/// already, are left as they are.
-pub fn interpolated(o: &Observation, prev: Option<&Observation>, t_ns: u64) -> Observation {
+/// lost nor merged) goes along its track to where it was at `t_ns` — between the frames when
+/// `prev` is older than `t_ns`, as a set's instant (its oldest exposure) always is for a camera
+/// exposed after it. Through the blob's centroids in `older`, `prev` and `o` where it was
+/// tracked in all three (a parabola: a marker swung round follows its curve), else along the
+/// straight line from `prev`. Blobs new in `o`, and an `o` at `t_ns` already, are left as they
+/// are; nothing is extrapolated beyond `prev`.
+pub fn interpolated(
+    o: &Observation,
+    prev: Option<&Observation>,
+    older: Option<&Observation>,
+    t_ns: u64,
+) -> Observation {
     let mut out = o.clone();
     let Some(prev) = prev else {
         return out;
     };
-    if o.timestamp_ns <= t_ns || prev.timestamp_ns >= o.timestamp_ns {
+    if o.timestamp_ns <= t_ns || prev.timestamp_ns >= o.timestamp_ns || t_ns < prev.timestamp_ns {
         return out;
     }
-    let span = (o.timestamp_ns - prev.timestamp_ns) as f64;
-    let back = (o.timestamp_ns - t_ns) as f64 / span;
-    // Beyond the previous frame it would be extrapolation: not done.
-    if back > 1.0 {
-        return out;
-    }
-    use stereoscope_proto::messages::TrackState;
+    use stereoscope_proto::messages::{BlobObservation, TrackState};
+    let same = |frame: &Observation, id: u32| -> Option<(f64, f64)> {
+        frame
+            .blobs
+            .iter()
+            .find(|p: &&BlobObservation| {
+                p.track_id == id && p.status != TrackState::Lost && !p.merged
+            })
+            .map(|p| (p.x_px, p.y_px))
+    };
+    // Times relative to `o`'s, seconds.
+    let dt = |frame: &Observation| (frame.timestamp_ns as f64 - o.timestamp_ns as f64) * 1e-9;
+    let (t, t1) = ((t_ns as f64 - o.timestamp_ns as f64) * 1e-9, dt(prev));
+    let t2 = older.filter(|f| f.timestamp_ns < prev.timestamp_ns).map(dt);
     for b in out
         .blobs
         .iter_mut()
         .filter(|b| b.status == TrackState::Tracked && !b.merged)
     {
-        if let Some(p) = prev
-            .blobs
-            .iter()
-            .find(|p| p.track_id == b.track_id && p.status != TrackState::Lost && !p.merged)
-        {
-            b.x_px -= back * (b.x_px - p.x_px);
-            b.y_px -= back * (b.y_px - p.y_px);
+        let Some((x1, y1)) = same(prev, b.track_id) else {
+            continue;
+        };
+        let (x0, y0) = (b.x_px, b.y_px);
+        match (older.and_then(|f| same(f, b.track_id)), t2) {
+            (Some((x2, y2)), Some(t2)) => {
+                // Lagrange through (0, p0), (t1, p1), (t2, p2).
+                let l0 = (t - t1) * (t - t2) / ((0.0 - t1) * (0.0 - t2));
+                let l1 = (t - 0.0) * (t - t2) / ((t1 - 0.0) * (t1 - t2));
+                let l2 = (t - 0.0) * (t - t1) / ((t2 - 0.0) * (t2 - t1));
+                b.x_px = l0 * x0 + l1 * x1 + l2 * x2;
+                b.y_px = l0 * y0 + l1 * y1 + l2 * y2;
+            }
+            _ => {
+                let back = t / t1;
+                b.x_px = x0 + back * (x1 - x0);
+                b.y_px = y0 + back * (y1 - y0);
+            }
         }
     }
     out
@@ -125,7 +151,7 @@ impl Fusion {
             fuser: Fuser::new(cameras, settings.fuser),
             bodies,
             interpolate: true,
-            last: vec![None; cameras.len()],
+            last: vec![[None, None]; cameras.len()],
         }
     }
 
@@ -153,8 +179,10 @@ impl Fusion {
             moved = set
                 .iter()
                 .map(|(c, o)| {
-                    let prev = self.last.get(*c).and_then(|p| p.as_ref());
-                    (*c, interpolated(o, prev, timestamp_ns))
+                    let last = self.last.get(*c);
+                    let prev = last.and_then(|l| l[0].as_ref());
+                    let older = last.and_then(|l| l[1].as_ref());
+                    (*c, interpolated(o, prev, older, timestamp_ns))
                 })
                 .collect();
             &moved[..]
@@ -162,8 +190,9 @@ impl Fusion {
             set
         };
         for (c, o) in originals {
-            if let Some(slot) = self.last.get_mut(*c) {
-                *slot = Some(o.clone());
+            if let Some(slots) = self.last.get_mut(*c) {
+                slots[1] = slots[0].take();
+                slots[0] = Some(o.clone());
             }
         }
         let mut poses = self.fuser.fuse(set, timestamp_ns);
@@ -237,16 +266,27 @@ mod tests {
                 (3, 70.0, TrackState::Tracked),
             ],
         );
-        let at = interpolated(&now, Some(&prev), 1_250);
+        let at = interpolated(&now, Some(&prev), None, 1_250);
         // Tracked in both: a quarter of the way from the previous centroid.
         assert_eq!((at.blobs[0].x_px, at.blobs[0].y_px), (102.5, 205.0));
+        // With the frame before: along the parabola through the three (x = t² here, in
+        // microseconds: 0 at 0, 1 at 1 000, 4 at 2 000; at 1 500, 2.25).
+        let older = obs(0, &[(1, 0.0, TrackState::Tracked)]);
+        let prev2 = obs(1_000, &[(1, 1.0, TrackState::Tracked)]);
+        let now2 = obs(2_000, &[(1, 4.0, TrackState::Tracked)]);
+        let curved = interpolated(&now2, Some(&prev2), Some(&older), 1_500);
+        assert!(
+            (curved.blobs[0].x_px - 2.25).abs() < 1e-9,
+            "{}",
+            curved.blobs[0].x_px
+        );
         // New, or not in the previous frame: as seen.
         assert_eq!(at.blobs[1].x_px, 60.0);
         assert_eq!(at.blobs[2].x_px, 70.0);
         // At the set's instant already, without a previous frame, or further back than it:
         // unchanged.
-        assert_eq!(interpolated(&now, Some(&prev), 2_000), now);
-        assert_eq!(interpolated(&now, None, 1_250), now);
-        assert_eq!(interpolated(&now, Some(&prev), 500), now);
+        assert_eq!(interpolated(&now, Some(&prev), None, 2_000), now);
+        assert_eq!(interpolated(&now, None, None, 1_250), now);
+        assert_eq!(interpolated(&now, Some(&prev), None, 500), now);
     }
 }
