@@ -272,6 +272,22 @@ fn push_target(prims: &mut Vec<Placed>, i: usize, t: &Target) {
                 radius,
             });
         }
+        Shape::Dots { dots } => {
+            for (offset, r) in dots {
+                let world_from_dot = t.world_from_body * nalgebra::Translation3::from(*offset);
+                let c = world_from_dot * Point3::origin();
+                prims.push(Placed {
+                    prim: Primitive::Disc {
+                        world_from_body: world_from_dot,
+                        radius: *r,
+                    },
+                    owner,
+                    contrast: t.contrast,
+                    centre: c,
+                    radius: *r,
+                });
+            }
+        }
         _ => {
             for (offset, r) in t.shape.spheres() {
                 let c = t.world_from_body * Point3::from(offset);

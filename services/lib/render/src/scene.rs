@@ -22,6 +22,8 @@ pub enum Shape {
     Rectangle { half_x_m: f64, half_y_m: f64 },
     /// Spheres at offsets in the body frame (a multi-marker rigid body).
     Markers { spheres: Vec<(Vector3<f64>, f64)> },
+    /// Flat dots in the body's xy plane (a calibration dot grid): centre and radius of each.
+    Dots { dots: Vec<(Vector3<f64>, f64)> },
 }
 
 impl Shape {
@@ -37,7 +39,7 @@ impl Shape {
                 ]
             }
             Shape::Markers { spheres } => spheres.clone(),
-            Shape::Disc { .. } | Shape::Rectangle { .. } => Vec::new(),
+            Shape::Disc { .. } | Shape::Rectangle { .. } | Shape::Dots { .. } => Vec::new(),
         }
     }
 
@@ -50,10 +52,9 @@ impl Shape {
             Shape::Rectangle { half_x_m, half_y_m } => {
                 (half_x_m * half_x_m + half_y_m * half_y_m).sqrt()
             }
-            Shape::Markers { spheres } => spheres
-                .iter()
-                .map(|(c, r)| c.norm() + r)
-                .fold(0.0, f64::max),
+            Shape::Markers { spheres: parts } | Shape::Dots { dots: parts } => {
+                parts.iter().map(|(c, r)| c.norm() + r).fold(0.0, f64::max)
+            }
         }
     }
 }

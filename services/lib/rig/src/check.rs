@@ -590,6 +590,39 @@ fn check_synthetic(s: &SyntheticSpec, bodies: &[BodySpec]) -> Result<(), RigErro
                 in_range(&format!("{mkey}.nod_deg"), *nod_deg, 0.0, 80.0, "degrees")?;
             }
         }
+        match (t.shape, &t.grid) {
+            (TargetShape::DotGrid, None) => {
+                return Err(err(
+                    format!("{key}.grid"),
+                    "missing: a target of shape \"dot_grid\" gives { cols, rows, spacing }",
+                ));
+            }
+            (TargetShape::DotGrid, Some(g)) => {
+                if !(2..=40).contains(&g.cols) || !(2..=40).contains(&g.rows) {
+                    return Err(err(
+                        format!("{key}.grid"),
+                        format!("{} x {} dots: 2 to 40 each way", g.cols, g.rows),
+                    ));
+                }
+                positive_at_most(&format!("{key}.grid.spacing"), g.spacing, 1e6, "units")?;
+                if !(t.radius > 0.0 && t.radius < g.spacing / 3.0) {
+                    return Err(err(
+                        format!("{key}.radius"),
+                        format!(
+                            "{}: a dot's radius is above 0 and under a third of the spacing ({})",
+                            t.radius, g.spacing
+                        ),
+                    ));
+                }
+            }
+            (_, Some(_)) => {
+                return Err(err(
+                    format!("{key}.grid"),
+                    "only a target of shape \"dot_grid\" has a grid",
+                ));
+            }
+            (_, None) => {}
+        }
         match (t.shape, &t.body) {
             (TargetShape::Body, Some(name)) if !bodies.iter().any(|b| &b.name == name) => {
                 return Err(err(
@@ -654,5 +687,43 @@ mod tests {
         ))
         .unwrap_err();
         assert_eq!(e.key, "camera[0].source.controls.White Balance", "{e}");
+    }
+}
+
+#[cfg(test)]
+mod dot_grid_tests {
+    fn rig(target: &str) -> String {
+        format!(
+            "name = \"t\"\nunits = \"cm\"\n[[camera]]\nid = \"c\"\nimage_size = [640, 480]\n\
+             focal_length_mm = 4.0\npixel_pitch_um = [3.0, 3.0]\n\
+             pose = {{ position = [0.0, 0.0, 200.0], look_at = [0.0, 0.0, 0.0], up = [0.0, 1.0, 0.0] }}\n\
+             source = {{ kind = \"synthetic\", fps = 30.0 }}\n[synthetic]\n[[synthetic.target]]\n{target}\n\
+             motion = {{ kind = \"static\", position = [0.0, 0.0, 100.0] }}\n"
+        )
+    }
+
+    #[test]
+    fn a_dot_grid_target_needs_its_grid_and_dots_that_fit_it() {
+        crate::Rig::from_toml(&rig(
+            "shape = \"dot_grid\"\nradius = 0.5\ngrid = { cols = 7, rows = 5, spacing = 2.7 }",
+        ))
+        .unwrap();
+        let key = |t: &str| crate::Rig::from_toml(&rig(t)).unwrap_err().key;
+        assert_eq!(
+            key("shape = \"dot_grid\"\nradius = 0.5"),
+            "synthetic.target[0].grid"
+        );
+        assert_eq!(
+            key("shape = \"dot_grid\"\nradius = 1.0\ngrid = { cols = 7, rows = 5, spacing = 2.7 }"),
+            "synthetic.target[0].radius"
+        );
+        assert_eq!(
+            key("shape = \"dot_grid\"\nradius = 0.5\ngrid = { cols = 1, rows = 5, spacing = 2.7 }"),
+            "synthetic.target[0].grid"
+        );
+        assert_eq!(
+            key("shape = \"sphere\"\nradius = 0.5\ngrid = { cols = 7, rows = 5, spacing = 2.7 }"),
+            "synthetic.target[0].grid"
+        );
     }
 }

@@ -57,6 +57,28 @@ pub fn actors(spec: &SyntheticSpec, bodies: &[BodySpec], scale: f64) -> Vec<(Act
                     },
                     true,
                 ),
+                // The rig's check makes sure the grid is given; the origin dot (column 0, row
+                // 0) 1.5× the others, as `target dot-grid` prints it.
+                TargetShape::DotGrid => {
+                    let g = t.grid.unwrap_or(stereoscope_rig::schema::GridSpec {
+                        cols: 2,
+                        rows: 2,
+                        spacing: 1.0,
+                    });
+                    let s = g.spacing * scale;
+                    let (cx, cy) = ((g.cols - 1) as f64 * s / 2.0, (g.rows - 1) as f64 * s / 2.0);
+                    let dots = (0..g.rows)
+                        .flat_map(|j| (0..g.cols).map(move |i| (i, j)))
+                        .map(|(i, j)| {
+                            let radius = if (i, j) == (0, 0) { 1.5 * r } else { r };
+                            (
+                                Vector3::new(i as f64 * s - cx, j as f64 * s - cy, 0.0),
+                                radius,
+                            )
+                        })
+                        .collect();
+                    (Shape::Dots { dots }, true)
+                }
                 // The rig's check makes sure the body exists.
                 TargetShape::Body => {
                     let markers = t

@@ -174,6 +174,19 @@ pub enum TargetShape {
     /// A flat rectangle facing up, `radius` half its length and half as wide as long (2:1; the
     /// thesis's helmet target), its length along the heading.
     Rectangle,
+    /// A calibration dot grid (what `stereoscope target dot-grid` prints): `grid`'s columns and
+    /// rows of flat dots of `radius`, `grid.spacing` apart, the origin dot 1.5× larger, centred
+    /// on the target's position in its xy plane (white dots on the dark background).
+    DotGrid,
+}
+
+/// A synthetic dot grid's layout (`[[synthetic.target]] grid`), in the file's unit.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct GridSpec {
+    pub cols: u32,
+    pub rows: u32,
+    pub spacing: f64,
 }
 
 /// The form of a single-camera depth-from-area model (thesis Eq. 4.15–4.27).
@@ -624,6 +637,9 @@ pub struct SyntheticTarget {
     /// Brightness above the background, grey levels (default 180).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub contrast: Option<f64>,
+    /// For shape "dot_grid": its columns, rows and spacing.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub grid: Option<GridSpec>,
     pub motion: MotionSpec,
 }
 
