@@ -49,7 +49,7 @@ pub enum SourceError {
     Control {
         device: String,
         control: String,
-        problem: String,
+        problem: ControlProblem,
     },
     #[error("the rig file has no [synthetic] scene")]
     NoScene,
@@ -90,6 +90,21 @@ pub enum FormatProblem {
         got: f64,
         size_px: (u32, u32),
     },
+}
+
+/// What is wrong with a control the rig sets on a V4L2 camera.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum ControlProblem {
+    #[error("the camera has no such control; it has {known:?}")]
+    Unknown { known: Vec<String> },
+    #[error(
+        "{item:?} is a menu item's name, and this control is not a menu (a number from {min} to {max})"
+    )]
+    NotAMenu { item: String, min: i64, max: i64 },
+    #[error("no menu item {item:?}; the items are {items:?}")]
+    NoSuchItem { item: String, items: Vec<String> },
+    #[error("{value} is outside the control's {min} to {max}")]
+    OutOfRange { value: String, min: i64, max: i64 },
 }
 
 /// Why one frame was skipped.

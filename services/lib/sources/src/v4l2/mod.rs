@@ -18,7 +18,7 @@
 
 pub(crate) mod sys;
 
-use crate::source::{BadFrame, FormatProblem, FrameSource, Read, SourceError};
+use crate::source::{BadFrame, ControlProblem, FormatProblem, FrameSource, Read, SourceError};
 use std::os::fd::{AsRawFd, FromRawFd, OwnedFd};
 use stereoscope_proto::frame::PixelFormat;
 use stereoscope_rig::schema::ControlValue;
@@ -519,7 +519,7 @@ fn control_value(
     known: &[sys::QueryCtrl],
     name: &str,
     value: &ControlValue,
-) -> Result<(u32, i64), String> {
+) -> Result<(u32, i64), ControlProblem> {
     let Some(q) = known
         .iter()
         .find(|q| control_name(&sys::c_name(&q.name)) == name)
@@ -529,7 +529,7 @@ fn control_value(
             .map(|q| control_name(&sys::c_name(&q.name)))
             .filter(|n| !n.is_empty())
             .collect();
-        return Err(format!("the camera has no such control; it has {names:?}"));
+        return Err(ControlProblem::Unknown { known: names });
     };
     let (min, max) = (q.minimum as i64, q.maximum as i64);
     let v = match value {
@@ -537,10 +537,11 @@ fn control_value(
         ControlValue::Integer(i) => *i,
         ControlValue::Item(item) => {
             if q.type_ != sys::CTRL_TYPE_MENU {
-                return Err(format!(
-                    "{item:?} is a menu item's name, and this control is not a menu (a number \
-                     from {min} to {max})"
-                ));
+                return Err(ControlProblem::NotAMenu {
+                    item: item.clone(),
+                    min,
+                    max,
+                });
             }
             let mut items = Vec::new();
             for index in q.minimum.max(0)..=q.maximum.min(255) {
@@ -555,11 +556,18 @@ fn control_value(
                     items.push(text);
                 }
             }
-            return Err(format!("no menu item {item:?}; the items are {items:?}"));
+            return Err(ControlProblem::NoSuchItem {
+                item: item.clone(),
+                items,
+            });
         }
     };
     if !(min..=max).contains(&v) {
-        return Err(format!("{value} is outside the control's {min} to {max}"));
+        return Err(ControlProblem::OutOfRange {
+            value: value.to_string(),
+            min,
+            max,
+        });
     }
     Ok((q.id, v))
 }
