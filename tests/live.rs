@@ -49,7 +49,7 @@ fn one_pc_rig_of(dir: &TempDir, tag: char, base: &str) -> (String, u16) {
 fn demo_rig_without_helmet() -> String {
     let rig = std::fs::read_to_string(repo_root().join("deploy/rigs/demo.toml")).unwrap();
     let cut = rig.rfind("[[synthetic.target]]").unwrap();
-    let rig = rig[..cut].replace("[vr]\nvrpn = {}\nvmt = {}\nopentrack = {}\n", "");
+    let rig = rig[..cut].replace(common::DEMO_VR, "");
     assert!(!rig.contains("[vr]"), "the demo rig's [vr] section changed");
     rig
 }
@@ -318,6 +318,22 @@ fn bad_rig_files_are_named_and_nothing_starts() {
 
 /// Every rule of the rig's checks, broken one at a time: `stereoscope run` refuses the rig at
 /// once (no service starts, nothing is retried), exits non-zero and names the key and value.
+/// `demo --view` whose address another program holds fails at once, naming the address,
+/// rather than printing a URL that opens the other program's page.
+#[test]
+fn a_taken_view_address_fails_the_demo() {
+    let squatter = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+    let at = squatter.local_addr().unwrap().to_string();
+    let out = run_with_limit(
+        &["demo", "--seconds", "1", "--view", "--view-listen", &at],
+        Duration::from_secs(30),
+    );
+    assert!(!out.status.success());
+    let e = stderr(&out);
+    assert!(e.contains(&at) && e.contains("--view-listen"), "{e}");
+    assert!(!e.contains("Live view: http"), "{e}");
+}
+
 #[test]
 fn every_rig_rule_is_refused_at_start_with_its_key() {
     let _serial = serial();
@@ -1876,7 +1892,7 @@ fn a_masked_lamp_and_reflection_are_ignored_and_a_marker_still_tracked() {
     let dir = TempDir::new("mask");
     let demo = demo_rig();
     let cut = demo.find("[[synthetic.target]]").unwrap();
-    let base = demo[..cut].replace("[vr]\nvrpn = {}\nvmt = {}\nopentrack = {}\n", "");
+    let base = demo[..cut].replace(common::DEMO_VR, "");
     // cm: a lamp 60 cm up and a reflection on the floor, both inside both views.
     let lamps = "[[synthetic.target]]\nshape = \"sphere\"\nradius = 4.0\ncontrast = 220.0\nmotion = { kind = \"static\", position = [40.0, 30.0, 60.0] }\n\n[[synthetic.target]]\nshape = \"disc\"\nradius = 6.0\ncontrast = 90.0\nmotion = { kind = \"static\", position = [-35.0, -25.0, 0.0] }\n";
     let near = |p: &[f64; 3], q: [f64; 3]| {

@@ -125,6 +125,9 @@ pub struct DemoSummary {
     /// microseconds (`None` without a VR feed).
     pub vr_latency_p50_us: Option<f64>,
     pub vr_latency_p99_us: Option<f64>,
+    /// The feed's servers (VRPN, NatNet, Qualisys RT) by their state in its last health report
+    /// (`listening`, `port in use`), with the reason when one is not listening.
+    pub servers: Vec<ServerState>,
     pub restarts: u32,
     /// What the services' last health reports say they lost (frames dropped and which,
     /// inputs rejected, observations late): where a missed target can be traced to.
@@ -164,7 +167,7 @@ impl DemoSummary {
             .collect();
         let opt = |v: Option<f64>| v.map_or("null".to_string(), |v| json_number(v, 1));
         format!(
-            "{{\"seconds\":{:.3},\"pose_frames\":{},\"poses_per_s\":{:.2},\"latency_p50_ms\":{},\"latency_p99_ms\":{},\"exposure_latency_p50_ms\":{},\"position_rms_m\":{},\"heading_rms_deg\":{},\"complete_frames\":{},\"ghost_poses\":{},\"ghosts\":{},\"restarts\":{},\"targets\":[{}],\"bodies\":[{}],\"vr_latency_p50_us\":{},\"vr_latency_p99_us\":{},\"losses\":{}}}",
+            "{{\"seconds\":{:.3},\"pose_frames\":{},\"poses_per_s\":{:.2},\"latency_p50_ms\":{},\"latency_p99_ms\":{},\"exposure_latency_p50_ms\":{},\"position_rms_m\":{},\"heading_rms_deg\":{},\"complete_frames\":{},\"ghost_poses\":{},\"ghosts\":{},\"restarts\":{},\"targets\":[{}],\"bodies\":[{}],\"vr_latency_p50_us\":{},\"vr_latency_p99_us\":{},\"servers\":{},\"losses\":{}}}",
             self.seconds,
             self.pose_frames,
             self.poses_per_s,
@@ -183,9 +186,17 @@ impl DemoSummary {
             bodies.join(","),
             opt(self.vr_latency_p50_us),
             opt(self.vr_latency_p99_us),
+            serde_json::to_string(&self.servers).unwrap_or_else(|_| "[]".into()),
             serde_json::to_string(&self.losses).unwrap_or_else(|_| "[]".into())
         )
     }
+}
+
+/// One of the feed's servers as its health last told.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct ServerState {
+    pub protocol: String,
+    pub state: String,
 }
 
 /// How many ghosts the summary describes.
@@ -624,12 +635,36 @@ fn watch(
             .collect(),
         vr_latency_p50_us: vr_detail(&health, Detail::LatencyP50Us),
         vr_latency_p99_us: vr_detail(&health, Detail::LatencyP99Us),
+        servers: server_states(&health),
         restarts: 0,
         losses: health
             .lock()
             .map(|m| m.values().flat_map(Health::losses).collect())
             .unwrap_or_default(),
     })
+}
+
+/// The feed's servers and their states, from its last health report.
+fn server_states(health: &Mutex<BTreeMap<String, Health>>) -> Vec<ServerState> {
+    let Ok(m) = health.lock() else {
+        return Vec::new();
+    };
+    let Some(h) = m.get("vrfeed") else {
+        return Vec::new();
+    };
+    [
+        ("VRPN", Detail::Vrpn),
+        ("NatNet", Detail::Natnet),
+        ("Qualisys RT", Detail::Qualisys),
+    ]
+    .into_iter()
+    .filter_map(|(protocol, key)| {
+        Some(ServerState {
+            protocol: protocol.into(),
+            state: h.detail(key)?.to_string(),
+        })
+    })
+    .collect()
 }
 
 /// A number from the VR feed's last health report.

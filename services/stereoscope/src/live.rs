@@ -106,11 +106,28 @@ pub fn summary_text(s: &DemoSummary) -> String {
             ));
         }
     }
+    let listening: Vec<&str> = s
+        .servers
+        .iter()
+        .filter(|v| v.state == "listening")
+        .map(|v| v.protocol.as_str())
+        .collect();
     if let (Some(p50), Some(p99)) = (s.vr_latency_p50_us, s.vr_latency_p99_us) {
         out.push_str(&format!(
-            "  VR feed, frame published → sent (VRPN, VMT, opentrack): p50 {:.2} ms, p99 {:.2} ms\n",
+            "  feed, frame published → sent (servers listening: {}): p50 {:.2} ms, p99 {:.2} ms\n",
+            if listening.is_empty() {
+                "none".to_string()
+            } else {
+                listening.join(", ")
+            },
             p50 / 1000.0,
             p99 / 1000.0
+        ));
+    }
+    for v in s.servers.iter().filter(|v| v.state != "listening") {
+        out.push_str(&format!(
+            "  {} is not listening: {} (see `stereoscope status`)\n",
+            v.protocol, v.state
         ));
     }
     if s.restarts > 0 {
@@ -142,6 +159,13 @@ pub fn demo(
     };
     let work_dir = std::env::temp_dir().join(format!("stereoscope-demo-{}", std::process::id()));
     if let Some(a) = view {
+        // Another program on the port would be the page the URL opens: refuse before
+        // starting rather than print its address.
+        std::net::TcpListener::bind(a).map_err(|e| {
+            anyhow::anyhow!(
+                "--view-listen {a}: the live view cannot listen there: {e} (another program has the port; give --view-listen another address)"
+            )
+        })?;
         eprintln!("Live view: http://{a}/ (open it in a browser)");
     }
     let summary = stereoscope_demo::run(
