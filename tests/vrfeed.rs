@@ -25,23 +25,18 @@ fn free_port() -> u16 {
 const AT: [f64; 3] = [-0.10, 0.30, 0.60];
 const HEADING_DEG: f64 = 30.0;
 
-/// The demo rig with its moving targets replaced by the helmet standing still, and the VR feed
-/// on this test's ports.
-fn rig(dir: &TempDir, router: u16, vrpn: u16, vmt: u16, vmc: u16, opentrack: u16) -> String {
+/// The demo rig with its moving targets replaced by the helmet standing still, its `[vr]`
+/// section `vr` (this test's ports), its router on `router`, its iceoryx2 names under `tag`.
+fn rig(dir: &TempDir, router: u16, vr: &str, tag: &str) -> String {
     let demo = std::fs::read_to_string(repo_root().join("deploy/rigs/demo.toml")).unwrap();
     let scene = demo.split("[[synthetic.target]]").next().unwrap();
-    let scene = scene.replace(
-        "[vr]\nvrpn = {}\nvmt = {}\nopentrack = {}\n",
-        &format!(
-            "[vr]\nvrpn = {{ listen = \"127.0.0.1:{vrpn}\" }}\nvmt = {{ send_to = \"127.0.0.1:{vmt}\" }}\nvmc = {{ send_to = \"127.0.0.1:{vmc}\" }}\nopentrack = {{ send_to = \"127.0.0.1:{opentrack}\" }}\n"
-        ),
-    );
     assert!(
-        scene.contains(&format!(":{vrpn}")),
+        scene.contains(common::DEMO_VR),
         "the demo rig's [vr] section changed"
     );
+    let scene = scene.replace(common::DEMO_VR, vr);
     let text = format!(
-        "{scene}[[synthetic.target]]\nshape = \"body\"\nbody = \"head\"\nradius = 1.0\nmotion = {{ kind = \"static\", position = [{}, {}, {}], heading_deg = {HEADING_DEG} }}\n\n[[host]]\nname = \"pc\"\nzenoh_listen = [\"tcp/127.0.0.1:{router}\"]\niceoryx2_prefix = \"stsc_v{}_\"\n",
+        "{scene}[[synthetic.target]]\nshape = \"body\"\nbody = \"head\"\nradius = 1.0\nmotion = {{ kind = \"static\", position = [{}, {}, {}], heading_deg = {HEADING_DEG} }}\n\n[[host]]\nname = \"pc\"\nzenoh_listen = [\"tcp/127.0.0.1:{router}\"]\niceoryx2_prefix = \"stsc_{tag}{}_\"\n",
         AT[0] * 100.0,
         AT[1] * 100.0,
         AT[2] * 100.0,
@@ -98,45 +93,32 @@ fn every_protocol_gets_the_known_body_pose_in_its_own_frame() {
         free_port(),
         free_port(),
     );
-    let path = rig(&dir, router, vrpn, vmt, vmc, opentrack);
+    let path = rig(
+        &dir,
+        router,
+        &format!(
+            "[vr]\nvrpn = {{ listen = \"127.0.0.1:{vrpn}\" }}\nvmt = {{ send_to = \"127.0.0.1:{vmt}\" }}\nvmc = {{ send_to = \"127.0.0.1:{vmc}\" }}\nopentrack = {{ send_to = \"127.0.0.1:{opentrack}\" }}\n"
+        ),
+        "v",
+    );
     // Another program holds the VRPN port when the feed starts.
     let squatter = std::net::TcpListener::bind(("127.0.0.1", vrpn)).unwrap();
-    let mut launcher = Proc::start(&["run", &path]);
-    let session = {
-        let spec = ZenohSpec::client_of(&format!("tcp/127.0.0.1:{router}"));
-        let end = Instant::now() + Duration::from_secs(20);
-        loop {
-            match net::open(&spec) {
-                Ok(s) => break s,
-                Err(e) if Instant::now() > end => panic!("no router: {e}"),
-                Err(_) => std::thread::sleep(Duration::from_millis(100)),
-            }
-        }
-    };
+    let run = Running::start(&dir, &path, router);
     let (tx, rx) = std::sync::mpsc::sync_channel::<PoseFrame>(1024);
-    let _poses = net::subscribe(&session, &keys::poses("demo"), move |_, b| {
+    let _poses = net::subscribe(&run.session, &keys::poses("demo"), move |_, b| {
         if let Ok(p) = PoseFrame::from_json(b) {
             let _ = tx.try_send(p);
         }
     })
     .unwrap();
-    let health = std::sync::Arc::new(std::sync::Mutex::new(None::<Health>));
-    let sink = health.clone();
-    let _health = net::subscribe(&session, &keys::all_health("demo"), move |_, b| {
-        if let Ok(h) = Health::from_json(b)
-            && h.service == "vrfeed"
-        {
-            *sink.lock().unwrap() = Some(h);
-        }
-    })
-    .unwrap();
+    let health = run.health.clone();
     // The body is found: measured (not held) with all four markers.
     let end = Instant::now() + Duration::from_secs(40);
     let body = loop {
         assert!(
             Instant::now() < end,
             "no body in 40 s:\n{}",
-            launcher.output()
+            run.launcher.output()
         );
         if let Ok(p) = rx.recv_timeout(Duration::from_millis(200))
             && let Some(b) = p.bodies.iter().find(|b| b.name == "head" && !b.held)
@@ -282,7 +264,454 @@ fn every_protocol_gets_the_known_body_pose_in_its_own_frame() {
         assert!(Instant::now() < end, "vrfeed health: {h:?}");
         std::thread::sleep(Duration::from_millis(100));
     }
+    let mut launcher = run.launcher;
     launcher.stop();
     let log = launcher.output();
     assert!(!log.contains("restarted vrfeed"), "{log}");
+}
+
+/// The rig running, with what a test watches: the feed's trace (every frame it sent) and its
+/// last health.
+struct Running {
+    launcher: Proc,
+    trace: std::path::PathBuf,
+    health: std::sync::Arc<std::sync::Mutex<Option<Health>>>,
+    session: zenoh::Session,
+    _subscriber: net::NetSubscriber,
+}
+
+/// One body pose the feed sent, from its trace: exposure (ns), measured in that frame,
+/// position (m) and quaternion (x, y, z, w) in the world frame.
+struct Sent {
+    exposure_ns: u64,
+    measured: bool,
+    position: Vec<f64>,
+    quat: Vec<f64>,
+}
+
+impl Running {
+    fn start(dir: &TempDir, path: &str, router: u16) -> Running {
+        let trace = dir.0.join("trace.jsonl");
+        let launcher = Proc::start_program(
+            std::path::Path::new(env!("CARGO_BIN_EXE_stereoscope")),
+            &["run", path],
+            &[("STEREOSCOPE_VR_TRACE", trace.to_str().unwrap())],
+        );
+        let spec = ZenohSpec::client_of(&format!("tcp/127.0.0.1:{router}"));
+        let end = Instant::now() + Duration::from_secs(20);
+        let session = loop {
+            match net::open(&spec) {
+                Ok(s) => break s,
+                Err(e) if Instant::now() > end => panic!("no router: {e}"),
+                Err(_) => std::thread::sleep(Duration::from_millis(100)),
+            }
+        };
+        let health = std::sync::Arc::new(std::sync::Mutex::new(None::<Health>));
+        let h = health.clone();
+        let subscriber = net::subscribe(&session, &keys::all_health("demo"), move |_, b| {
+            if let Ok(x) = Health::from_json(b)
+                && x.service == "vrfeed"
+            {
+                *h.lock().unwrap() = Some(x);
+            }
+        })
+        .unwrap();
+        let r = Running {
+            launcher,
+            trace,
+            health,
+            session,
+            _subscriber: subscriber,
+        };
+        let end = Instant::now() + Duration::from_secs(40);
+        while r.sent().iter().filter(|s| s.measured).count() < 5 {
+            assert!(
+                Instant::now() < end,
+                "no measured body sent in 40 s:\n{}",
+                r.launcher.output()
+            );
+            std::thread::sleep(Duration::from_millis(100));
+        }
+        r
+    }
+
+    /// Every body pose the feed has sent so far (whole lines of its trace).
+    fn sent(&self) -> Vec<Sent> {
+        Running::sent_in(&self.trace)
+    }
+
+    fn sent_in(trace: &std::path::Path) -> Vec<Sent> {
+        let text = std::fs::read_to_string(trace).unwrap_or_default();
+        let mut out = Vec::new();
+        for line in text.lines() {
+            let Ok(v) = serde_json::from_str::<serde_json::Value>(line) else {
+                continue;
+            };
+            let exposure_ns = v["exposure_ns"].as_u64().unwrap();
+            for b in v["bodies"].as_array().into_iter().flatten() {
+                let b = b.as_array().unwrap();
+                let n: Vec<f64> = b[2..].iter().map(|x| x.as_f64().unwrap()).collect();
+                out.push(Sent {
+                    exposure_ns,
+                    measured: b[1] == true,
+                    position: n[..3].to_vec(),
+                    quat: n[3..].to_vec(),
+                });
+            }
+        }
+        out
+    }
+
+    /// Waits (bounded) until the feed's health satisfies `pred`.
+    fn health_until(&self, what: &str, pred: impl Fn(&Health) -> bool) -> Health {
+        let end = Instant::now() + Duration::from_secs(10);
+        loop {
+            let h = self.health.lock().unwrap().clone();
+            if let Some(h) = h.as_ref().filter(|h| pred(h)) {
+                return h.clone();
+            }
+            assert!(Instant::now() < end, "vrfeed health never {what}: {h:?}");
+            std::thread::sleep(Duration::from_millis(100));
+        }
+    }
+}
+
+/// A quaternion (x, y, z, w) from a rotation matrix given column by column.
+fn quat_of_columns(m: &[f64]) -> [f64; 4] {
+    let r = nalgebra::Matrix3::from_column_slice(m);
+    let q = nalgebra::UnitQuaternion::from_matrix(&r);
+    [q.i, q.j, q.k, q.w]
+}
+
+/// How many of `poses` (world frame, metres) are, within 0.1 mm and 0.01°, one of `reference`:
+/// the same frame, sent by another protocol.
+fn matched(reference: &[(Vec<f64>, Vec<f64>)], poses: &[(Vec<f64>, [f64; 4])]) -> usize {
+    poses
+        .iter()
+        .filter(|(p, q)| {
+            reference.iter().any(|(vp, vq)| {
+                let d = (0..3).map(|i| (p[i] - vp[i]).powi(2)).sum::<f64>().sqrt();
+                // The angle between the rotations from the chord between the quaternions (either
+                // sign): well conditioned near zero, where 2·acos(q·q') is not.
+                let chord = |sign: f64| {
+                    (0..4)
+                        .map(|i| (q[i] - sign * vq[i]).powi(2))
+                        .sum::<f64>()
+                        .sqrt()
+                };
+                let c = chord(1.0).min(chord(-1.0));
+                let angle = (4.0 * (c / 2.0).min(1.0).asin()).to_degrees();
+                d <= 1e-4 && angle <= 0.01
+            })
+        })
+        .count()
+}
+
+/// Opens `n` TCP connections to `addr` at once, then closes them; returns how many the server
+/// took before closing any (refused ones read end-of-file at once).
+fn connection_burst(addr: std::net::SocketAddr, n: usize) -> usize {
+    // SAFETY: raising this process's own descriptor limit to its hard limit.
+    unsafe {
+        let mut l = libc::rlimit {
+            rlim_cur: 0,
+            rlim_max: 0,
+        };
+        if libc::getrlimit(libc::RLIMIT_NOFILE, &mut l) == 0 && l.rlim_cur < l.rlim_max {
+            l.rlim_cur = l.rlim_max.min(65536);
+            libc::setrlimit(libc::RLIMIT_NOFILE, &l);
+        }
+    }
+    let mut open = Vec::new();
+    for _ in 0..n {
+        match TcpStream::connect_timeout(&addr, Duration::from_secs(2)) {
+            Ok(s) => open.push(s),
+            Err(e) => panic!("connection {} of {n}: {e}", open.len()),
+        }
+    }
+    open.len()
+}
+
+/// NatNet (OptiTrack), and Qualisys RT read by clients the project did not write, against the
+/// VRPN feed's poses: libmotioncapture's `optitrack` backend and OptiTrack's own Python client
+/// (`natnetsdk`) over multicast, Qualisys's `qtm-rt` SDK and libmotioncapture's `qualisys`
+/// backend (Qualisys's C++ SDK). Each must receive the body at the rig's rate, in its
+/// protocol's frame and unit, every pose one the VRPN client also received (within 0.1 mm and
+/// 0.01°), stamped with the exposure fusion published. Hostile peers come first and stay
+/// during the run: NatNet garbage, 1,000 Qualisys connections, garbage, a header claiming a
+/// gigabyte, a half-sent header, a client that streams and never reads.
+#[test]
+fn lab_clients_read_the_pose_the_vrpn_feed_sends() {
+    let dir = TempDir::new("labfeeds");
+    let (router, vrpn, natnet, data, qualisys) = (
+        free_port(),
+        free_port(),
+        free_port(),
+        free_port(),
+        free_port() - 1,
+    );
+    let path = rig(
+        &dir,
+        router,
+        &format!(
+            "[vr]\nvrpn = {{ listen = \"127.0.0.1:{vrpn}\" }}\nnatnet = {{ command = \"127.0.0.1:{natnet}\", data_port = {data} }}\nqualisys = {{ base = \"127.0.0.1:{qualisys}\" }}\n"
+        ),
+        "l",
+    );
+    let run = Running::start(&dir, &path, router);
+    run.health_until("listening on NatNet and Qualisys RT", |h| {
+        h.detail.get("natnet").is_some_and(|v| v == "listening")
+            && h.detail.get("qualisys").is_some_and(|v| v == "listening")
+    });
+    let rt: std::net::SocketAddr = ([127, 0, 0, 1], qualisys + 1).into();
+
+    // NatNet garbage: under a header, a length that lies, an unknown id, an oversized datagram.
+    let udp = std::net::UdpSocket::bind("127.0.0.1:0").unwrap();
+    let big = vec![7u8; 60_000];
+    for d in [&[1u8][..], &[0, 0, 200, 0, 1], &[55, 0, 0, 0], &big] {
+        udp.send_to(d, ("127.0.0.1", natnet)).unwrap();
+    }
+    // Qualisys: a thousand connections at once, then closed; the server sees them go.
+    assert_eq!(connection_burst(rt, 1000), 1000);
+    run.health_until("refusing the burst and then free", |h| {
+        h.detail.contains_key("rejected.too_many_clients")
+            && h.detail.get("qualisys_clients").is_some_and(|n| n == "0")
+    });
+    let mut garbage = TcpStream::connect(rt).unwrap();
+    garbage.write_all(b"GET / HTTP/1.0\r\n\r\n").unwrap();
+    let mut huge = TcpStream::connect(rt).unwrap();
+    huge.write_all(&(1u32 << 30).to_le_bytes()).unwrap();
+    huge.write_all(&1u32.to_le_bytes()).unwrap();
+    let mut half = TcpStream::connect(rt).unwrap();
+    half.write_all(&[20, 0]).unwrap();
+    let mut deaf = TcpStream::connect(rt).unwrap();
+    for cmd in ["Version 1.25", "StreamFrames AllFrames 3D 6D 6DEuler"] {
+        let mut p = ((8 + cmd.len() + 1) as u32).to_le_bytes().to_vec();
+        p.extend_from_slice(&1u32.to_le_bytes());
+        p.extend_from_slice(cmd.as_bytes());
+        p.push(0);
+        deaf.write_all(&p).unwrap();
+    }
+
+    // Every client at once.
+    let seconds = 4.0;
+    let s = seconds.to_string();
+    let spawn = |script: &'static str, args: Vec<String>| {
+        std::thread::spawn(move || {
+            let a: Vec<&str> = args.iter().map(String::as_str).collect();
+            python(script, &a, Duration::from_secs(90))
+        })
+    };
+    // The VRPN client first, for longer: every frame the others get is in its window.
+    let vrpn_client = spawn(
+        "vrpn_client.py",
+        vec![format!("127.0.0.1:{vrpn}"), (seconds + 6.0).to_string()],
+    );
+    std::thread::sleep(Duration::from_secs(2));
+    let clients = [
+        vrpn_client,
+        spawn(
+            "natnet_clients.py",
+            vec![
+                "libmotioncapture".into(),
+                natnet.to_string(),
+                data.to_string(),
+                s.clone(),
+            ],
+        ),
+        spawn(
+            "natnet_clients.py",
+            vec![
+                "natnetsdk".into(),
+                natnet.to_string(),
+                data.to_string(),
+                s.clone(),
+            ],
+        ),
+        spawn(
+            "qualisys_clients.py",
+            vec!["qtm-rt".into(), (qualisys + 1).to_string(), s.clone()],
+        ),
+        spawn(
+            "qualisys_clients.py",
+            vec!["libmotioncapture".into(), qualisys.to_string(), s.clone()],
+        ),
+    ];
+    let [vrpn_out, lmc_nat, sdk_nat, qtm, lmc_q] = clients.map(|c| c.join().unwrap());
+    let vrpn_poses: Vec<(Vec<f64>, Vec<f64>)> = vrpn_out
+        .iter()
+        .filter(|v| v["name"] == "head")
+        .map(|v| (f(&v["position"]), f(&v["quat_xyzw"])))
+        .collect();
+    assert!(vrpn_poses.len() > 60, "{} VRPN poses", vrpn_poses.len());
+    // The hostile peers were counted; the silent ones are the only clients left.
+    let h = run.health_until("counting the hostile peers", |h| {
+        h.detail.contains_key("rejected.garbage")
+            && h.detail.contains_key("rejected.too_many_clients")
+            && h.detail
+                .get("qualisys_clients")
+                .and_then(|v| v.parse::<u32>().ok())
+                .is_some_and(|n| n <= 2)
+    });
+    let garbage: u32 = h.detail["rejected.garbage"].parse().unwrap();
+    // Four NatNet datagrams, the HTTP request and the gigabyte header.
+    assert!(garbage >= 6, "{h:?}");
+    drop((garbage, huge, half, deaf));
+    // Stopped, the feed has written its whole trace.
+    let mut launcher = run.launcher;
+    launcher.stop();
+    let log = launcher.output();
+    assert!(!log.contains("restarted vrfeed"), "{log}");
+    let sent = Running::sent_in(&run.trace);
+    // What the feed sent, as its trace tells: the VRPN client got those poses (it polls, so
+    // not every frame), and every other client must get them too.
+    let published: Vec<(Vec<f64>, Vec<f64>)> = sent
+        .iter()
+        .map(|s| (s.position.clone(), s.quat.clone()))
+        .collect();
+    let vrpn_as_q: Vec<(Vec<f64>, [f64; 4])> = vrpn_poses
+        .iter()
+        .map(|(p, q)| (p.clone(), [q[0], q[1], q[2], q[3]]))
+        .collect();
+    assert_eq!(
+        matched(&published, &vrpn_as_q),
+        vrpn_as_q.len(),
+        "VRPN poses that are not the trace's (first: {:?})",
+        vrpn_as_q.first()
+    );
+    let us: std::collections::BTreeSet<u64> = sent
+        .iter()
+        .filter(|s| s.measured)
+        .map(|s| s.exposure_ns / 1000)
+        .collect();
+    let done = |out: &[serde_json::Value]| -> serde_json::Value {
+        out.iter()
+            .find(|v| v["done"] == true)
+            .cloned()
+            .unwrap_or_else(|| panic!("no summary line: {out:?}"))
+    };
+    fn poses(out: &[serde_json::Value]) -> Vec<&serde_json::Value> {
+        out.iter().filter(|v| v.get("position").is_some()).collect()
+    }
+    // At 30 frames a second for 4 s: at least 80 frames to each client.
+    let rate_ok = |n: usize, what: &str| {
+        assert!(n >= 80, "{what}: {n} frames in {seconds} s at 30 Hz");
+    };
+    let check = |what: &str, got: Vec<(Vec<f64>, [f64; 4])>| {
+        let n = matched(&published, &got);
+        let same_as_vrpn = matched(&vrpn_poses, &got);
+        assert!(
+            n == got.len() && same_as_vrpn > 0,
+            "{what}: {n} of {} poses are ones the feed sent, {same_as_vrpn} the VRPN client's too (first: {:?}; VRPN first: {:?})",
+            got.len(),
+            got.first(),
+            vrpn_poses.first()
+        );
+    };
+
+    // libmotioncapture, NatNet: Motive's y-up frame in metres → world (x, −z, y).
+    let p = poses(&lmc_nat);
+    rate_ok(p.len(), "libmotioncapture NatNet");
+    assert!(p.iter().all(|v| v["name"] == "head"), "{p:?}");
+    let from_y_up = |v: &serde_json::Value| {
+        let (p, q) = (f(&v["position"]), f(&v["quat_xyzw"]));
+        (vec![p[0], -p[2], p[1]], [q[0], -q[2], q[1], q[3]])
+    };
+    check(
+        "libmotioncapture NatNet",
+        p.iter().map(|v| from_y_up(v)).collect(),
+    );
+    // OptiTrack's client: every frame decoded to its last byte; id 1 is "head" with its four
+    // markers; NatNet 4.1; tracking valid; the mid-exposure stamp is the set's exposure.
+    let d = done(&sdk_nat);
+    assert_eq!(d["server_version"], serde_json::json!([4, 1, 0, 0]), "{d}");
+    assert_eq!(d["frames"], d["whole"], "{d}");
+    rate_ok(d["frames"].as_u64().unwrap() as usize, "natnetsdk");
+    assert_eq!(
+        d["models"],
+        serde_json::json!([{"name": "head", "id": 1, "markers": 4}]),
+        "{d}"
+    );
+    let st = f(&d["last_stamps"]);
+    assert!(
+        st[0] <= st[1] && st[1] <= st[2],
+        "stamps out of order: {st:?}"
+    );
+    let p = poses(&sdk_nat);
+    assert!(
+        p.iter()
+            .all(|v| v["id"] == 1 && v["tracking_valid"] == true),
+        "{p:?}"
+    );
+    let stamped = p
+        .iter()
+        .filter(|v| us.contains(&v["timestamp_us"].as_u64().unwrap()))
+        .count();
+    assert!(
+        stamped + 2 >= p.len(),
+        "{stamped} of {} stamps are exposures",
+        p.len()
+    );
+    check("natnetsdk", p.iter().map(|v| from_y_up(v)).collect());
+
+    // qtm-rt: QTM's frame (the world, z up) in millimetres, the rotation matrix by columns.
+    let d = done(&qtm);
+    assert_eq!(d["bodies"], serde_json::json!(["head"]), "{d}");
+    assert_eq!(
+        d["labels"],
+        serde_json::json!(["head_1", "head_2", "head_3", "head_4"]),
+        "{d}"
+    );
+    assert_eq!(d["frequency"], "30", "{d}");
+    assert_eq!(d["state"], "EventConnected", "{d}");
+    assert_eq!(d["current_bodies"], 1, "{d}");
+    assert!(
+        d["refused"].as_str().unwrap_or("").contains("takecontrol"),
+        "{d}"
+    );
+    rate_ok(d["all"].as_u64().unwrap() as usize, "qtm-rt");
+    // Frequency:10 from 30 Hz: every third frame, 100 ms apart.
+    let gaps = f(&d["rate_gaps_us"]);
+    assert!(gaps.len() >= 15, "{d}");
+    assert!(
+        gaps.iter().all(|g| (90_000.0..=110_000.0).contains(g)),
+        "{gaps:?}"
+    );
+    let p = poses(&qtm);
+    let stamped = p
+        .iter()
+        .filter(|v| us.contains(&v["timestamp_us"].as_u64().unwrap()))
+        .count();
+    assert!(
+        stamped + 2 >= p.len(),
+        "{stamped} of {} stamps are exposures",
+        p.len()
+    );
+    check(
+        "qtm-rt",
+        p.iter()
+            .map(|v| {
+                let m: Vec<f64> = f(&v["position"]).iter().map(|x| x / 1000.0).collect();
+                (m, quat_of_columns(&f(&v["rotation"])))
+            })
+            .collect(),
+    );
+    // The four labelled markers of the body, all seen.
+    assert!(
+        p.iter()
+            .all(|v| v["markers"].as_array().unwrap().len() == 4),
+        "{:?}",
+        p.first()
+    );
+
+    // libmotioncapture, Qualisys: metres, the quaternion it builds from 6DEuler.
+    let p = poses(&lmc_q);
+    rate_ok(p.len(), "libmotioncapture Qualisys");
+    let got: Vec<(Vec<f64>, [f64; 4])> = p
+        .iter()
+        .map(|v| {
+            let q = f(&v["quat_xyzw"]);
+            (f(&v["position"]), [q[0], q[1], q[2], q[3]])
+        })
+        .collect();
+    check("libmotioncapture Qualisys", got);
 }

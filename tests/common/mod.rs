@@ -256,9 +256,12 @@ pub fn demo_rig_on_own_ports() -> String {
     own_vr_ports(&demo)
 }
 
+/// The demo rig's `[vr]` section, every protocol on its default port.
+pub const DEMO_VR: &str = "[vr]\nvrpn = {}\nvmt = {}\nopentrack = {}\nnatnet = {}\nqualisys = {}\n";
+
 /// `rig` with its `[vr]` section's default ports replaced by free loopback ports.
 pub fn own_vr_ports(rig: &str) -> String {
-    const DEFAULTS: &str = "[vr]\nvrpn = {}\nvmt = {}\nopentrack = {}\n";
+    const DEFAULTS: &str = DEMO_VR;
     if !rig.contains(DEFAULTS) {
         assert!(
             !rig.contains("[vr]"),
@@ -273,10 +276,14 @@ pub fn own_vr_ports(rig: &str) -> String {
     rig.replace(
         DEFAULTS,
         &format!(
-            "[vr]\nvrpn = {{ listen = \"127.0.0.1:{}\" }}\nvmt = {{ send_to = \"127.0.0.1:{}\" }}\nopentrack = {{ send_to = \"127.0.0.1:{}\" }}\n",
+            "[vr]\nvrpn = {{ listen = \"127.0.0.1:{}\" }}\nvmt = {{ send_to = \"127.0.0.1:{}\" }}\nopentrack = {{ send_to = \"127.0.0.1:{}\" }}\nnatnet = {{ command = \"127.0.0.1:{}\", data_port = {} }}\nqualisys = {{ base = \"127.0.0.1:{}\" }}\n",
             port(),
             port(),
-            port()
+            port(),
+            port(),
+            port(),
+            // Clients connect to the port after the base.
+            port() - 1
         ),
     )
 }

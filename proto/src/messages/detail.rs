@@ -42,6 +42,11 @@ pub enum Detail {
     SendErrors,
     LatencyP50Us,
     LatencyP99Us,
+    /// vrfeed: each lab protocol's state (`listening`, `port in use`) and its clients.
+    Natnet,
+    NatnetClients,
+    Qualisys,
+    QualisysClients,
     /// viewer: browsers connected now and since start, sockets refused, bad requests, bytes
     /// sent, previews forwarded, the page's address.
     Clients,
@@ -83,6 +88,10 @@ impl Detail {
             Detail::SendErrors => "send_errors",
             Detail::LatencyP50Us => "latency_p50_us",
             Detail::LatencyP99Us => "latency_p99_us",
+            Detail::Natnet => "natnet",
+            Detail::NatnetClients => "natnet_clients",
+            Detail::Qualisys => "qualisys",
+            Detail::QualisysClients => "qualisys_clients",
             Detail::Clients => "clients",
             Detail::Connections => "connections",
             Detail::Refused => "refused",

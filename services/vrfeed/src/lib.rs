@@ -17,6 +17,9 @@
 
 pub mod cli;
 pub mod feeds;
+pub mod natnet;
+pub mod output;
+pub mod qualisys;
 pub mod vrpn;
 
 use nalgebra::{Isometry3, Point3, Quaternion, Translation3, UnitQuaternion, Vector3};
@@ -74,6 +77,133 @@ struct PoseInput {
     waker: Option<stereoscope_transport::iox::Waker>,
 }
 
+/// A lab protocol the rig asks for: its server once it could bind, and until then when to try
+/// again (once a second, the reason in health meanwhile).
+struct Lab {
+    name: &'static str,
+    addr: SocketAddr,
+    state_key: Detail,
+    clients_key: Detail,
+    open: Box<dyn Fn() -> std::io::Result<Box<dyn output::Output + Send>> + Send>,
+    server: Option<Box<dyn output::Output + Send>>,
+    next_bind: std::time::Instant,
+}
+
+impl Lab {
+    /// Binds if it is not bound and a try is due; says what happened in `counters`.
+    fn bind(&mut self, counters: &mut stereoscope_transport::Counters) {
+        if self.server.is_some() || std::time::Instant::now() < self.next_bind {
+            return;
+        }
+        self.next_bind = std::time::Instant::now() + Duration::from_secs(1);
+        match (self.open)() {
+            Ok(s) => {
+                tracing::info!("{} listening on {}", self.name, self.addr);
+                counters.set(self.state_key, "listening");
+                self.server = Some(s);
+            }
+            Err(e) => {
+                let m = format!(
+                    "{} cannot listen on {}: {e}; trying again every second",
+                    self.name, self.addr
+                );
+                if counters.last_error() != Some(&m) {
+                    tracing::warn!("{m}");
+                }
+                counters.set_error(&m);
+                let state = if e.kind() == std::io::ErrorKind::AddrInUse {
+                    "port in use"
+                } else {
+                    "cannot listen"
+                };
+                counters.set(self.state_key, state);
+            }
+        }
+    }
+}
+
+/// The rig's bodies with their markers in metres.
+fn body_defs(spec: &stereoscope_rig::schema::RigFile) -> Vec<output::BodyDef> {
+    let s = spec.units.metres();
+    spec.bodies
+        .iter()
+        .map(|b| output::BodyDef {
+            name: b.name.clone(),
+            markers_m: b
+                .markers
+                .iter()
+                .map(|m| Point3::new(m[0] * s, m[1] * s, m[2] * s))
+                .collect(),
+        })
+        .collect()
+}
+
+/// The rig's nominal frame rate: its first camera's that states one (0 when none does).
+fn nominal_fps(spec: &stereoscope_rig::schema::RigFile) -> f64 {
+    use stereoscope_rig::schema::SourceSpec;
+    spec.cameras
+        .iter()
+        .filter_map(|c| match c.source.as_ref()? {
+            SourceSpec::Synthetic { fps, .. } | SourceSpec::Images { fps, .. } => Some(*fps),
+            SourceSpec::V4l { fps, .. } => *fps,
+            SourceSpec::Y4m { .. } => None,
+        })
+        .next()
+        .unwrap_or(0.0)
+}
+
+/// The lab protocols of `settings`, not yet bound.
+fn labs(settings: &VrSettings, bodies: &[output::BodyDef], fps: f64) -> Vec<Lab> {
+    let mut out = Vec::new();
+    if let Some(n) = &settings.natnet {
+        let cfg = natnet::NatNetConfig {
+            command: n.command,
+            data_port: n.data_port,
+            multicast: n.multicast,
+            frame: n.frame,
+        };
+        let b = bodies.to_vec();
+        out.push(Lab {
+            name: "NatNet",
+            addr: n.command,
+            state_key: Detail::Natnet,
+            clients_key: Detail::NatnetClients,
+            open: Box::new(move || {
+                natnet::NatNetServer::bind(cfg.clone(), b.clone())
+                    .map(|s| Box::new(s) as Box<dyn output::Output + Send>)
+            }),
+            server: None,
+            next_bind: std::time::Instant::now(),
+        });
+    }
+    if let Some(q) = &settings.qualisys {
+        let cfg = qualisys::QualisysConfig {
+            base: q.base,
+            frame: q.frame,
+            frequency_hz: fps,
+        };
+        let b = bodies.to_vec();
+        let port = if q.base.port() == 0 {
+            0
+        } else {
+            q.base.port() + 1
+        };
+        out.push(Lab {
+            name: "Qualisys RT",
+            addr: SocketAddr::new(q.base.ip(), port),
+            state_key: Detail::Qualisys,
+            clients_key: Detail::QualisysClients,
+            open: Box::new(move || {
+                qualisys::QualisysServer::bind(cfg.clone(), b.clone())
+                    .map(|s| Box::new(s) as Box<dyn output::Output + Send>)
+            }),
+            server: None,
+            next_bind: std::time::Instant::now(),
+        });
+    }
+    out
+}
+
 /// Latencies kept for the percentiles.
 const LATENCY_WINDOW: usize = 4096;
 /// The time `vrpn_Tracker Velocity`'s rotation is given over, seconds.
@@ -94,6 +224,8 @@ pub struct VrFeedService {
     next_bind: std::time::Instant,
     udp: UdpSocket,
     filters: Vec<Option<PoseFilter>>,
+    /// The lab protocols the rig asks for (NatNet, Qualisys RT), each behind [`output::Output`].
+    labs: Vec<Lab>,
     frames: u64,
     latency_us: std::collections::VecDeque<f64>,
     send_errors: u64,
@@ -105,8 +237,9 @@ pub struct VrFeedService {
 pub const TRACE_ENV: &str = "STEREOSCOPE_VR_TRACE";
 
 /// Per pose frame: its exposure (the oldest frame of its set), when its bytes began to go to
-/// the sockets, and each protocol's positions as sent (VRPN by body name, VMT by tracker index,
-/// opentrack its one body) to match with what a client decodes.
+/// the sockets, each protocol's positions as sent (VRPN by body name, VMT by tracker index,
+/// opentrack its one body) to match with what a client decodes, and each body's pose in the
+/// world frame (name, measured in this frame, position, quaternion x y z w).
 struct Trace {
     out: std::io::BufWriter<std::fs::File>,
     line: String,
@@ -223,6 +356,14 @@ impl VrFeedService {
             .iter()
             .map(|b| b.smoothing.map(PoseFilter::new))
             .collect();
+        let mut labs = labs(
+            &settings,
+            &body_defs(&ctx.rig.spec),
+            nominal_fps(&ctx.rig.spec),
+        );
+        for l in &mut labs {
+            l.bind(&mut node.counters);
+        }
         Ok(VrFeedService {
             cfg,
             node,
@@ -233,6 +374,7 @@ impl VrFeedService {
             next_bind: std::time::Instant::now(),
             udp,
             filters,
+            labs,
             frames: 0,
             latency_us: std::collections::VecDeque::with_capacity(LATENCY_WINDOW),
             send_errors: 0,
@@ -313,6 +455,7 @@ impl VrFeedService {
                 f.reset();
             }
         }
+        let mut out_bodies: Vec<output::OutputBody> = Vec::new();
         // The UDP datagrams of this frame, sent once every body is encoded.
         let mut datagrams: Vec<(Vec<u8>, SocketAddr)> = Vec::new();
         let mut sent: Vec<(&'static str, String, [f64; 3])> = Vec::new();
@@ -322,6 +465,12 @@ impl VrFeedService {
                 continue;
             };
             let pose = self.output_pose(index, b, frame.timestamp_ns);
+            out_bodies.push(output::OutputBody {
+                index,
+                world_from_body: pose,
+                residual_mm: b.residual_mm,
+                tracked: !b.held,
+            });
             let position = Point3::from(pose.translation.vector);
             if let Some((_, f)) = &self.settings.vrpn {
                 let c = feeds::in_frame(f, &position, &pose.rotation);
@@ -373,9 +522,37 @@ impl VrFeedService {
         if let Some(s) = self.vrpn.as_mut() {
             s.flush();
         }
+        if self.labs.iter().any(|l| l.server.is_some()) {
+            let markers: Vec<output::OutputMarker> = frame
+                .poses
+                .iter()
+                .map(|p| output::OutputMarker {
+                    position_m: Point3::from(p.position_m),
+                    label: p.body.as_ref().and_then(|l| {
+                        self.names
+                            .iter()
+                            .position(|n| *n == l.name)
+                            .map(|i| (i, l.marker))
+                    }),
+                    object_id: p.object_id,
+                })
+                .collect();
+            let of = output::OutputFrame {
+                sequence: frame.sequence,
+                exposure_ns: frame.timestamp_ns,
+                received_ns: frame.frame_published_ns,
+                bodies: &out_bodies,
+                markers: &markers,
+            };
+            for l in &mut self.labs {
+                if let Some(s) = l.server.as_mut() {
+                    s.send(&of);
+                }
+            }
+        }
         let now = now_ns();
         if let Some(t) = self.trace.as_mut()
-            && !sent.is_empty()
+            && !(sent.is_empty() && out_bodies.is_empty())
         {
             use std::fmt::Write as _;
             t.line.clear();
@@ -390,6 +567,19 @@ impl VrFeedService {
                     t.line,
                     "{sep}[\"{feed}\",{key:?},{:?},{:?},{:?}]",
                     p[0], p[1], p[2]
+                );
+            }
+            // Each body's pose as every protocol sends it, in the world frame (metres; x, y, z, w):
+            // what the lab protocols' tests compare their clients with.
+            t.line.push_str("],\"bodies\":[");
+            for (i, o) in out_bodies.iter().enumerate() {
+                let sep = if i == 0 { "" } else { "," };
+                let p = o.world_from_body.translation.vector;
+                let q = o.world_from_body.rotation;
+                let _ = write!(
+                    t.line,
+                    "{sep}[{:?},{},{:?},{:?},{:?},{:?},{:?},{:?},{:?}]",
+                    self.names[o.index], o.tracked, p.x, p.y, p.z, q.i, q.j, q.k, q.w
                 );
             }
             t.line.push_str("]}\n");
@@ -418,7 +608,21 @@ impl VrFeedService {
             }
             counters.set(Detail::VrpnClients, s.clients());
         }
-        counters.set(Detail::SendErrors, self.send_errors);
+        let mut send_errors = self.send_errors;
+        for l in &mut self.labs {
+            if let Some(s) = l.server.as_mut() {
+                counters.set(l.clients_key, s.clients());
+                let c = s.counts();
+                send_errors += c.send_errors;
+                for (reason, message) in c.dropped.drain(..) {
+                    counters.reject(reason, &message);
+                }
+                if let Some(e) = c.last_error.take() {
+                    counters.set_error(&e);
+                }
+            }
+        }
+        counters.set(Detail::SendErrors, send_errors);
         if !self.latency_us.is_empty() {
             let mut v: Vec<f64> = self.latency_us.iter().copied().collect();
             v.sort_by(f64::total_cmp);
@@ -444,6 +648,9 @@ impl Service for VrFeedService {
 
     fn step(&mut self, _shutdown: &Shutdown) -> Result<Flow, VrFeedError> {
         self.bind_vrpn();
+        for l in &mut self.labs {
+            l.bind(&mut self.node.counters);
+        }
         // Wake for a frame, or every 5 ms to serve VRPN clients.
         let wait = Duration::from_millis(5);
         let mut frames = Vec::new();
@@ -461,6 +668,11 @@ impl Service for VrFeedService {
         }
         if let Some(s) = self.vrpn.as_mut() {
             s.poll();
+        }
+        for l in &mut self.labs {
+            if let Some(s) = l.server.as_mut() {
+                s.poll();
+            }
         }
         for f in &frames {
             self.handle(f);

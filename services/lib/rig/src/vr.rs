@@ -17,6 +17,12 @@ pub const VMT_PORT: u16 = 39570;
 pub const VMC_PORT: u16 = 39539;
 /// opentrack's "UDP over network" default port.
 pub const OPENTRACK_PORT: u16 = 4242;
+/// NatNet's command port, data port and multicast group (OptiTrack Motive's defaults).
+pub const NATNET_COMMAND_PORT: u16 = 1510;
+pub const NATNET_DATA_PORT: u16 = 1511;
+pub const NATNET_MULTICAST: std::net::Ipv4Addr = std::net::Ipv4Addr::new(239, 255, 42, 99);
+/// The Qualisys RT protocol's base port (QTM's default).
+pub const QUALISYS_BASE_PORT: u16 = 22222;
 /// Longest prediction a body may ask for, milliseconds.
 pub const MAX_PREDICT_MS: f64 = 100.0;
 
@@ -216,7 +222,26 @@ pub struct VrSettings {
     pub vmc: Option<(SocketAddr, ConsumerFrame)>,
     /// Address, frame, the body sent.
     pub opentrack: Option<(SocketAddr, ConsumerFrame, usize)>,
+    pub natnet: Option<NatNetSettings>,
+    pub qualisys: Option<QualisysSettings>,
     pub bodies: Vec<BodyOutput>,
+}
+
+/// `[vr] natnet` resolved.
+#[derive(Debug, Clone, PartialEq)]
+pub struct NatNetSettings {
+    pub command: SocketAddr,
+    pub data_port: u16,
+    /// `None`: unicast.
+    pub multicast: Option<std::net::Ipv4Addr>,
+    pub frame: ConsumerFrame,
+}
+
+/// `[vr] qualisys` resolved.
+#[derive(Debug, Clone, PartialEq)]
+pub struct QualisysSettings {
+    pub base: SocketAddr,
+    pub frame: ConsumerFrame,
 }
 
 /// Resolves (and so checks) the rig's `[vr]` section; `None` when it has none.
@@ -305,11 +330,83 @@ pub fn settings(file: &RigFile) -> Result<Option<VrSettings>, RigError> {
             ))
         }
     };
+    let natnet = match &vr.natnet {
+        None => None,
+        Some(s) => {
+            let command = address(
+                s.command.as_ref(),
+                loopback(NATNET_COMMAND_PORT),
+                "vr.natnet.command",
+            )?;
+            if !command.is_ipv4() {
+                return Err(err(
+                    "vr.natnet.command",
+                    format!("{command} is IPv6; NatNet is IPv4 only"),
+                ));
+            }
+            let multicast = match s.multicast.as_deref() {
+                None => Some(NATNET_MULTICAST),
+                Some("unicast") => None,
+                Some(g) => match g.parse::<std::net::Ipv4Addr>() {
+                    Ok(ip) if ip.is_multicast() => Some(ip),
+                    _ => {
+                        return Err(err(
+                            "vr.natnet.multicast",
+                            format!(
+                                "{g:?} is neither a multicast group (224.0.0.0 to 239.255.255.255) nor \"unicast\""
+                            ),
+                        ));
+                    }
+                },
+            };
+            let data_port = s.data_port.unwrap_or(NATNET_DATA_PORT);
+            if data_port == 0 {
+                return Err(err("vr.natnet.data_port", "0 is not a port"));
+            }
+            Some(NatNetSettings {
+                command,
+                data_port,
+                multicast,
+                frame: consumer_frame(
+                    s.frame.as_ref(),
+                    ConsumerFrame::y_up(),
+                    u,
+                    "vr.natnet.frame",
+                )?,
+            })
+        }
+    };
+    let qualisys = match &vr.qualisys {
+        None => None,
+        Some(s) => {
+            let base = address(
+                s.base.as_ref(),
+                loopback(QUALISYS_BASE_PORT),
+                "vr.qualisys.base",
+            )?;
+            if base.port() == u16::MAX {
+                return Err(err(
+                    "vr.qualisys.base",
+                    format!("{base}: clients connect to the port after the base; 65535 has none"),
+                ));
+            }
+            let mm = ConsumerFrame {
+                units_per_m: 1000.0,
+                ..ConsumerFrame::identity()
+            };
+            Some(QualisysSettings {
+                base,
+                frame: consumer_frame(s.frame.as_ref(), mm, u, "vr.qualisys.frame")?,
+            })
+        }
+    };
     Ok(Some(VrSettings {
         vrpn,
         vmt,
         vmc,
         opentrack,
+        natnet,
+        qualisys,
         bodies: body_outputs(file)?,
     }))
 }
@@ -402,6 +499,35 @@ mod tests {
         assert_eq!(e.key, "body[0].predict_ms");
         let e = bad("min = [-80.0, -80.0, -10.0]", "min = [-80.0, 90.0, -10.0]");
         assert_eq!(e.key, "fusion.volume");
+        let n = v.natnet.unwrap();
+        assert_eq!(n.command, loopback(NATNET_COMMAND_PORT));
+        assert_eq!(
+            (n.data_port, n.multicast),
+            (NATNET_DATA_PORT, Some(NATNET_MULTICAST))
+        );
+        assert_eq!(v.qualisys.unwrap().frame.units_per_m, 1000.0);
+        let e = bad("natnet = {}", "natnet = { multicast = \"10.0.0.1\" }");
+        assert_eq!(e.key, "vr.natnet.multicast");
+        assert!(e.message.contains("10.0.0.1"), "{e}");
+        let e = bad("natnet = {}", "natnet = { command = \"[::1]:1510\" }");
+        assert_eq!(e.key, "vr.natnet.command");
+        let e = bad("qualisys = {}", "qualisys = { base = \"127.0.0.1:65535\" }");
+        assert_eq!(e.key, "vr.qualisys.base");
+        let unicast = crate::Rig::from_toml(&demo.replacen(
+            "natnet = {}",
+            "natnet = { multicast = \"unicast\" }",
+            1,
+        ))
+        .unwrap();
+        assert_eq!(
+            settings(&unicast.spec)
+                .unwrap()
+                .unwrap()
+                .natnet
+                .unwrap()
+                .multicast,
+            None
+        );
         // No bodies, but a VR feed: refused.
         let no_body = demo.replacen("[[body]]", "[[bodyx]]", 1);
         assert!(crate::Rig::from_toml(&no_body).is_err());

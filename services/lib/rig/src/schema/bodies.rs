@@ -51,6 +51,42 @@ pub struct VrSpec {
     pub vmc: Option<OscFeedSpec>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub opentrack: Option<OpentrackSpec>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub natnet: Option<NatNetSpec>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub qualisys: Option<QualisysSpec>,
+}
+
+/// A NatNet server, as OptiTrack Motive streams (`docs/lab-protocols.md`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Default)]
+#[serde(deny_unknown_fields)]
+pub struct NatNetSpec {
+    /// Address of the command port (default "127.0.0.1:1510").
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub command: Option<String>,
+    /// The data port frames go to (default 1511).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub data_port: Option<u16>,
+    /// The multicast group (default "239.255.42.99"), or "unicast" to send each client its
+    /// frames.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub multicast: Option<String>,
+    /// Default: Motive's y-up frame in metres.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub frame: Option<FrameSpec>,
+}
+
+/// A Qualisys Track Manager real-time (RT protocol) server (`docs/lab-protocols.md`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Default)]
+#[serde(deny_unknown_fields)]
+pub struct QualisysSpec {
+    /// The base port's address (default "127.0.0.1:22222"); clients connect to the port after
+    /// it (22223, little-endian).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub base: Option<String>,
+    /// Default: the world frame (z up) in millimetres, as QTM's.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub frame: Option<FrameSpec>,
 }
 
 /// A VRPN tracker server: each body a tracker named after it, sensor 0.
