@@ -442,18 +442,19 @@ fn connection_burst(addr: std::net::SocketAddr, n: usize) -> usize {
 #[test]
 fn lab_clients_read_the_pose_the_vrpn_feed_sends() {
     let dir = TempDir::new("labfeeds");
-    let (router, vrpn, natnet, data, qualisys) = (
+    let (router, vrpn, natnet, data, qualisys, ros) = (
         free_port(),
         free_port(),
         free_port(),
         free_port(),
         free_port() - 1,
+        free_port(),
     );
     let path = rig(
         &dir,
         router,
         &format!(
-            "[vr]\nvrpn = {{ listen = \"127.0.0.1:{vrpn}\" }}\nnatnet = {{ command = \"127.0.0.1:{natnet}\", data_port = {data} }}\nqualisys = {{ base = \"127.0.0.1:{qualisys}\" }}\n"
+            "[vr]\nvrpn = {{ listen = \"127.0.0.1:{vrpn}\" }}\nnatnet = {{ command = \"127.0.0.1:{natnet}\", data_port = {data} }}\nqualisys = {{ base = \"127.0.0.1:{qualisys}\" }}\nros2 = {{ router = \"tcp/127.0.0.1:{ros}\", domain_id = 7 }}\n"
         ),
         "l",
     );
@@ -535,8 +536,12 @@ fn lab_clients_read_the_pose_the_vrpn_feed_sends() {
             "qualisys_clients.py",
             vec!["libmotioncapture".into(), qualisys.to_string(), s.clone()],
         ),
+        spawn(
+            "ros2_clients.py",
+            vec![ros.to_string(), "7".into(), s.clone()],
+        ),
     ];
-    let [vrpn_out, lmc_nat, sdk_nat, qtm, lmc_q] = clients.map(|c| c.join().unwrap());
+    let [vrpn_out, lmc_nat, sdk_nat, qtm, lmc_q, ros2] = clients.map(|c| c.join().unwrap());
     let vrpn_poses: Vec<(Vec<f64>, Vec<f64>)> = vrpn_out
         .iter()
         .filter(|v| v["name"] == "head")
@@ -587,7 +592,13 @@ fn lab_clients_read_the_pose_the_vrpn_feed_sends() {
         out.iter()
             .find(|v| v["done"] == true)
             .cloned()
-            .unwrap_or_else(|| panic!("no summary line: {out:?}"))
+            .unwrap_or_else(|| {
+                panic!(
+                    "no summary line in {} lines; the last: {:?}",
+                    out.len(),
+                    out.last()
+                )
+            })
     };
     fn poses(out: &[serde_json::Value]) -> Vec<&serde_json::Value> {
         out.iter().filter(|v| v.get("position").is_some()).collect()
@@ -714,4 +725,157 @@ fn lab_clients_read_the_pose_the_vrpn_feed_sends() {
         })
         .collect();
     check("libmotioncapture Qualisys", got);
+
+    // ROS 2: every sample decoded by rosbags with its key's type hash rosbags' own, the
+    // attachment rmw_zenoh's (33 bytes, sequence rising by topic), the pose and /tf the feed's,
+    // stamped with a measured exposure; zenoh-ros2-sdk's subscriber got the poses too.
+    let samples: Vec<&serde_json::Value> = ros2.iter().filter(|v| v["kind"] == "sample").collect();
+    let mut last_sequence = std::collections::BTreeMap::new();
+    for v in &samples {
+        assert_eq!(v["type_ok"], true, "{v}");
+        assert_eq!(v["domain"], "7", "{v}");
+        let seq = v["attachment"]["sequence"]
+            .as_i64()
+            .unwrap_or_else(|| panic!("no rmw_zenoh attachment: {v}"));
+        let topic = v["topic"].as_str().unwrap().to_string();
+        if let Some(prev) = last_sequence.insert(topic, seq) {
+            assert!(seq > prev, "sequence {seq} after {prev}: {v}");
+        }
+    }
+    let of_topic = |t: &str| samples.iter().filter(|v| v["topic"] == t).count();
+    for t in ["/stereoscope/head/pose", "/stereoscope/head/twist", "/tf"] {
+        rate_ok(of_topic(t), t);
+    }
+    let ros_pose = |m: &serde_json::Value| {
+        let p = &m["position"];
+        let q = &m["orientation"];
+        let n = |x: &serde_json::Value| x.as_f64().unwrap();
+        (
+            vec![n(&p["x"]), n(&p["y"]), n(&p["z"])],
+            [n(&q["x"]), n(&q["y"]), n(&q["z"]), n(&q["w"])],
+        )
+    };
+    let stamp_us = |h: &serde_json::Value| {
+        (h["stamp"]["sec"].as_u64().unwrap() * 1_000_000_000
+            + h["stamp"]["nanosec"].as_u64().unwrap())
+            / 1000
+    };
+    let poses_of = |t: &str| -> Vec<(Vec<f64>, [f64; 4])> {
+        samples
+            .iter()
+            .filter(|v| v["topic"] == t)
+            .map(|v| {
+                let m = &v["msg"];
+                assert_eq!(m["header"]["frame_id"], "world", "{v}");
+                assert!(us.contains(&stamp_us(&m["header"])), "not an exposure: {v}");
+                ros_pose(&m["pose"])
+            })
+            .collect()
+    };
+    check("ROS 2 PoseStamped", poses_of("/stereoscope/head/pose"));
+    let tf: Vec<(Vec<f64>, [f64; 4])> = samples
+        .iter()
+        .filter(|v| v["topic"] == "/tf")
+        .map(|v| {
+            let t = &v["msg"]["transforms"][0];
+            assert_eq!(t["child_frame_id"], "head", "{v}");
+            assert_eq!(t["header"]["frame_id"], "world", "{v}");
+            let tr = &t["transform"];
+            let n = |x: &serde_json::Value| x.as_f64().unwrap();
+            (
+                vec![
+                    n(&tr["translation"]["x"]),
+                    n(&tr["translation"]["y"]),
+                    n(&tr["translation"]["z"]),
+                ],
+                [
+                    n(&tr["rotation"]["x"]),
+                    n(&tr["rotation"]["y"]),
+                    n(&tr["rotation"]["z"]),
+                    n(&tr["rotation"]["w"]),
+                ],
+            )
+        })
+        .collect();
+    check("ROS 2 /tf", tf);
+    // The helmet stands still: its twist is noise around zero.
+    for v in samples
+        .iter()
+        .filter(|v| v["topic"] == "/stereoscope/head/twist")
+    {
+        let l = &v["msg"]["twist"]["linear"];
+        let speed = ["x", "y", "z"]
+            .iter()
+            .map(|k| l[k].as_f64().unwrap().powi(2))
+            .sum::<f64>()
+            .sqrt();
+        assert!(speed < 0.05, "{v}");
+    }
+    let sdk: Vec<(Vec<f64>, [f64; 4])> = ros2
+        .iter()
+        .filter(|v| v["kind"] == "sdk")
+        .map(|v| ros_pose(&v["msg"]["pose"]))
+        .collect();
+    rate_ok(sdk.len(), "zenoh-ros2-sdk");
+    check("zenoh-ros2-sdk", sdk);
+    // The graph as rmw_zenoh's liveliness_utils.cpp writes it, field by field.
+    let d = done(&ros2);
+    let tokens: Vec<&str> = d["tokens"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter_map(|t| t.as_str())
+        .filter(|t| t.contains("/stereoscope"))
+        .collect();
+    let node: Vec<&str> = tokens
+        .iter()
+        .copied()
+        .filter(|t| t.contains("/NN/"))
+        .collect();
+    assert_eq!(node.len(), 1, "{tokens:?}");
+    let n: Vec<&str> = node[0].split('/').collect();
+    assert_eq!(n.len(), 9, "{node:?}");
+    assert_eq!(
+        (n[0], n[1], n[3], n[4], n[5], n[6], n[7], n[8]),
+        ("@ros2_lv", "7", "0", "0", "NN", "%", "%", "stereoscope")
+    );
+    assert!(
+        !n[2].is_empty() && n[2].chars().all(|c| c.is_ascii_hexdigit()),
+        "{node:?}"
+    );
+    let mut published = Vec::new();
+    for t in tokens.iter().filter(|t| t.contains("/MP/")) {
+        let p: Vec<&str> = t.split('/').collect();
+        assert_eq!(p.len(), 13, "{t}");
+        assert_eq!(
+            (p[0], p[1], p[2], p[3], p[5], p[6], p[7], p[8]),
+            ("@ros2_lv", "7", n[2], "0", "MP", "%", "%", "stereoscope"),
+            "{t}"
+        );
+        // QoS: reliability:durability:history,depth:deadline:lifespan:liveliness.
+        let q: Vec<&str> = p[12].split(':').collect();
+        assert_eq!(q.len(), 6, "{t}");
+        // The type hash rosbags computes for the type.
+        assert_eq!(d["hashes"][p[10]], p[11], "{t}");
+        published.push((p[9].to_string(), p[10].to_string()));
+    }
+    published.sort();
+    assert_eq!(
+        published,
+        vec![
+            (
+                "%stereoscope%head%pose".to_string(),
+                "geometry_msgs::msg::dds_::PoseStamped_".to_string()
+            ),
+            (
+                "%stereoscope%head%twist".to_string(),
+                "geometry_msgs::msg::dds_::TwistStamped_".to_string()
+            ),
+            (
+                "%tf".to_string(),
+                "tf2_msgs::msg::dds_::TFMessage_".to_string()
+            ),
+        ],
+        "{tokens:?}"
+    );
 }

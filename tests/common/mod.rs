@@ -257,7 +257,8 @@ pub fn demo_rig_on_own_ports() -> String {
 }
 
 /// The demo rig's `[vr]` section, every protocol on its default port.
-pub const DEMO_VR: &str = "[vr]\nvrpn = {}\nvmt = {}\nopentrack = {}\nnatnet = {}\nqualisys = {}\n";
+pub const DEMO_VR: &str =
+    "[vr]\nvrpn = {}\nvmt = {}\nopentrack = {}\nnatnet = {}\nqualisys = {}\nros2 = {}\n";
 
 /// `rig` with its `[vr]` section's default ports replaced by free loopback ports.
 pub fn own_vr_ports(rig: &str) -> String {
@@ -276,14 +277,15 @@ pub fn own_vr_ports(rig: &str) -> String {
     rig.replace(
         DEFAULTS,
         &format!(
-            "[vr]\nvrpn = {{ listen = \"127.0.0.1:{}\" }}\nvmt = {{ send_to = \"127.0.0.1:{}\" }}\nopentrack = {{ send_to = \"127.0.0.1:{}\" }}\nnatnet = {{ command = \"127.0.0.1:{}\", data_port = {} }}\nqualisys = {{ base = \"127.0.0.1:{}\" }}\n",
+            "[vr]\nvrpn = {{ listen = \"127.0.0.1:{}\" }}\nvmt = {{ send_to = \"127.0.0.1:{}\" }}\nopentrack = {{ send_to = \"127.0.0.1:{}\" }}\nnatnet = {{ command = \"127.0.0.1:{}\", data_port = {} }}\nqualisys = {{ base = \"127.0.0.1:{}\" }}\nros2 = {{ router = \"tcp/127.0.0.1:{}\" }}\n",
             port(),
             port(),
             port(),
             port(),
             port(),
             // Clients connect to the port after the base.
-            port() - 1
+            port() - 1,
+            port()
         ),
     )
 }

@@ -47,6 +47,7 @@ pub enum Detail {
     NatnetClients,
     Qualisys,
     QualisysClients,
+    Ros2,
     /// viewer: browsers connected now and since start, sockets refused, bad requests, bytes
     /// sent, previews forwarded, the page's address.
     Clients,
@@ -92,6 +93,7 @@ impl Detail {
             Detail::NatnetClients => "natnet_clients",
             Detail::Qualisys => "qualisys",
             Detail::QualisysClients => "qualisys_clients",
+            Detail::Ros2 => "ros2",
             Detail::Clients => "clients",
             Detail::Connections => "connections",
             Detail::Refused => "refused",

@@ -20,6 +20,7 @@ pub mod feeds;
 pub mod natnet;
 pub mod output;
 pub mod qualisys;
+pub mod ros2;
 pub mod vrpn;
 
 use nalgebra::{Isometry3, Point3, Quaternion, Translation3, UnitQuaternion, Vector3};
@@ -81,9 +82,12 @@ struct PoseInput {
 /// again (once a second, the reason in health meanwhile).
 struct Lab {
     name: &'static str,
-    addr: SocketAddr,
+    /// Where it listens, or (ROS 2) the router it connects to.
+    addr: String,
     state_key: Detail,
-    clients_key: Detail,
+    clients_key: Option<Detail>,
+    /// The state health reports once it is up (`listening`, `publishing`).
+    up: &'static str,
     open: Box<dyn Fn() -> std::io::Result<Box<dyn output::Output + Send>> + Send>,
     server: Option<Box<dyn output::Output + Send>>,
     next_bind: std::time::Instant,
@@ -98,8 +102,8 @@ impl Lab {
         self.next_bind = std::time::Instant::now() + Duration::from_secs(1);
         match (self.open)() {
             Ok(s) => {
-                tracing::info!("{} listening on {}", self.name, self.addr);
-                counters.set(self.state_key, "listening");
+                tracing::info!("{} {} on {}", self.name, self.up, self.addr);
+                counters.set(self.state_key, self.up);
                 self.server = Some(s);
             }
             Err(e) => {
@@ -165,9 +169,10 @@ fn labs(settings: &VrSettings, bodies: &[output::BodyDef], fps: f64) -> Vec<Lab>
         let b = bodies.to_vec();
         out.push(Lab {
             name: "NatNet",
-            addr: n.command,
+            addr: n.command.to_string(),
             state_key: Detail::Natnet,
-            clients_key: Detail::NatnetClients,
+            clients_key: Some(Detail::NatnetClients),
+            up: "listening",
             open: Box::new(move || {
                 natnet::NatNetServer::bind(cfg.clone(), b.clone())
                     .map(|s| Box::new(s) as Box<dyn output::Output + Send>)
@@ -190,11 +195,29 @@ fn labs(settings: &VrSettings, bodies: &[output::BodyDef], fps: f64) -> Vec<Lab>
         };
         out.push(Lab {
             name: "Qualisys RT",
-            addr: SocketAddr::new(q.base.ip(), port),
+            addr: SocketAddr::new(q.base.ip(), port).to_string(),
             state_key: Detail::Qualisys,
-            clients_key: Detail::QualisysClients,
+            clients_key: Some(Detail::QualisysClients),
+            up: "listening",
             open: Box::new(move || {
                 qualisys::QualisysServer::bind(cfg.clone(), b.clone())
+                    .map(|s| Box::new(s) as Box<dyn output::Output + Send>)
+            }),
+            server: None,
+            next_bind: std::time::Instant::now(),
+        });
+    }
+    if let Some(r) = &settings.ros2 {
+        let cfg = r.clone();
+        let names: Vec<String> = bodies.iter().map(|b| b.name.clone()).collect();
+        out.push(Lab {
+            name: "ROS 2",
+            addr: r.router.clone(),
+            state_key: Detail::Ros2,
+            clients_key: None,
+            up: "publishing",
+            open: Box::new(move || {
+                ros2::Ros2Output::open(cfg.clone(), names.clone())
                     .map(|s| Box::new(s) as Box<dyn output::Output + Send>)
             }),
             server: None,
@@ -318,6 +341,16 @@ impl VrFeedService {
                 ));
             }
         }
+        // The lab protocols bind (ROS 2's session takes about half a second to open) before the
+        // pose input exists, so no frame waits behind them.
+        let mut labs = labs(
+            &settings,
+            &body_defs(&ctx.rig.spec),
+            nominal_fps(&ctx.rig.spec),
+        );
+        for l in &mut labs {
+            l.bind(&mut node.counters);
+        }
         let rig = ctx.rig.name.clone();
         let input = if ctx.fusion_here() {
             let name = stereoscope_proto::names::iox::poses(&rig);
@@ -356,14 +389,7 @@ impl VrFeedService {
             .iter()
             .map(|b| b.smoothing.map(PoseFilter::new))
             .collect();
-        let mut labs = labs(
-            &settings,
-            &body_defs(&ctx.rig.spec),
-            nominal_fps(&ctx.rig.spec),
-        );
-        for l in &mut labs {
-            l.bind(&mut node.counters);
-        }
+
         Ok(VrFeedService {
             cfg,
             node,
@@ -470,6 +496,8 @@ impl VrFeedService {
                 world_from_body: pose,
                 residual_mm: b.residual_mm,
                 tracked: !b.held,
+                velocity_m_per_s: b.velocity_m_per_s,
+                angular_velocity_rad_per_s: b.angular_velocity_rad_per_s,
             });
             let position = Point3::from(pose.translation.vector);
             if let Some((_, f)) = &self.settings.vrpn {
@@ -611,7 +639,9 @@ impl VrFeedService {
         let mut send_errors = self.send_errors;
         for l in &mut self.labs {
             if let Some(s) = l.server.as_mut() {
-                counters.set(l.clients_key, s.clients());
+                if let (Some(key), Some(n)) = (l.clients_key, s.clients()) {
+                    counters.set(key, n);
+                }
                 let c = s.counts();
                 send_errors += c.send_errors;
                 for (reason, message) in c.dropped.drain(..) {

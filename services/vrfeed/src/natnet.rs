@@ -529,8 +529,8 @@ impl Output for NatNetServer {
         &mut self.counts
     }
 
-    fn clients(&self) -> usize {
-        self.clients.len()
+    fn clients(&self) -> Option<usize> {
+        Some(self.clients.len())
     }
 }
 
@@ -564,6 +564,8 @@ mod tests {
             world_from_body: pose,
             residual_mm: 0.4,
             tracked: true,
+            velocity_m_per_s: [0.0; 3],
+            angular_velocity_rad_per_s: [0.0; 3],
         }];
         let markers = [OutputMarker {
             position_m: Point3::new(0.15, 0.2, 0.3),
@@ -695,6 +697,6 @@ mod tests {
             ]
         );
         assert_eq!(s.counts.dropped.len(), 3, "{:?}", s.counts.dropped);
-        assert_eq!(s.clients(), 1);
+        assert_eq!(s.clients(), Some(1));
     }
 }

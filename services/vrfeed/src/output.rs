@@ -20,6 +20,9 @@ pub struct OutputBody {
     pub world_from_body: Isometry3<f64>,
     pub residual_mm: f64,
     pub tracked: bool,
+    /// World-frame velocity of the origin (m/s) and angular velocity (rad/s).
+    pub velocity_m_per_s: [f64; 3],
+    pub angular_velocity_rad_per_s: [f64; 3],
 }
 
 /// One 3D marker in one frame: where it is, which body marker it is (body index, marker
@@ -87,6 +90,6 @@ pub trait Output {
     fn poll(&mut self);
     fn send(&mut self, frame: &OutputFrame);
     fn counts(&mut self) -> &mut Counts;
-    /// Clients connected now.
-    fn clients(&self) -> usize;
+    /// Clients connected now, where the protocol knows them.
+    fn clients(&self) -> Option<usize>;
 }

@@ -224,7 +224,26 @@ pub struct VrSettings {
     pub opentrack: Option<(SocketAddr, ConsumerFrame, usize)>,
     pub natnet: Option<NatNetSettings>,
     pub qualisys: Option<QualisysSettings>,
+    pub ros2: Option<Ros2Settings>,
     pub bodies: Vec<BodyOutput>,
+}
+
+/// `[vr] ros2` resolved.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Ros2Settings {
+    pub router: String,
+    pub domain_id: u32,
+    pub namespace: String,
+    pub node: String,
+    pub frame_id: String,
+    pub frame: ConsumerFrame,
+}
+
+/// A ROS name token: a letter, then letters, digits and underscores.
+fn ros_token(s: &str) -> bool {
+    let mut c = s.chars();
+    c.next().is_some_and(|f| f.is_ascii_alphabetic())
+        && c.all(|x| x.is_ascii_alphanumeric() || x == '_')
 }
 
 /// `[vr] natnet` resolved.
@@ -400,6 +419,91 @@ pub fn settings(file: &RigFile) -> Result<Option<VrSettings>, RigError> {
             })
         }
     };
+    let ros2 = match &vr.ros2 {
+        None => None,
+        Some(s) => {
+            let router = s
+                .router
+                .clone()
+                .unwrap_or_else(|| "tcp/127.0.0.1:7447".to_string());
+            let ok = router.split_once('/').is_some_and(|(proto, addr)| {
+                ["tcp", "udp", "tls", "quic"].contains(&proto) && addr.contains(':')
+            });
+            if !ok {
+                return Err(err(
+                    "vr.ros2.router",
+                    format!("{router:?} is not a Zenoh endpoint like \"tcp/127.0.0.1:7447\""),
+                ));
+            }
+            let domain_id = s.domain_id.unwrap_or(0);
+            if domain_id > 232 {
+                return Err(err(
+                    "vr.ros2.domain_id",
+                    format!("{domain_id} is over 232, the largest ROS domain id"),
+                ));
+            }
+            let namespace = s
+                .namespace
+                .clone()
+                .unwrap_or_else(|| "/stereoscope".to_string());
+            let parts: Vec<&str> = namespace.trim_end_matches('/').split('/').skip(1).collect();
+            if !namespace.starts_with('/') || !parts.iter().all(|p| ros_token(p)) {
+                return Err(err(
+                    "vr.ros2.namespace",
+                    format!(
+                        "{namespace:?} is not a ROS namespace (\"/\" then names of letters, digits and _, each starting with a letter)"
+                    ),
+                ));
+            }
+            let node = s.node.clone().unwrap_or_else(|| "stereoscope".to_string());
+            if !ros_token(&node) {
+                return Err(err(
+                    "vr.ros2.node",
+                    format!(
+                        "{node:?} is not a ROS node name (letters, digits and _, from a letter)"
+                    ),
+                ));
+            }
+            let frame_id = s.frame_id.clone().unwrap_or_else(|| "world".to_string());
+            if frame_id.is_empty()
+                || frame_id
+                    .chars()
+                    .any(|c| c.is_whitespace() || c.is_control())
+            {
+                return Err(err(
+                    "vr.ros2.frame_id",
+                    format!("{frame_id:?} must be a non-empty name without spaces"),
+                ));
+            }
+            if let Some((i, b)) = file
+                .bodies
+                .iter()
+                .enumerate()
+                .find(|(_, b)| !ros_token(&b.name))
+            {
+                return Err(err(
+                    format!("body[{i}].name"),
+                    format!(
+                        "{:?} cannot name ROS 2 topics ([vr] ros2): use letters, digits and _, from a letter",
+                        b.name
+                    ),
+                ));
+            }
+            Some(Ros2Settings {
+                router,
+                domain_id,
+                namespace: namespace.trim_end_matches('/').to_string(),
+                node,
+                frame_id,
+                frame: consumer_frame(
+                    s.frame.as_ref(),
+                    ConsumerFrame::identity(),
+                    u,
+                    "vr.ros2.frame",
+                )?,
+            })
+        }
+    };
     Ok(Some(VrSettings {
         vrpn,
         vmt,
@@ -407,6 +511,7 @@ pub fn settings(file: &RigFile) -> Result<Option<VrSettings>, RigError> {
         opentrack,
         natnet,
         qualisys,
+        ros2,
         bodies: body_outputs(file)?,
     }))
 }
@@ -513,6 +618,15 @@ mod tests {
         assert_eq!(e.key, "vr.natnet.command");
         let e = bad("qualisys = {}", "qualisys = { base = \"127.0.0.1:65535\" }");
         assert_eq!(e.key, "vr.qualisys.base");
+        let e = bad("ros2 = {}", "ros2 = { namespace = \"stereo\" }");
+        assert_eq!(e.key, "vr.ros2.namespace");
+        let e = bad("ros2 = {}", "ros2 = { router = \"localhost\" }");
+        assert_eq!(e.key, "vr.ros2.router");
+        let e = bad("name = \"head\"", "name = \"my head\"");
+        assert!(
+            e.key == "body[0].name" || e.message.contains("my head"),
+            "{e}"
+        );
         let unicast = crate::Rig::from_toml(&demo.replacen(
             "natnet = {}",
             "natnet = { multicast = \"unicast\" }",

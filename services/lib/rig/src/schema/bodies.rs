@@ -55,6 +55,33 @@ pub struct VrSpec {
     pub natnet: Option<NatNetSpec>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub qualisys: Option<QualisysSpec>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub ros2: Option<Ros2Spec>,
+}
+
+/// ROS 2 topics through Zenoh as rmw_zenoh publishes them (`docs/lab-protocols.md`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Default)]
+#[serde(deny_unknown_fields)]
+pub struct Ros2Spec {
+    /// The ROS user's Zenoh router, as a Zenoh endpoint (default "tcp/127.0.0.1:7447", where
+    /// `ros2 run rmw_zenoh_cpp rmw_zenohd` listens).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub router: Option<String>,
+    /// ROS domain id, 0–232 (default 0).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub domain_id: Option<u32>,
+    /// Topics are `<namespace>/<body>/pose` and `…/twist` (default "/stereoscope").
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub namespace: Option<String>,
+    /// The node's name in the ROS graph (default "stereoscope").
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub node: Option<String>,
+    /// `header.frame_id`, the parent of every body on /tf (default "world").
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub frame_id: Option<String>,
+    /// Default: the world frame (z up, ROS's REP 103) in metres.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub frame: Option<FrameSpec>,
 }
 
 /// A NatNet server, as OptiTrack Motive streams (`docs/lab-protocols.md`).
