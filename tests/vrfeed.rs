@@ -163,7 +163,25 @@ fn every_protocol_gets_the_known_body_pose_in_its_own_frame() {
     drop(squatter);
     vrpn_state("listening");
 
-    // Hostile VRPN peers first: garbage, and a message cut off mid-way.
+    // Hostile VRPN peers first: a thousand connections at once (the feed takes 32 and refuses
+    // the rest, then sees them go), garbage, and a message cut off mid-way.
+    assert_eq!(connection_burst(([127, 0, 0, 1], vrpn).into(), 1000), 1000);
+    run.health_until(
+        "refusing the VRPN burst, then seeing the 32 it took go",
+        |h| {
+            let n = |k: &str| {
+                h.detail
+                    .get(k)
+                    .and_then(|v| v.parse::<u32>().ok())
+                    .unwrap_or(0)
+            };
+            // Every connection it took has gone (closed, reset, or silent past the cookie wait).
+            let refused = n("rejected.too_many_clients");
+            refused > 0
+                && n("rejected.closed") + n("rejected.io") + n("rejected.no_cookie")
+                    >= 1000 - refused
+        },
+    );
     let mut garbage = TcpStream::connect(("127.0.0.1", vrpn)).unwrap();
     garbage.write_all(b"GET / HTTP/1.0\r\n\r\n").unwrap();
     let mut cut = TcpStream::connect(("127.0.0.1", vrpn)).unwrap();
@@ -376,6 +394,23 @@ impl Running {
     }
 }
 
+/// The liblsl that pylsl's wheel carries (in the test clients' environment).
+fn pylsl_library() -> String {
+    let venv = common::python_clients()
+        .parent()
+        .and_then(|b| b.parent())
+        .unwrap()
+        .to_path_buf();
+    let lib = venv.join("lib");
+    for e in std::fs::read_dir(&lib).unwrap().flatten() {
+        let p = e.path().join("site-packages/pylsl/lib/liblsl.so");
+        if p.exists() {
+            return p.to_string_lossy().into_owned();
+        }
+    }
+    panic!("no pylsl/lib/liblsl.so under {}", lib.display());
+}
+
 /// A quaternion (x, y, z, w) from a rotation matrix given column by column.
 fn quat_of_columns(m: &[f64]) -> [f64; 4] {
     let r = nalgebra::Matrix3::from_column_slice(m);
@@ -442,6 +477,8 @@ fn connection_burst(addr: std::net::SocketAddr, n: usize) -> usize {
 #[test]
 fn lab_clients_read_the_pose_the_vrpn_feed_sends() {
     let dir = TempDir::new("labfeeds");
+    let liblsl = pylsl_library();
+    let source_id = format!("stereoscope-test-{}", std::process::id());
     let (router, vrpn, natnet, data, qualisys, ros) = (
         free_port(),
         free_port(),
@@ -454,7 +491,7 @@ fn lab_clients_read_the_pose_the_vrpn_feed_sends() {
         &dir,
         router,
         &format!(
-            "[vr]\nvrpn = {{ listen = \"127.0.0.1:{vrpn}\" }}\nnatnet = {{ command = \"127.0.0.1:{natnet}\", data_port = {data} }}\nqualisys = {{ base = \"127.0.0.1:{qualisys}\" }}\nros2 = {{ router = \"tcp/127.0.0.1:{ros}\", domain_id = 7 }}\n"
+            "[vr]\nvrpn = {{ listen = \"127.0.0.1:{vrpn}\" }}\nnatnet = {{ command = \"127.0.0.1:{natnet}\", data_port = {data} }}\nqualisys = {{ base = \"127.0.0.1:{qualisys}\" }}\nros2 = {{ router = \"tcp/127.0.0.1:{ros}\", domain_id = 7 }}\nlsl = {{ library = {liblsl:?}, source_id = {source_id:?} }}\n"
         ),
         "l",
     );
@@ -540,8 +577,9 @@ fn lab_clients_read_the_pose_the_vrpn_feed_sends() {
             "ros2_clients.py",
             vec![ros.to_string(), "7".into(), s.clone()],
         ),
+        spawn("lsl_client.py", vec![source_id.clone(), s.clone()]),
     ];
-    let [vrpn_out, lmc_nat, sdk_nat, qtm, lmc_q, ros2] = clients.map(|c| c.join().unwrap());
+    let [vrpn_out, lmc_nat, sdk_nat, qtm, lmc_q, ros2, lsl] = clients.map(|c| c.join().unwrap());
     let vrpn_poses: Vec<(Vec<f64>, Vec<f64>)> = vrpn_out
         .iter()
         .filter(|v| v["name"] == "head")
@@ -877,5 +915,76 @@ fn lab_clients_read_the_pose_the_vrpn_feed_sends() {
             ),
         ],
         "{tokens:?}"
+    );
+
+    // LSL: pylsl resolves the stream by source id and type; seven channels a body, described;
+    // every frame the feed sent within the inlet's window arrives (≥ 99 %), each stamped, after
+    // LSL's own clock correction, within 1 ms of its exposure, with the pose of that frame.
+    let d = done(&lsl);
+    let info = &d["info"];
+    assert_eq!(
+        (&info["type"], &info["channel_count"], &info["source_id"]),
+        (
+            &serde_json::json!("MoCap"),
+            &serde_json::json!(7),
+            &serde_json::json!(source_id)
+        ),
+        "{d}"
+    );
+    assert_eq!(info["nominal_srate"], 30.0, "{d}");
+    assert_eq!(
+        info["labels"][0],
+        serde_json::json!(["head_X", "PositionX", "metres"]),
+        "{d}"
+    );
+    assert_eq!(
+        info["labels"][6],
+        serde_json::json!(["head_QW", "OrientationW", "quaternion"]),
+        "{d}"
+    );
+    let samples: Vec<(f64, Vec<f64>)> = lsl
+        .iter()
+        .filter(|v| v.get("unix").is_some())
+        .map(|v| (v["unix"].as_f64().unwrap(), f(&v["values"])))
+        .collect();
+    rate_ok(samples.len(), "LSL");
+    let frames: std::collections::BTreeMap<u64, &Sent> =
+        sent.iter().map(|s| (s.exposure_ns, s)).collect();
+    let (first, last) = (samples[0].0, samples[samples.len() - 1].0);
+    let window = frames
+        .keys()
+        .filter(|&&e| (e as f64 * 1e-9) >= first - 0.001 && (e as f64 * 1e-9) <= last + 0.001)
+        .count();
+    assert!(
+        samples.len() * 100 >= window * 99,
+        "LSL: {} samples of {window} frames sent in the window",
+        samples.len()
+    );
+    let mut worst_ms = 0.0f64;
+    for (t, values) in &samples {
+        let ns = (t * 1e9) as u64;
+        let near = frames
+            .range(ns.saturating_sub(5_000_000)..ns + 5_000_000)
+            .min_by_key(|(e, _)| e.abs_diff(ns))
+            .unwrap_or_else(|| panic!("LSL sample at {t} is no frame's"));
+        let off_ms = (*near.0 as f64 * 1e-9 - t).abs() * 1e3;
+        worst_ms = worst_ms.max(off_ms);
+        let s = near.1;
+        if s.measured {
+            for (k, v) in s.position.iter().chain(&s.quat).enumerate() {
+                assert!(
+                    (values[k] - v).abs() < 1e-9,
+                    "LSL sample {values:?} vs sent {:?} {:?}",
+                    s.position,
+                    s.quat
+                );
+            }
+        } else {
+            assert!(values.iter().all(|v| v.is_nan()), "{values:?}");
+        }
+    }
+    assert!(
+        worst_ms < 1.0,
+        "LSL timestamps up to {worst_ms:.3} ms from the exposure"
     );
 }

@@ -8,10 +8,11 @@
 - `zenoh-ros2-sdk` (an independent rmw_zenoh-compatible client): a `ROS2Subscriber` on the pose
   topic, which builds its own key and type hash from the message definitions below.
 
-Prints JSON lines: {"kind": "sample", "topic", "type_ok", "msg", "attachment"} per raw sample,
+Prints JSON lines: {"kind": "sample", "topic", "type_ok", "msg", "attachment", "receipt_ns"} per raw sample
+(at most MAX_PER_TOPIC, default 400, a topic),
 {"kind": "sdk", "msg"} per SDK message, then {"kind": "done", "tokens": [...]}.
 
-usage: ros2_clients.py PORT DOMAIN SECONDS
+usage: ros2_clients.py PORT DOMAIN SECONDS [MAX_PER_TOPIC]
 """
 import json
 import os
@@ -57,6 +58,7 @@ def plain(msg):
 
 def main():
     port, domain, seconds = int(sys.argv[1]), int(sys.argv[2]), float(sys.argv[3])
+    cap = int(sys.argv[4]) if len(sys.argv) > 4 else 400
     import zenoh
     from rosbags.typesys import Stores, get_typestore
 
@@ -69,6 +71,7 @@ def main():
     counts = {}
 
     def on_sample(sample):
+        receipt_ns = time.time_ns()
         key = str(sample.key_expr)
         parts = key.split("/")
         dds_type, hash_ = parts[-2], parts[-1]
@@ -77,7 +80,7 @@ def main():
         if ros_type is None:
             return
         counts[topic] = counts.get(topic, 0) + 1
-        if counts[topic] > 400:
+        if counts[topic] > cap:
             return
         payload = bytes(sample.payload.to_bytes())
         att = sample.attachment.to_bytes() if sample.attachment is not None else b""
@@ -88,7 +91,7 @@ def main():
         emit({"kind": "sample", "topic": topic, "domain": parts[0],
               "type_ok": hash_ == store.hash_rihs01(ros_type),
               "msg": plain(store.deserialize_cdr(payload, ros_type)),
-              "attachment": a, "attachment_len": len(att)})
+              "attachment": a, "attachment_len": len(att), "receipt_ns": receipt_ns})
 
     sub = router.declare_subscriber(f"{domain}/**", on_sample)
 

@@ -258,7 +258,7 @@ pub fn demo_rig_on_own_ports() -> String {
 
 /// The demo rig's `[vr]` section, every protocol on its default port.
 pub const DEMO_VR: &str =
-    "[vr]\nvrpn = {}\nvmt = {}\nopentrack = {}\nnatnet = {}\nqualisys = {}\nros2 = {}\n";
+    "[vr]\nvrpn = {}\nvmt = {}\nopentrack = {}\nnatnet = {}\nqualisys = {}\nros2 = {}\nlsl = {}\n";
 
 /// `rig` with its `[vr]` section's default ports replaced by free loopback ports.
 pub fn own_vr_ports(rig: &str) -> String {

@@ -48,6 +48,8 @@ pub enum Detail {
     Qualisys,
     QualisysClients,
     Ros2,
+    Lsl,
+    LslConsumers,
     /// viewer: browsers connected now and since start, sockets refused, bad requests, bytes
     /// sent, previews forwarded, the page's address.
     Clients,
@@ -94,6 +96,8 @@ impl Detail {
             Detail::Qualisys => "qualisys",
             Detail::QualisysClients => "qualisys_clients",
             Detail::Ros2 => "ros2",
+            Detail::Lsl => "lsl",
+            Detail::LslConsumers => "lsl_consumers",
             Detail::Clients => "clients",
             Detail::Connections => "connections",
             Detail::Refused => "refused",

@@ -1,13 +1,16 @@
 #!/usr/bin/env bash
-# The VR feed's latency benchmark (docs/performance.md, "VR feed"): two synthetic 640 × 480
-# cameras at 240 fps (480 frames rendered once and played back and forth), three rigid bodies
-# and four loose markers, the whole chain as processes (`stereoscope demo --rig`), a VRPN
-# client the project did not write (libmotioncapture) and UDP receivers for VMT (python-osc)
-# and opentrack connected throughout. Prints per run the demo's summary (vr_latency_p50_us /
-# p99: the feed's own figure, newest frame published → bytes handed to the sockets) and, per
-# protocol, the latency from the pose frame's oldest exposure to its receipt at the client:
-# the feed's trace (STEREOSCOPE_VR_TRACE) joined with what the clients received
-# (vr_latency_join.py).
+# The feed's latency benchmark (docs/performance.md, "VR feed" and "Lab protocols"): two
+# synthetic 640 × 480 cameras at 240 fps (480 frames rendered once and played back and forth),
+# three rigid bodies and four loose markers, the whole chain as processes (`stereoscope demo
+# --rig`), every protocol on at once, each with a client the project did not write connected
+# throughout: libmotioncapture's VRPN client, python-osc for VMT, opentrack's packet,
+# OptiTrack's NatNet client (natnetsdk), Qualisys's qtm-rt, a Zenoh router with a raw ROS 2
+# subscriber (rosbags decoding), and a pylsl inlet. Prints per run the demo's summary
+# (vr_latency_p50_us / p99: the feed's own figure, newest frame published → bytes handed to the
+# sockets), the feed process's CPU, and per protocol the latency from the pose frame's oldest
+# exposure to its receipt at the client: for VRPN, VMT and opentrack the feed's trace
+# (STEREOSCOPE_VR_TRACE) joined with what the clients received (vr_latency_join.py); for the
+# lab protocols the exposure each client reads in the frame itself (lab_latency_join.py).
 #
 #   services/vrfeed/benches/vr-latency.sh [RUNS] [SECONDS] [BINARY]
 set -euo pipefail
@@ -23,6 +26,12 @@ port=$(free)
 vmt=$(free)
 vmc=$(free)
 ot=$(free)
+natnet=$(free)
+natdata=$(free)
+qtm=$(free)
+ros=$(free)
+lsl_source="vrbench-$$"
+liblsl=$(ls "$root"/target/py-clients/lib/python3*/site-packages/pylsl/lib/liblsl.so 2>/dev/null | head -1)
 cat > "$out/rig.toml" <<RIG
 name = "vrbench"
 units = "cm"
@@ -68,6 +77,10 @@ tolerance = 0.5
 vrpn = { listen = "127.0.0.1:$port" }
 vmt = { send_to = "127.0.0.1:$vmt" }
 opentrack = { send_to = "127.0.0.1:$ot", body = "head" }
+natnet = { command = "127.0.0.1:$natnet", data_port = $natdata }
+qualisys = { base = "127.0.0.1:$((qtm - 1))" }
+ros2 = { router = "tcp/127.0.0.1:$ros" }
+lsl = { library = "$liblsl", source_id = "$lsl_source" }
 
 [synthetic]
 seed = 3
@@ -121,6 +134,12 @@ for r in $(seq "$runs"); do
   # The client connects once the feed listens, and stays until the run ends.
   ( sleep 4; timeout $((seconds + 10)) "$py" "$root/tests/clients/vrpn_client.py" "127.0.0.1:$port" "$((seconds - 2))" > "$out/vrpn-$r.jsonl" 2> "$out/vrpn-$r.log" || true ) &
   ( timeout $((seconds + 10)) "$py" "$root/tests/clients/udp_receivers.py" "$vmt" "$vmc" "$ot" "$((seconds + 2))" > "$out/udp-$r.jsonl" 2> "$out/udp-$r.log" || true ) &
+  ( timeout $((seconds + 10)) "$py" "$root/tests/clients/ros2_clients.py" "$ros" 0 "$((seconds + 2))" 1000000 > "$out/ros-$r.jsonl" 2> "$out/ros-$r.log" || true ) &
+  ( sleep 4; timeout $((seconds + 10)) "$py" "$root/tests/clients/natnet_clients.py" natnetsdk "$natnet" "$natdata" "$((seconds - 4))" > "$out/natnet-$r.jsonl" 2> "$out/natnet-$r.log" || true ) &
+  ( sleep 4; timeout $((seconds + 10)) "$py" "$root/tests/clients/qualisys_clients.py" qtm-rt "$qtm" "$((seconds - 8))" > "$out/qtm-$r.jsonl" 2> "$out/qtm-$r.log" || true ) &
+  ( sleep 2; timeout $((seconds + 10)) "$py" "$root/tests/clients/lsl_client.py" "$lsl_source" "$((seconds - 4))" > "$out/lsl-$r.jsonl" 2> "$out/lsl-$r.log" || true ) &
+  # The feed's CPU from its own accounting, over the middle of the run.
+  ( sleep 6; pid=$(pgrep -f "stereoscope service vrfeed" | head -1); t0=$(awk '{print $14 + $15}' /proc/$pid/stat); sleep $((seconds - 10)); t1=$(awk '{print $14 + $15}' /proc/$pid/stat); python3 -c "import os,sys; print(f'feed CPU {100 * ($t1 - $t0) / os.sysconf(\"SC_CLK_TCK\") / ($seconds - 10):.1f} % of a core')" > "$out/cpu-$r.txt" ) &
   rm -f "$out/trace-$r.jsonl"
   STEREOSCOPE_VR_TRACE="$out/trace-$r.jsonl" "$bin" demo --rig "$out/rig.toml" --seconds "$seconds" --json 2> "$out/demo-$r.log" | tail -1 > "$out/summary-$r.json"
   wait
@@ -133,4 +152,6 @@ print(f"pose frames/s {s['poses_per_s']:.1f}; poses p50 {s['latency_p50_ms']:.3f
       f"VR feed p50 {s['vr_latency_p50_us']} µs p99 {s['vr_latency_p99_us']} µs; VRPN poses received {n}; bodies: {bodies}")
 PY
   python3 "$here/vr_latency_join.py" "$out/trace-$r.jsonl" "$out/vrpn-$r.jsonl" "$out/udp-$r.jsonl"
+  python3 "$here/lab_latency_join.py" "$out/natnet-$r.jsonl" "$out/qtm-$r.jsonl" "$out/ros-$r.jsonl" "$out/lsl-$r.jsonl"
+  cat "$out/cpu-$r.txt"
 done

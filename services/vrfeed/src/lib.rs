@@ -17,6 +17,7 @@
 
 pub mod cli;
 pub mod feeds;
+pub mod lsl;
 pub mod natnet;
 pub mod output;
 pub mod qualisys;
@@ -108,7 +109,7 @@ impl Lab {
             }
             Err(e) => {
                 let m = format!(
-                    "{} cannot listen on {}: {e}; trying again every second",
+                    "{} ({}) is not up: {e}; trying again every second",
                     self.name, self.addr
                 );
                 if counters.last_error() != Some(&m) {
@@ -118,7 +119,7 @@ impl Lab {
                 let state = if e.kind() == std::io::ErrorKind::AddrInUse {
                     "port in use"
                 } else {
-                    "cannot listen"
+                    "unavailable"
                 };
                 counters.set(self.state_key, state);
             }
@@ -157,7 +158,7 @@ fn nominal_fps(spec: &stereoscope_rig::schema::RigFile) -> f64 {
 }
 
 /// The lab protocols of `settings`, not yet bound.
-fn labs(settings: &VrSettings, bodies: &[output::BodyDef], fps: f64) -> Vec<Lab> {
+fn labs(settings: &VrSettings, bodies: &[output::BodyDef], fps: f64, rig: &str) -> Vec<Lab> {
     let mut out = Vec::new();
     if let Some(n) = &settings.natnet {
         let cfg = natnet::NatNetConfig {
@@ -218,6 +219,27 @@ fn labs(settings: &VrSettings, bodies: &[output::BodyDef], fps: f64) -> Vec<Lab>
             up: "publishing",
             open: Box::new(move || {
                 ros2::Ros2Output::open(cfg.clone(), names.clone())
+                    .map(|s| Box::new(s) as Box<dyn output::Output + Send>)
+            }),
+            server: None,
+            next_bind: std::time::Instant::now(),
+        });
+    }
+    if let Some(l) = &settings.lsl {
+        let cfg = l.clone();
+        let names: Vec<String> = bodies.iter().map(|b| b.name.clone()).collect();
+        let rig = rig.to_string();
+        out.push(Lab {
+            name: "LSL",
+            addr: l
+                .source_id
+                .clone()
+                .unwrap_or_else(|| format!("stereoscope/{rig}")),
+            state_key: Detail::Lsl,
+            clients_key: Some(Detail::LslConsumers),
+            up: "streaming",
+            open: Box::new(move || {
+                lsl::LslOutlet::open(&cfg, &rig, &names, fps)
                     .map(|s| Box::new(s) as Box<dyn output::Output + Send>)
             }),
             server: None,
@@ -347,6 +369,7 @@ impl VrFeedService {
             &settings,
             &body_defs(&ctx.rig.spec),
             nominal_fps(&ctx.rig.spec),
+            &ctx.rig.name,
         );
         for l in &mut labs {
             l.bind(&mut node.counters);

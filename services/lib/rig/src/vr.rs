@@ -225,7 +225,16 @@ pub struct VrSettings {
     pub natnet: Option<NatNetSettings>,
     pub qualisys: Option<QualisysSettings>,
     pub ros2: Option<Ros2Settings>,
+    pub lsl: Option<LslSettings>,
     pub bodies: Vec<BodyOutput>,
+}
+
+/// `[vr] lsl` resolved.
+#[derive(Debug, Clone, PartialEq)]
+pub struct LslSettings {
+    pub library: Option<String>,
+    pub source_id: Option<String>,
+    pub frame: ConsumerFrame,
 }
 
 /// `[vr] ros2` resolved.
@@ -504,6 +513,34 @@ pub fn settings(file: &RigFile) -> Result<Option<VrSettings>, RigError> {
             })
         }
     };
+    let lsl = match &vr.lsl {
+        None => None,
+        Some(s) => {
+            for (key, v) in [
+                ("vr.lsl.library", &s.library),
+                ("vr.lsl.source_id", &s.source_id),
+            ] {
+                if let Some(v) = v
+                    && (v.is_empty() || v.contains('\0'))
+                {
+                    return Err(err(
+                        key,
+                        format!("{v:?} must be a non-empty text without NUL"),
+                    ));
+                }
+            }
+            Some(LslSettings {
+                library: s.library.clone(),
+                source_id: s.source_id.clone(),
+                frame: consumer_frame(
+                    s.frame.as_ref(),
+                    ConsumerFrame::identity(),
+                    u,
+                    "vr.lsl.frame",
+                )?,
+            })
+        }
+    };
     Ok(Some(VrSettings {
         vrpn,
         vmt,
@@ -512,6 +549,7 @@ pub fn settings(file: &RigFile) -> Result<Option<VrSettings>, RigError> {
         natnet,
         qualisys,
         ros2,
+        lsl,
         bodies: body_outputs(file)?,
     }))
 }

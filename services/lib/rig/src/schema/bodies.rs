@@ -57,6 +57,23 @@ pub struct VrSpec {
     pub qualisys: Option<QualisysSpec>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub ros2: Option<Ros2Spec>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub lsl: Option<LslSpec>,
+}
+
+/// A Lab Streaming Layer outlet (`docs/lab-protocols.md`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Default)]
+#[serde(deny_unknown_fields)]
+pub struct LslSpec {
+    /// liblsl to load (default: `liblsl.so.2`, then `liblsl.so`, on the library path).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub library: Option<String>,
+    /// The stream's source id, kept across restarts (default "stereoscope/<rig name>").
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub source_id: Option<String>,
+    /// Default: the world frame in metres.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub frame: Option<FrameSpec>,
 }
 
 /// ROS 2 topics through Zenoh as rmw_zenoh publishes them (`docs/lab-protocols.md`).
