@@ -501,6 +501,18 @@ fn lab_clients_read_the_pose_the_vrpn_feed_sends() {
             && h.detail.get("qualisys").is_some_and(|v| v == "listening")
     });
     let rt: std::net::SocketAddr = ([127, 0, 0, 1], qualisys + 1).into();
+    // The feed's resident memory before the hostile peers and the clients.
+    let feed_pid = run.health.lock().unwrap().as_ref().unwrap().pid;
+    let rss_kib = |pid: u32| -> u64 {
+        let status = std::fs::read_to_string(format!("/proc/{pid}/status")).unwrap();
+        status
+            .lines()
+            .find_map(|l| l.strip_prefix("VmRSS:"))
+            .and_then(|v| v.split_whitespace().next())
+            .and_then(|v| v.parse().ok())
+            .unwrap()
+    };
+    let rss_before = rss_kib(feed_pid);
 
     // NatNet garbage: under a header, a length that lies, an unknown id, an oversized datagram.
     let udp = std::net::UdpSocket::bind("127.0.0.1:0").unwrap();
@@ -599,6 +611,14 @@ fn lab_clients_read_the_pose_the_vrpn_feed_sends() {
     // Four NatNet datagrams, the HTTP request and the gigabyte header.
     assert!(garbage >= 6, "{h:?}");
     drop((garbage, huge, half, deaf));
+    // Memory: what the peers and clients could hold is bounded (32 Qualisys clients of at most
+    // 4 MiB backlog each, one datagram per NatNet peer); here far less.
+    let grown_mib = (rss_kib(feed_pid) as f64 - rss_before as f64) / 1024.0;
+    eprintln!("feed resident memory: {:.1} MiB, grew {grown_mib:.1} MiB", rss_before as f64 / 1024.0);
+    assert!(
+        grown_mib < 32.0,
+        "the feed grew {grown_mib:.1} MiB over the hostile peers and the clients"
+    );
     // Stopped, the feed has written its whole trace.
     let mut launcher = run.launcher;
     launcher.stop();

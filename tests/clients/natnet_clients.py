@@ -41,6 +41,7 @@ def run_libmotioncapture(command_port, seconds):
 
 
 def run_natnetsdk(command_port, data_port, seconds):
+    from natnetsdk import MoCapData
     from natnetsdk.NatNetClient import NatNetClient
 
     client = NatNetClient()
@@ -56,12 +57,16 @@ def run_natnetsdk(command_port, data_port, seconds):
     unpack = client._NatNetClient__unpack_mocap_data
 
     def checked(data, packet_size, major, minor):
-        offset, mocap = unpack(data, packet_size, major, minor)
         if major == 0:
-            # A multicast frame that arrived before the server's version did (the sample
-            # decodes it as version 0.0): the client's own race, not counted.
+            # A multicast frame that arrived before the server's version did: the sample would
+            # decode it as version 0.0 — a layout without the 4.1 byte counts — and its data
+            # thread dies on the first string that is not UTF-8 (its own race, whatever the
+            # server). Such frames are counted and passed over, as an empty frame.
             seen["before_version"] += 1
-            return offset, mocap
+            empty = MoCapData.MoCapData()
+            empty.set_prefix_data(MoCapData.FramePrefixData(-1))
+            return packet_size, empty
+        offset, mocap = unpack(data, packet_size, major, minor)
         seen["frames"] += 1
         if offset == packet_size:
             seen["whole"] += 1
