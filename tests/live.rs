@@ -363,6 +363,13 @@ fn every_rig_rule_is_refused_at_start_with_its_key() {
             &["camera[0].source.path", "no-such-clip.y4m"],
         ),
         (
+            "genicam exposure",
+            with_cam0(
+                "source = { kind = \"genicam\", camera = \"127.0.0.1\", exposure_us = -5.0 }",
+            ),
+            &["camera[0].source.exposure_us", "-5"],
+        ),
+        (
             "images",
             with_cam0("source = { kind = \"images\", path = \"no-such-folder\", fps = 30.0 }"),
             &["camera[0].source.path", "no-such-folder"],

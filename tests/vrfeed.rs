@@ -614,7 +614,10 @@ fn lab_clients_read_the_pose_the_vrpn_feed_sends() {
     // Memory: what the peers and clients could hold is bounded (32 Qualisys clients of at most
     // 4 MiB backlog each, one datagram per NatNet peer); here far less.
     let grown_mib = (rss_kib(feed_pid) as f64 - rss_before as f64) / 1024.0;
-    eprintln!("feed resident memory: {:.1} MiB, grew {grown_mib:.1} MiB", rss_before as f64 / 1024.0);
+    eprintln!(
+        "feed resident memory: {:.1} MiB, grew {grown_mib:.1} MiB",
+        rss_before as f64 / 1024.0
+    );
     assert!(
         grown_mib < 32.0,
         "the feed grew {grown_mib:.1} MiB over the hostile peers and the clients"

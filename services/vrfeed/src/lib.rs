@@ -150,7 +150,7 @@ fn nominal_fps(spec: &stereoscope_rig::schema::RigFile) -> f64 {
         .iter()
         .filter_map(|c| match c.source.as_ref()? {
             SourceSpec::Synthetic { fps, .. } | SourceSpec::Images { fps, .. } => Some(*fps),
-            SourceSpec::V4l { fps, .. } => *fps,
+            SourceSpec::V4l { fps, .. } | SourceSpec::Genicam { fps, .. } => *fps,
             SourceSpec::Y4m { .. } => None,
         })
         .next()

@@ -131,6 +131,10 @@ fn bits_of(source: Option<&SourceSpec>) -> Option<u32> {
         Some(SourceSpec::V4l {
             format: Some(f), ..
         }) => Some(f.bits()),
+        Some(SourceSpec::Genicam { format, .. }) => Some(match format {
+            Some(crate::schema::GenicamFormat::Mono16) => 16,
+            _ => 8,
+        }),
         _ => None,
     }
 }
@@ -353,6 +357,45 @@ pub(crate) fn check(file: &RigFile, base: Option<&Path>, sources: bool) -> Resul
                     return Err(err(
                         format!("{key}.source.device"),
                         format!("{device:?} is already another camera's on this host"),
+                    ));
+                }
+            }
+            Some(SourceSpec::Genicam {
+                camera,
+                fps,
+                exposure_us,
+                gain,
+                ..
+            }) => {
+                if let Some(f) = fps {
+                    fps_in_range(&fps_key, *f)?;
+                }
+                if let Some(x) = exposure_us
+                    && !(x.is_finite() && *x > 0.0 && *x <= 10_000_000.0)
+                {
+                    return Err(err(
+                        format!("{key}.source.exposure_us"),
+                        format!("{x} must be above 0 and at most 10 s (10000000 µs)"),
+                    ));
+                }
+                if let Some(g) = gain
+                    && !g.is_finite()
+                {
+                    return Err(err(
+                        format!("{key}.source.gain"),
+                        format!("{g} is not a number"),
+                    ));
+                }
+                if camera.is_empty() || camera.contains('\0') {
+                    return Err(err(
+                        format!("{key}.source.camera"),
+                        format!("{camera:?}: an Aravis device id or the camera's address"),
+                    ));
+                }
+                if !devices.insert((c.host.as_deref(), camera.as_str())) {
+                    return Err(err(
+                        format!("{key}.source.camera"),
+                        format!("{camera:?} is already another camera's on this host"),
                     ));
                 }
             }

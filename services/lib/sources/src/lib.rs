@@ -4,6 +4,7 @@
 //! is a [`FrameSource`]: the capture service publishes what it reads into shared memory, and
 //! the benches, examples and offline processing read the same sources in process.
 
+pub mod genicam;
 pub mod images;
 pub mod source;
 pub mod synthetic;
@@ -206,6 +207,30 @@ pub fn open_in_run(
                     controls: controls.iter().map(|(k, v)| (k.as_str(), v)).collect(),
                 },
             )
+            .map_err(wrap)?,
+        ),
+        SourceSpec::Genicam {
+            camera,
+            format,
+            fps,
+            exposure_us,
+            gain,
+            timestamps,
+            library,
+        } => Box::new(
+            genicam::GenicamSource::open(&genicam::GenicamRequest {
+                camera: camera.clone(),
+                size_px: (spec.image_size[0], spec.image_size[1]),
+                format16: matches!(format, Some(stereoscope_rig::schema::GenicamFormat::Mono16)),
+                fps: *fps,
+                exposure_us: *exposure_us,
+                gain_db: *gain,
+                clock: match timestamps {
+                    Some(stereoscope_rig::schema::GenicamClock::Ptp) => genicam::Clock::Ptp,
+                    _ => genicam::Clock::Mapped,
+                },
+                library: library.clone(),
+            })
             .map_err(wrap)?,
         ),
         #[cfg(not(target_os = "linux"))]

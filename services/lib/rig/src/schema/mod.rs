@@ -81,6 +81,21 @@ pub enum V4lFormat {
     Mjpg,
 }
 
+/// A GenICam pixel format the capture service reads.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub enum GenicamFormat {
+    Mono8,
+    Mono16,
+}
+
+/// How a GenICam camera's timestamps become the rig's.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum GenicamClock {
+    Mapped,
+    Ptp,
+}
+
 /// A V4L2 control's value in a rig file.
 #[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(untagged)]
@@ -350,6 +365,29 @@ pub enum SourceSpec {
         /// a boolean, or a menu item's name. Set in name order after exposure and gain.
         #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
         controls: BTreeMap<String, ControlValue>,
+    },
+    /// A GenICam camera (GigE Vision, USB3 Vision) through Aravis, loaded at run time.
+    Genicam {
+        /// Aravis's device id (`Vendor-Model-Serial`) or the camera's address.
+        camera: String,
+        /// "Mono8" (default) or "Mono16".
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        format: Option<GenicamFormat>,
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        fps: Option<f64>,
+        /// ExposureTime, microseconds.
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        exposure_us: Option<f64>,
+        /// Gain, in the camera's unit (usually dB).
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        gain: Option<f64>,
+        /// "mapped" (default): the camera's clock moved onto the host's; "ptp": the camera's
+        /// clock is already Unix time (PTP).
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        timestamps: Option<GenicamClock>,
+        /// The Aravis library (default `libaravis-0.8.so.0` on the library path).
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        library: Option<String>,
     },
     /// A YUV4MPEG2 file or pipe (a FIFO that `ffmpeg … -f yuv4mpegpipe` writes).
     Y4m {

@@ -1,0 +1,523 @@
+//! GenICam industrial cameras (GigE Vision, USB3 Vision) through **Aravis** (`libaravis-0.8`,
+//! the open GenICam implementation every Linux distribution packages), driven through its C API
+//! loaded at run time: no build-time dependency (the `aravis` crate needs the library's
+//! headers, pkg-config and GLib's at build), and a rig without a GenICam camera never loads it.
+//! Debian: `apt install libaravis-0.8-0` (or `aravis-tools`, which brings it and the fake camera
+//! the tests use).
+//!
+//! The camera is opened by its Aravis device id (`Vendor-Model-Serial`, as `arv-tool-0.8`
+//! lists) or its address; its region is set to the rig's `image_size` (offset 0, 0), its pixel
+//! format to `Mono8` or `Mono16` (`format`), acquisition continuous, and the frame rate,
+//! exposure time and gain the rig gives; a value the camera refuses is an error naming the
+//! feature and the camera's message. Frames stream into eight buffers; a buffer the camera or
+//! the network left incomplete (missing packets) is a bad frame, counted, the stream goes on.
+//!
+//! **Timestamps.** Each buffer carries the camera's timestamp (ns on its own clock, latched at
+//! the start of exposure by GenICam's convention) and the host's time of its arrival. With
+//! `timestamps = "mapped"` (the default) the camera's clock is moved onto the host's by the
+//! smallest (arrival − camera stamp) of the last 256 frames — stamps are then late by the
+//! link's shortest transfer — and with `"ptp"` it is taken as Unix time (a camera whose clock
+//! PTP keeps on the host's). Half the exposure time is added: mid-exposure. The camera's frame
+//! id (16 bits on GigE Vision, continued past its wrap) numbers the frame, so frames the camera
+//! or the network lost are gaps the moment worker counts.
+
+use crate::source::{BadFrame, FrameSource, Read, SourceError};
+use std::ffi::{CStr, CString, c_char, c_double, c_int, c_uint, c_void};
+use stereoscope_proto::frame::PixelFormat;
+
+const MONO8: u32 = 0x0108_0001;
+const MONO16: u32 = 0x0110_0007;
+/// `ARV_ACQUISITION_MODE_CONTINUOUS`.
+const CONTINUOUS: c_int = 0;
+/// Buffers the stream holds.
+const BUFFERS: usize = 8;
+/// How long a read waits for a frame, microseconds.
+const POP_TIMEOUT_US: u64 = 2_000_000;
+/// Frames over which the clock offset's minimum is taken.
+const OFFSET_WINDOW: usize = 256;
+
+/// How the camera's timestamps become the rig's.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Clock {
+    Mapped,
+    Ptp,
+}
+
+/// What the rig asks of a GenICam camera.
+#[derive(Debug, Clone)]
+pub struct GenicamRequest {
+    pub camera: String,
+    pub size_px: (u32, u32),
+    pub format16: bool,
+    pub fps: Option<f64>,
+    pub exposure_us: Option<f64>,
+    pub gain_db: Option<f64>,
+    pub clock: Clock,
+    /// The library to load (default `libaravis-0.8.so.0`).
+    pub library: Option<String>,
+}
+
+#[repr(C)]
+struct GError {
+    domain: u32,
+    code: c_int,
+    message: *const c_char,
+}
+
+type Err = *mut *mut GError;
+
+/// The Aravis and GLib functions used.
+struct Api {
+    camera_new: unsafe extern "C" fn(*const c_char, Err) -> *mut c_void,
+    set_pixel_format: unsafe extern "C" fn(*mut c_void, u32, Err),
+    get_pixel_format: unsafe extern "C" fn(*mut c_void, Err) -> u32,
+    set_region: unsafe extern "C" fn(*mut c_void, c_int, c_int, c_int, c_int, Err),
+    get_region:
+        unsafe extern "C" fn(*mut c_void, *mut c_int, *mut c_int, *mut c_int, *mut c_int, Err),
+    set_frame_rate: unsafe extern "C" fn(*mut c_void, c_double, Err),
+    get_frame_rate: unsafe extern "C" fn(*mut c_void, Err) -> c_double,
+    set_exposure: unsafe extern "C" fn(*mut c_void, c_double, Err),
+    get_exposure: unsafe extern "C" fn(*mut c_void, Err) -> c_double,
+    set_gain: unsafe extern "C" fn(*mut c_void, c_double, Err),
+    set_acquisition_mode: unsafe extern "C" fn(*mut c_void, c_int, Err),
+    get_payload: unsafe extern "C" fn(*mut c_void, Err) -> c_uint,
+    create_stream: unsafe extern "C" fn(*mut c_void, *mut c_void, *mut c_void, Err) -> *mut c_void,
+    start: unsafe extern "C" fn(*mut c_void, Err),
+    stop: unsafe extern "C" fn(*mut c_void, Err),
+    buffer_new: unsafe extern "C" fn(usize, *mut c_void) -> *mut c_void,
+    push: unsafe extern "C" fn(*mut c_void, *mut c_void),
+    pop: unsafe extern "C" fn(*mut c_void, u64) -> *mut c_void,
+    status: unsafe extern "C" fn(*mut c_void) -> c_int,
+    data: unsafe extern "C" fn(*mut c_void, *mut usize) -> *const c_void,
+    timestamp: unsafe extern "C" fn(*mut c_void) -> u64,
+    system_timestamp: unsafe extern "C" fn(*mut c_void) -> u64,
+    frame_id: unsafe extern "C" fn(*mut c_void) -> u64,
+    unref: unsafe extern "C" fn(*mut c_void),
+    error_free: unsafe extern "C" fn(*mut GError),
+    _gobject: libloading::Library,
+    _glib: libloading::Library,
+    _aravis: libloading::Library,
+}
+
+fn load(path: &str) -> Result<libloading::Library, String> {
+    // SAFETY: loading Aravis or GLib runs their initialisers, which set up their own state.
+    unsafe { libloading::Library::new(path) }.map_err(|e| format!("{path}: {e}"))
+}
+
+impl Api {
+    fn load(library: Option<&str>) -> Result<Api, String> {
+        let aravis = load(library.unwrap_or("libaravis-0.8.so.0"))?;
+        let gobject = load("libgobject-2.0.so.0")?;
+        let glib = load("libglib-2.0.so.0")?;
+        macro_rules! sym {
+            ($lib:expr, $name:literal) => {{
+                // SAFETY: the symbol has the signature of the field it fills, as Aravis 0.8's
+                // and GLib's headers declare it.
+                *unsafe { $lib.get($name) }.map_err(|e| {
+                    format!(
+                        "{}: {e}",
+                        String::from_utf8_lossy(&$name[..$name.len() - 1])
+                    )
+                })?
+            }};
+        }
+        Ok(Api {
+            camera_new: sym!(aravis, b"arv_camera_new\0"),
+            set_pixel_format: sym!(aravis, b"arv_camera_set_pixel_format\0"),
+            get_pixel_format: sym!(aravis, b"arv_camera_get_pixel_format\0"),
+            set_region: sym!(aravis, b"arv_camera_set_region\0"),
+            get_region: sym!(aravis, b"arv_camera_get_region\0"),
+            set_frame_rate: sym!(aravis, b"arv_camera_set_frame_rate\0"),
+            get_frame_rate: sym!(aravis, b"arv_camera_get_frame_rate\0"),
+            set_exposure: sym!(aravis, b"arv_camera_set_exposure_time\0"),
+            get_exposure: sym!(aravis, b"arv_camera_get_exposure_time\0"),
+            set_gain: sym!(aravis, b"arv_camera_set_gain\0"),
+            set_acquisition_mode: sym!(aravis, b"arv_camera_set_acquisition_mode\0"),
+            get_payload: sym!(aravis, b"arv_camera_get_payload\0"),
+            create_stream: sym!(aravis, b"arv_camera_create_stream\0"),
+            start: sym!(aravis, b"arv_camera_start_acquisition\0"),
+            stop: sym!(aravis, b"arv_camera_stop_acquisition\0"),
+            buffer_new: sym!(aravis, b"arv_buffer_new\0"),
+            push: sym!(aravis, b"arv_stream_push_buffer\0"),
+            pop: sym!(aravis, b"arv_stream_timeout_pop_buffer\0"),
+            status: sym!(aravis, b"arv_buffer_get_status\0"),
+            data: sym!(aravis, b"arv_buffer_get_data\0"),
+            timestamp: sym!(aravis, b"arv_buffer_get_timestamp\0"),
+            system_timestamp: sym!(aravis, b"arv_buffer_get_system_timestamp\0"),
+            frame_id: sym!(aravis, b"arv_buffer_get_frame_id\0"),
+            unref: sym!(gobject, b"g_object_unref\0"),
+            error_free: sym!(glib, b"g_error_free\0"),
+            _gobject: gobject,
+            _glib: glib,
+            _aravis: aravis,
+        })
+    }
+
+    /// Runs `f` with a fresh `GError` slot; its message, if it set one.
+    fn call<T>(&self, f: impl FnOnce(Err) -> T) -> Result<T, String> {
+        let mut e: *mut GError = std::ptr::null_mut();
+        let v = f(&mut e);
+        if e.is_null() {
+            return Ok(v);
+        }
+        // SAFETY: Aravis set a GError: its message is a NUL-terminated string it owns until the
+        // error is freed, right after it is copied.
+        let m = unsafe {
+            let m = if (*e).message.is_null() {
+                "unknown error".to_string()
+            } else {
+                CStr::from_ptr((*e).message).to_string_lossy().into_owned()
+            };
+            (self.error_free)(e);
+            m
+        };
+        Err(m)
+    }
+}
+
+/// The camera's frame id (16 bits on GigE Vision), continued past its wrap.
+#[derive(Debug, Default)]
+struct FrameIds {
+    last: Option<u64>,
+    wraps: u64,
+}
+
+impl FrameIds {
+    fn extend(&mut self, id: u64) -> u64 {
+        let modulus: u64 = if id <= u64::from(u16::MAX) {
+            1 << 16
+        } else {
+            0
+        };
+        if let Some(last) = self.last
+            && modulus > 0
+            && id < last
+            && last - id > modulus / 2
+        {
+            self.wraps += 1;
+        }
+        self.last = Some(id);
+        self.wraps * modulus + id
+    }
+}
+
+/// The camera clock → host clock offset: the smallest (arrival − stamp) over a window.
+#[derive(Debug, Default)]
+struct Offset {
+    recent: std::collections::VecDeque<i128>,
+}
+
+impl Offset {
+    fn update(&mut self, camera_ns: u64, arrival_ns: u64) -> i128 {
+        if self.recent.len() == OFFSET_WINDOW {
+            self.recent.pop_front();
+        }
+        self.recent
+            .push_back(i128::from(arrival_ns) - i128::from(camera_ns));
+        self.recent.iter().copied().min().unwrap_or(0)
+    }
+}
+
+pub struct GenicamSource {
+    api: Api,
+    camera: *mut c_void,
+    stream: *mut c_void,
+    name: String,
+    width: u32,
+    height: u32,
+    format: PixelFormat,
+    fps: Option<f64>,
+    exposure_us: Option<f64>,
+    clock: Clock,
+    ids: FrameIds,
+    offset: Offset,
+    acquiring: bool,
+}
+
+// SAFETY: the camera and stream objects are used only through this owner, from one thread at
+// a time (the capture service's); Aravis's objects are not bound to the thread that made them.
+unsafe impl Send for GenicamSource {}
+
+impl std::fmt::Debug for GenicamSource {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "GenicamSource({})", self.name)
+    }
+}
+
+/// A GenICam error naming the camera and what was being done.
+fn gerr(camera: &str, doing: &str, message: String) -> SourceError {
+    SourceError::io(camera, doing.to_string(), std::io::Error::other(message))
+}
+
+impl GenicamSource {
+    pub fn open(req: &GenicamRequest) -> Result<GenicamSource, SourceError> {
+        let name = req.camera.clone();
+        let api = Api::load(req.library.as_deref()).map_err(|m| {
+            gerr(
+                &name,
+                "loading Aravis",
+                format!("{m} (install libaravis-0.8-0, or give the source's library)"),
+            )
+        })?;
+        let c_name = CString::new(name.as_str()).map_err(|_| {
+            gerr(
+                &name,
+                "opening",
+                "the camera's name holds a NUL byte".into(),
+            )
+        })?;
+        // SAFETY (this block and the calls below): Aravis's C API on a camera object it made,
+        // every out-pointer a live local, every GError collected by `Api::call`.
+        let camera = api
+            .call(|e| unsafe { (api.camera_new)(c_name.as_ptr(), e) })
+            .map_err(|m| gerr(&name, "opening", m))?;
+        if camera.is_null() {
+            return Err(gerr(&name, "opening", "no such camera".into()));
+        }
+        let mut s = GenicamSource {
+            api,
+            camera,
+            stream: std::ptr::null_mut(),
+            name: name.clone(),
+            width: 0,
+            height: 0,
+            format: PixelFormat::Gray8,
+            fps: None,
+            exposure_us: None,
+            clock: req.clock,
+            ids: FrameIds::default(),
+            offset: Offset::default(),
+            acquiring: false,
+        };
+        let cam = s.camera;
+        let api = &s.api;
+        let fmt = if req.format16 { MONO16 } else { MONO8 };
+        api.call(|e| unsafe { (api.set_pixel_format)(cam, fmt, e) })
+            .map_err(|m| gerr(&name, "setting PixelFormat", m))?;
+        let (w, h) = req.size_px;
+        api.call(|e| unsafe { (api.set_region)(cam, 0, 0, w as c_int, h as c_int, e) })
+            .map_err(|m| gerr(&name, &format!("setting the region to {w}×{h}"), m))?;
+        api.call(|e| unsafe { (api.set_acquisition_mode)(cam, CONTINUOUS, e) })
+            .map_err(|m| gerr(&name, "setting AcquisitionMode Continuous", m))?;
+        if let Some(fps) = req.fps {
+            api.call(|e| unsafe { (api.set_frame_rate)(cam, fps, e) })
+                .map_err(|m| gerr(&name, &format!("setting AcquisitionFrameRate {fps}"), m))?;
+        }
+        if let Some(us) = req.exposure_us {
+            api.call(|e| unsafe { (api.set_exposure)(cam, us, e) })
+                .map_err(|m| gerr(&name, &format!("setting ExposureTime {us} µs"), m))?;
+        }
+        if let Some(g) = req.gain_db {
+            api.call(|e| unsafe { (api.set_gain)(cam, g, e) })
+                .map_err(|m| gerr(&name, &format!("setting Gain {g}"), m))?;
+        }
+        // What the camera took.
+        let (mut x, mut y, mut cw, mut ch) = (0, 0, 0, 0);
+        api.call(|e| unsafe { (api.get_region)(cam, &mut x, &mut y, &mut cw, &mut ch, e) })
+            .map_err(|m| gerr(&name, "reading the region", m))?;
+        let got = api
+            .call(|e| unsafe { (api.get_pixel_format)(cam, e) })
+            .map_err(|m| gerr(&name, "reading PixelFormat", m))?;
+        let format = match got {
+            MONO8 => PixelFormat::Gray8,
+            MONO16 => PixelFormat::Gray16,
+            other => {
+                return Err(gerr(
+                    &name,
+                    "reading PixelFormat",
+                    format!("the camera gives format 0x{other:08x}, not Mono8 or Mono16"),
+                ));
+            }
+        };
+        let fps = api
+            .call(|e| unsafe { (api.get_frame_rate)(cam, e) })
+            .ok()
+            .filter(|f| f.is_finite() && *f > 0.0);
+        let exposure_us = api
+            .call(|e| unsafe { (api.get_exposure)(cam, e) })
+            .ok()
+            .filter(|x| x.is_finite() && *x > 0.0);
+        let payload = api
+            .call(|e| unsafe { (api.get_payload)(cam, e) })
+            .map_err(|m| gerr(&name, "reading the payload size", m))?;
+        let stream = api
+            .call(|e| unsafe {
+                (api.create_stream)(cam, std::ptr::null_mut(), std::ptr::null_mut(), e)
+            })
+            .map_err(|m| gerr(&name, "creating the stream", m))?;
+        if stream.is_null() {
+            return Err(gerr(&name, "creating the stream", "no stream".into()));
+        }
+        for _ in 0..BUFFERS {
+            unsafe {
+                let b = (api.buffer_new)(payload as usize, std::ptr::null_mut());
+                (api.push)(stream, b);
+            }
+        }
+        api.call(|e| unsafe { (api.start)(cam, e) })
+            .map_err(|m| gerr(&name, "starting acquisition", m))?;
+        s.stream = stream;
+        s.acquiring = true;
+        s.width = cw.max(0) as u32;
+        s.height = ch.max(0) as u32;
+        s.format = format;
+        s.fps = fps;
+        s.exposure_us = exposure_us;
+        Ok(s)
+    }
+}
+
+impl Drop for GenicamSource {
+    fn drop(&mut self) {
+        let api = &self.api;
+        // SAFETY: stopping and releasing the objects this source made, once.
+        unsafe {
+            if self.acquiring {
+                let _ = api.call(|e| (api.stop)(self.camera, e));
+            }
+            if !self.stream.is_null() {
+                (api.unref)(self.stream);
+            }
+            (api.unref)(self.camera);
+        }
+    }
+}
+
+/// `ArvBufferStatus` names, for the log.
+fn status_name(s: c_int) -> &'static str {
+    match s {
+        1 => "cleared",
+        2 => "timeout",
+        3 => "missing packets",
+        4 => "wrong packet id",
+        5 => "size mismatch",
+        6 => "filling",
+        7 => "aborted",
+        8 => "payload not supported",
+        _ => "unknown status",
+    }
+}
+
+impl FrameSource for GenicamSource {
+    fn describe(&self) -> String {
+        format!(
+            "genicam {} {:?} {}×{}{}{}, timestamps {}",
+            self.name,
+            self.format,
+            self.width,
+            self.height,
+            self.fps.map(|f| format!(" {f} fps")).unwrap_or_default(),
+            self.exposure_us
+                .map(|x| format!(", exposure {x} µs"))
+                .unwrap_or_default(),
+            match self.clock {
+                Clock::Mapped => "mapped from the camera's clock at mid-exposure",
+                Clock::Ptp => "the camera's (PTP) at mid-exposure",
+            }
+        )
+    }
+
+    fn format(&self) -> PixelFormat {
+        self.format
+    }
+
+    fn size(&self) -> (u32, u32) {
+        (self.width, self.height)
+    }
+
+    fn fps(&self) -> Option<f64> {
+        self.fps
+    }
+
+    fn realtime(&self) -> bool {
+        false
+    }
+
+    fn read(&mut self, _i: u64, _t: f64, out: &mut [u8]) -> Result<Read, SourceError> {
+        let api = &self.api;
+        // SAFETY: popping, reading and pushing back buffers of this source's stream; the data
+        // pointer is valid for `size` bytes until the buffer is pushed back, after the copy.
+        unsafe {
+            let b = (api.pop)(self.stream, POP_TIMEOUT_US);
+            if b.is_null() {
+                return Err(BadFrame::Camera {
+                    device: self.name.clone(),
+                    source: format!("no frame within {} s", POP_TIMEOUT_US / 1_000_000).into(),
+                }
+                .into());
+            }
+            let status = (api.status)(b);
+            let id = self.ids.extend((api.frame_id)(b));
+            let camera_ns = (api.timestamp)(b);
+            let arrival_ns = (api.system_timestamp)(b);
+            let result = if status != 0 {
+                Err(format!("frame {id}: {}", status_name(status)))
+            } else {
+                let mut size = 0usize;
+                let data = (api.data)(b, &mut size) as *const u8;
+                let need = out.len();
+                if data.is_null() || size < need {
+                    Err(format!("frame {id}: {size} bytes, {need} expected"))
+                } else {
+                    out.copy_from_slice(std::slice::from_raw_parts(data, need));
+                    Ok(())
+                }
+            };
+            (api.push)(self.stream, b);
+            result.map_err(|m| BadFrame::Camera {
+                device: self.name.clone(),
+                source: m.into(),
+            })?;
+            let start_ns = match self.clock {
+                Clock::Ptp => i128::from(camera_ns),
+                Clock::Mapped => i128::from(camera_ns) + self.offset.update(camera_ns, arrival_ns),
+            };
+            let half = self.exposure_us.map_or(0.0, |us| us * 500.0) as i128;
+            Ok(Read::Frame {
+                timestamp_ns: u64::try_from(start_ns + half).ok(),
+                sequence: Some(id),
+            })
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn frame_ids_continue_past_the_16_bit_wrap() {
+        let mut f = FrameIds::default();
+        assert_eq!(f.extend(65534), 65534);
+        assert_eq!(f.extend(65535), 65535);
+        assert_eq!(f.extend(1), 65537);
+        // A 64-bit id (USB3 Vision) is taken as it is.
+        let mut g = FrameIds::default();
+        assert_eq!(g.extend(1 << 40), 1 << 40);
+    }
+
+    #[test]
+    fn the_offset_is_the_smallest_transfer_seen() {
+        let mut o = Offset::default();
+        assert_eq!(o.update(1_000, 6_000), 5_000);
+        assert_eq!(o.update(2_000, 6_500), 4_500);
+        assert_eq!(o.update(3_000, 9_000), 4_500);
+    }
+
+    #[test]
+    fn a_missing_library_is_named() {
+        let e = GenicamSource::open(&GenicamRequest {
+            camera: "Aravis-Fake-GV01".into(),
+            size_px: (512, 512),
+            format16: false,
+            fps: None,
+            exposure_us: None,
+            gain_db: None,
+            clock: Clock::Mapped,
+            library: Some("/nonexistent/libaravis.so".into()),
+        })
+        .unwrap_err();
+        let m = format!("{e:#}");
+        assert!(m.contains("Aravis-Fake-GV01"), "{m}");
+    }
+}
