@@ -638,5 +638,101 @@ fn genicam_frames_from_aravis_fake_camera() {
         err.contains("cam0") && err.contains("Aravis-NoSuch-0") && err.lines().count() <= 3,
         "{err}"
     );
+    drop(_camera);
+
+    // The capture service on the emulator losing 2 packets in a thousand, killed and started
+    // again mid-stream: incomplete frames are counted and dropped, the camera is opened again
+    // and frames resume in the same process, its numbers going on.
+    let lossy = FakeCamera::start("STSC2", 2);
+    let router = {
+        let l = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+        l.local_addr().unwrap().port()
+    };
+    let run_rig = dir.join("run.toml");
+    std::fs::write(
+        &run_rig,
+        format!(
+            "{}\n[[host]]\nname = \"pc\"\nzenoh_listen = [\"tcp/127.0.0.1:{router}\"]\niceoryx2_prefix = \"stsc_gc{}_\"\n",
+            rig([512, 512], source),
+            std::process::id()
+        ),
+    )
+    .unwrap();
+    let mut launcher = Command::new(env!("CARGO_BIN_EXE_stereoscope"))
+        .args(["run", run_rig.to_str().unwrap()])
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let capture = || -> Option<serde_json::Value> {
+        let o = Command::new(env!("CARGO_BIN_EXE_stereoscope"))
+            .args(["status", run_rig.to_str().unwrap(), "--json"])
+            .output()
+            .ok()?;
+        let v: serde_json::Value = serde_json::from_slice(&o.stdout).ok()?;
+        v["services"]
+            .as_array()?
+            .iter()
+            .find(|s| s["service"] == "capture/cam0")
+            .map(|s| s["health"].clone())
+    };
+    let wait = |what: &str, pred: &dyn Fn(&serde_json::Value) -> bool| -> serde_json::Value {
+        let end = Instant::now() + Duration::from_secs(30);
+        loop {
+            if let Some(h) = capture().filter(|h| pred(h)) {
+                return h;
+            }
+            assert!(
+                Instant::now() < end,
+                "capture never {what}: {:?}",
+                capture()
+            );
+            std::thread::sleep(Duration::from_millis(300));
+        }
+    };
+    let n = |h: &serde_json::Value, k: &str| h[k].as_u64().unwrap_or(0);
+    let bad = |h: &serde_json::Value| {
+        h["detail"]["rejected.bad_frame"]
+            .as_str()
+            .and_then(|v| v.parse::<u64>().ok())
+            .unwrap_or(0)
+    };
+    let before = wait("processed 40 frames and dropped an incomplete one", &|h| {
+        n(h, "processed") >= 40 && bad(h) > 0
+    });
+    drop(lossy);
+    let lost = wait("noticed the camera gone", &|h| {
+        h["last_error"]
+            .as_str()
+            .is_some_and(|e| e.contains("opening the camera again"))
+    });
+    let _back = FakeCamera::start("STSC2", 0);
+    let after = wait("resumed", &|h| {
+        n(h, "processed") >= n(&lost, "processed") + 40
+    });
+    assert_eq!(
+        n(&after, "pid"),
+        n(&before, "pid"),
+        "the capture service was restarted: {after:?}"
+    );
+    // Stopped as a user stops it (SIGTERM: the launcher stops its services), then reaped.
+    // SAFETY: signalling a child this test started and has not reaped.
+    unsafe {
+        libc::kill(launcher.id() as i32, libc::SIGTERM);
+    }
+    let end = Instant::now() + Duration::from_secs(15);
+    while launcher.try_wait().unwrap().is_none() {
+        if Instant::now() > end {
+            let _ = launcher.kill();
+            break;
+        }
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    let mut log = String::new();
+    if let Some(mut e) = launcher.stderr.take() {
+        let _ = e.read_to_string(&mut log);
+    }
+    let _ = launcher.wait();
+    assert!(!log.contains("restarting"), "{log}");
     let _ = std::fs::remove_dir_all(&dir);
 }

@@ -132,8 +132,8 @@ fn bits_of(source: Option<&SourceSpec>) -> Option<u32> {
             format: Some(f), ..
         }) => Some(f.bits()),
         Some(SourceSpec::Genicam { format, .. }) => Some(match format {
-            Some(crate::schema::GenicamFormat::Mono16) => 16,
-            _ => 8,
+            None | Some(crate::schema::GenicamFormat::Mono8) => 8,
+            Some(_) => 16,
         }),
         _ => None,
     }

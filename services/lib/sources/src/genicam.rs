@@ -7,10 +7,16 @@
 //!
 //! The camera is opened by its Aravis device id (`Vendor-Model-Serial`, as `arv-tool-0.8`
 //! lists) or its address; its region is set to the rig's `image_size` (offset 0, 0), its pixel
-//! format to `Mono8` or `Mono16` (`format`), acquisition continuous, and the frame rate,
-//! exposure time and gain the rig gives; a value the camera refuses is an error naming the
-//! feature and the camera's message. Frames stream into eight buffers; a buffer the camera or
-//! the network left incomplete (missing packets) is a bad frame, counted, the stream goes on.
+//! format to `Mono8`, or `Mono10`, `Mono12`, `Mono16` (16-bit containers, read as 16-bit grey;
+//! the packed formats are not read), acquisition continuous, and the frame rate, exposure time
+//! and gain the rig gives, each first checked against the range the camera states (an error
+//! names the feature and the range) and then set (an error names the camera's message).
+//! Frames stream into eight Aravis buffers and are copied once, row for row, into the
+//! shared-memory frame; a buffer the camera or the network left incomplete (missing packets)
+//! is a bad frame, counted, and the stream goes on. A camera silent for two reads (2 s:
+//! unplugged, restarted, its link down) is opened again as it was asked, on a thread of its own
+//! so the capture service goes on reporting, and again after two more silent reads until it
+//! answers; its fresh frame numbers continue the sequence.
 //!
 //! **Timestamps.** Each buffer carries the camera's timestamp (ns on its own clock, latched at
 //! the start of exposure by GenICam's convention) and the host's time of its arrival. With
@@ -26,13 +32,17 @@ use std::ffi::{CStr, CString, c_char, c_double, c_int, c_uint, c_void};
 use stereoscope_proto::frame::PixelFormat;
 
 const MONO8: u32 = 0x0108_0001;
+/// Mono10 and Mono12 unpacked: 16-bit little-endian containers, read as 16-bit grey.
+const MONO10: u32 = 0x0110_0003;
+const MONO12: u32 = 0x0110_0005;
 const MONO16: u32 = 0x0110_0007;
 /// `ARV_ACQUISITION_MODE_CONTINUOUS`.
 const CONTINUOUS: c_int = 0;
 /// Buffers the stream holds.
 const BUFFERS: usize = 8;
-/// How long a read waits for a frame, microseconds.
-const POP_TIMEOUT_US: u64 = 2_000_000;
+/// How long a read waits for a frame, microseconds (short, so the capture service reports its
+/// health while a camera is silent).
+const POP_TIMEOUT_US: u64 = 1_000_000;
 /// Frames over which the clock offset's minimum is taken.
 const OFFSET_WINDOW: usize = 256;
 
@@ -43,12 +53,32 @@ pub enum Clock {
     Ptp,
 }
 
+/// The pixel formats read (the packed Mono10p/Mono12p are not).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Mono {
+    Eight,
+    Ten,
+    Twelve,
+    Sixteen,
+}
+
+impl Mono {
+    fn code(self) -> u32 {
+        match self {
+            Mono::Eight => MONO8,
+            Mono::Ten => MONO10,
+            Mono::Twelve => MONO12,
+            Mono::Sixteen => MONO16,
+        }
+    }
+}
+
 /// What the rig asks of a GenICam camera.
 #[derive(Debug, Clone)]
 pub struct GenicamRequest {
     pub camera: String,
     pub size_px: (u32, u32),
-    pub format16: bool,
+    pub format: Mono,
     pub fps: Option<f64>,
     pub exposure_us: Option<f64>,
     pub gain_db: Option<f64>,
@@ -75,6 +105,9 @@ struct Api {
     get_region:
         unsafe extern "C" fn(*mut c_void, *mut c_int, *mut c_int, *mut c_int, *mut c_int, Err),
     set_frame_rate: unsafe extern "C" fn(*mut c_void, c_double, Err),
+    frame_rate_bounds: unsafe extern "C" fn(*mut c_void, *mut c_double, *mut c_double, Err),
+    exposure_bounds: unsafe extern "C" fn(*mut c_void, *mut c_double, *mut c_double, Err),
+    gain_bounds: unsafe extern "C" fn(*mut c_void, *mut c_double, *mut c_double, Err),
     get_frame_rate: unsafe extern "C" fn(*mut c_void, Err) -> c_double,
     set_exposure: unsafe extern "C" fn(*mut c_void, c_double, Err),
     get_exposure: unsafe extern "C" fn(*mut c_void, Err) -> c_double,
@@ -128,6 +161,9 @@ impl Api {
             set_region: sym!(aravis, b"arv_camera_set_region\0"),
             get_region: sym!(aravis, b"arv_camera_get_region\0"),
             set_frame_rate: sym!(aravis, b"arv_camera_set_frame_rate\0"),
+            frame_rate_bounds: sym!(aravis, b"arv_camera_get_frame_rate_bounds\0"),
+            exposure_bounds: sym!(aravis, b"arv_camera_get_exposure_time_bounds\0"),
+            gain_bounds: sym!(aravis, b"arv_camera_get_gain_bounds\0"),
             get_frame_rate: sym!(aravis, b"arv_camera_get_frame_rate\0"),
             set_exposure: sym!(aravis, b"arv_camera_set_exposure_time\0"),
             get_exposure: sym!(aravis, b"arv_camera_get_exposure_time\0"),
@@ -232,6 +268,17 @@ pub struct GenicamSource {
     ids: FrameIds,
     offset: Offset,
     acquiring: bool,
+    /// What was asked, to open the camera again when it went away.
+    req: GenicamRequest,
+    /// Reads in a row that found no frame.
+    silent: u32,
+    /// After the camera was opened again: its frame numbers start afresh; the sequence goes on
+    /// from the last one given (`None`: not yet rebased).
+    last_sequence: Option<u64>,
+    sequence_base: Option<i128>,
+    /// The camera being opened again on a thread of its own (opening and releasing a camera
+    /// that is gone can block for seconds).
+    reopening: Option<std::sync::mpsc::Receiver<Result<Box<GenicamSource>, String>>>,
 }
 
 // SAFETY: the camera and stream objects are used only through this owner, from one thread at
@@ -288,10 +335,15 @@ impl GenicamSource {
             ids: FrameIds::default(),
             offset: Offset::default(),
             acquiring: false,
+            req: req.clone(),
+            silent: 0,
+            last_sequence: None,
+            sequence_base: Some(0),
+            reopening: None,
         };
         let cam = s.camera;
         let api = &s.api;
-        let fmt = if req.format16 { MONO16 } else { MONO8 };
+        let fmt = req.format.code();
         api.call(|e| unsafe { (api.set_pixel_format)(cam, fmt, e) })
             .map_err(|m| gerr(&name, "setting PixelFormat", m))?;
         let (w, h) = req.size_px;
@@ -299,17 +351,44 @@ impl GenicamSource {
             .map_err(|m| gerr(&name, &format!("setting the region to {w}×{h}"), m))?;
         api.call(|e| unsafe { (api.set_acquisition_mode)(cam, CONTINUOUS, e) })
             .map_err(|m| gerr(&name, "setting AcquisitionMode Continuous", m))?;
-        if let Some(fps) = req.fps {
-            api.call(|e| unsafe { (api.set_frame_rate)(cam, fps, e) })
-                .map_err(|m| gerr(&name, &format!("setting AcquisitionFrameRate {fps}"), m))?;
-        }
-        if let Some(us) = req.exposure_us {
-            api.call(|e| unsafe { (api.set_exposure)(cam, us, e) })
-                .map_err(|m| gerr(&name, &format!("setting ExposureTime {us} µs"), m))?;
-        }
-        if let Some(g) = req.gain_db {
-            api.call(|e| unsafe { (api.set_gain)(cam, g, e) })
-                .map_err(|m| gerr(&name, &format!("setting Gain {g}"), m))?;
+        // Each value checked against the range the camera states before it is set.
+        type Bounds = unsafe extern "C" fn(*mut c_void, *mut c_double, *mut c_double, Err);
+        type Set = unsafe extern "C" fn(*mut c_void, c_double, Err);
+        let settings: [(&str, &str, Option<f64>, Bounds, Set); 3] = [
+            (
+                "AcquisitionFrameRate",
+                "fps",
+                req.fps,
+                api.frame_rate_bounds,
+                api.set_frame_rate,
+            ),
+            (
+                "ExposureTime",
+                "µs",
+                req.exposure_us,
+                api.exposure_bounds,
+                api.set_exposure,
+            ),
+            ("Gain", "", req.gain_db, api.gain_bounds, api.set_gain),
+        ];
+        for (feature, unit, value, bounds, set) in settings {
+            let Some(v) = value else { continue };
+            let (mut lo, mut hi) = (f64::NAN, f64::NAN);
+            if api
+                .call(|e| unsafe { bounds(cam, &mut lo, &mut hi, e) })
+                .is_ok()
+                && lo.is_finite()
+                && hi.is_finite()
+                && !(lo..=hi).contains(&v)
+            {
+                return Err(gerr(
+                    &name,
+                    &format!("setting {feature} {v} {unit}"),
+                    format!("the camera allows {lo} to {hi} {unit}"),
+                ));
+            }
+            api.call(|e| unsafe { set(cam, v, e) })
+                .map_err(|m| gerr(&name, &format!("setting {feature} {v} {unit}"), m))?;
         }
         // What the camera took.
         let (mut x, mut y, mut cw, mut ch) = (0, 0, 0, 0);
@@ -320,12 +399,14 @@ impl GenicamSource {
             .map_err(|m| gerr(&name, "reading PixelFormat", m))?;
         let format = match got {
             MONO8 => PixelFormat::Gray8,
-            MONO16 => PixelFormat::Gray16,
+            MONO10 | MONO12 | MONO16 => PixelFormat::Gray16,
             other => {
                 return Err(gerr(
                     &name,
                     "reading PixelFormat",
-                    format!("the camera gives format 0x{other:08x}, not Mono8 or Mono16"),
+                    format!(
+                        "the camera gives format 0x{other:08x}, not Mono8, Mono10, Mono12 or Mono16"
+                    ),
                 ));
             }
         };
@@ -364,6 +445,21 @@ impl GenicamSource {
         s.fps = fps;
         s.exposure_us = exposure_us;
         Ok(s)
+    }
+}
+
+impl GenicamSource {
+    /// Opens the camera again, as it was asked, on a thread of its own.
+    fn reopen(&mut self) {
+        let (tx, rx) = std::sync::mpsc::channel();
+        let req = self.req.clone();
+        std::thread::spawn(move || {
+            let r = GenicamSource::open(&req)
+                .map(Box::new)
+                .map_err(|e| format!("{e:#}"));
+            let _ = tx.send(r);
+        });
+        self.reopening = Some(rx);
     }
 }
 
@@ -434,18 +530,59 @@ impl FrameSource for GenicamSource {
     }
 
     fn read(&mut self, _i: u64, _t: f64, out: &mut [u8]) -> Result<Read, SourceError> {
+        if let Some(rx) = &self.reopening {
+            let waited = rx.recv_timeout(std::time::Duration::from_millis(500));
+            let gone = |m: String| {
+                Err(BadFrame::Camera {
+                    device: self.name.clone(),
+                    source: m.into(),
+                }
+                .into())
+            };
+            match waited {
+                Ok(Ok(fresh)) => {
+                    let last = self.last_sequence;
+                    let old = std::mem::replace(self, *fresh);
+                    self.last_sequence = last;
+                    self.sequence_base = None;
+                    // Releasing the lost camera can block: not on the capture's thread.
+                    std::thread::spawn(move || drop(old));
+                }
+                Ok(Err(m)) => {
+                    self.reopening = None;
+                    self.silent = 0;
+                    return gone(format!("opening the camera again: {m}"));
+                }
+                Err(std::sync::mpsc::RecvTimeoutError::Timeout) => {
+                    return gone("opening the camera again".into());
+                }
+                Err(std::sync::mpsc::RecvTimeoutError::Disconnected) => {
+                    self.reopening = None;
+                    return gone("opening the camera again failed".into());
+                }
+            }
+        }
         let api = &self.api;
         // SAFETY: popping, reading and pushing back buffers of this source's stream; the data
         // pointer is valid for `size` bytes until the buffer is pushed back, after the copy.
         unsafe {
             let b = (api.pop)(self.stream, POP_TIMEOUT_US);
             if b.is_null() {
+                self.silent += 1;
+                if self.silent >= 2 && self.reopening.is_none() {
+                    self.reopen();
+                }
                 return Err(BadFrame::Camera {
                     device: self.name.clone(),
-                    source: format!("no frame within {} s", POP_TIMEOUT_US / 1_000_000).into(),
+                    source: format!(
+                        "no frame within {} s; opening the camera again",
+                        POP_TIMEOUT_US / 1_000_000
+                    )
+                    .into(),
                 }
                 .into());
             }
+            self.silent = 0;
             let status = (api.status)(b);
             let id = self.ids.extend((api.frame_id)(b));
             let camera_ns = (api.timestamp)(b);
@@ -473,9 +610,15 @@ impl FrameSource for GenicamSource {
                 Clock::Mapped => i128::from(camera_ns) + self.offset.update(camera_ns, arrival_ns),
             };
             let half = self.exposure_us.map_or(0.0, |us| us * 500.0) as i128;
+            // After a reopen the camera numbers afresh: continue from the last number given.
+            let base = *self.sequence_base.get_or_insert_with(|| {
+                i128::from(self.last_sequence.map_or(0, |l| l + 1)) - i128::from(id)
+            });
+            let sequence = u64::try_from(i128::from(id) + base).unwrap_or(id);
+            self.last_sequence = Some(sequence);
             Ok(Read::Frame {
                 timestamp_ns: u64::try_from(start_ns + half).ok(),
-                sequence: Some(id),
+                sequence: Some(sequence),
             })
         }
     }
@@ -509,7 +652,7 @@ mod tests {
         let e = GenicamSource::open(&GenicamRequest {
             camera: "Aravis-Fake-GV01".into(),
             size_px: (512, 512),
-            format16: false,
+            format: Mono::Eight,
             fps: None,
             exposure_us: None,
             gain_db: None,

@@ -221,7 +221,14 @@ pub fn open_in_run(
             genicam::GenicamSource::open(&genicam::GenicamRequest {
                 camera: camera.clone(),
                 size_px: (spec.image_size[0], spec.image_size[1]),
-                format16: matches!(format, Some(stereoscope_rig::schema::GenicamFormat::Mono16)),
+                format: match format {
+                    None | Some(stereoscope_rig::schema::GenicamFormat::Mono8) => {
+                        genicam::Mono::Eight
+                    }
+                    Some(stereoscope_rig::schema::GenicamFormat::Mono10) => genicam::Mono::Ten,
+                    Some(stereoscope_rig::schema::GenicamFormat::Mono12) => genicam::Mono::Twelve,
+                    Some(stereoscope_rig::schema::GenicamFormat::Mono16) => genicam::Mono::Sixteen,
+                },
                 fps: *fps,
                 exposure_us: *exposure_us,
                 gain_db: *gain,

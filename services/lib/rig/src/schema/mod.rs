@@ -85,6 +85,9 @@ pub enum V4lFormat {
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 pub enum GenicamFormat {
     Mono8,
+    /// 10 and 12 bits in 16-bit containers (unpacked), read as 16-bit grey.
+    Mono10,
+    Mono12,
     Mono16,
 }
 
@@ -370,7 +373,7 @@ pub enum SourceSpec {
     Genicam {
         /// Aravis's device id (`Vendor-Model-Serial`) or the camera's address.
         camera: String,
-        /// "Mono8" (default) or "Mono16".
+        /// "Mono8" (default), "Mono10", "Mono12" or "Mono16".
         #[serde(default, skip_serializing_if = "Option::is_none")]
         format: Option<GenicamFormat>,
         #[serde(default, skip_serializing_if = "Option::is_none")]
