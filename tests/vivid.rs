@@ -586,10 +586,25 @@ fn genicam_frames_from_aravis_fake_camera() {
         out.contains("genicam 127.0.0.1 Gray8 512×512 20") && out.contains("exposure 2000 µs"),
         "{out}"
     );
-    // Its frame numbers rise, and its stamps follow them at 20 fps.
+    // Its frame numbers rise, and so do its stamps, from the camera's clock: the emulator is a
+    // process that runs late when the machine is busy (measured: a frame 100 ms late while
+    // CI builds), so a frame is never stamped earlier than its period after the one before,
+    // and never more than half a second later — stamps taken when frames are read would bunch
+    // buffers read together. The first saved frames are left out: the camera's clock is mapped
+    // by the smallest transfer seen so far, which the first frames overestimate.
     let f = frames(&out);
     assert_eq!(f.len(), 5, "{out}");
-    stamps_follow_frame_numbers(&f, 20.0, &out);
+    assert!(f.windows(2).all(|w| w[1].0 > w[0].0), "{out}");
+    for w in f[2..].windows(2) {
+        let periods = w[1].0.saturating_sub(w[0].0) as f64;
+        let ms = w[1].1 - w[0].1;
+        assert!(
+            periods >= 1.0 && ms >= periods * 50.0 - 8.0 && ms <= periods * 50.0 + 500.0,
+            "frames {} and {}: {ms} ms apart: {out}",
+            w[0].0,
+            w[1].0
+        );
+    }
     // The emulator's test pattern (bright squares drifting over a gradient): blobs the moment
     // worker finds in every frame.
     assert_eq!(
