@@ -68,7 +68,7 @@ pub struct LslSpec {
     /// liblsl to load (default: `liblsl.so.2`, then `liblsl.so`, on the library path).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub library: Option<String>,
-    /// The stream's source id, kept across restarts (default "stereoscope/<rig name>").
+    /// The stream's source id, kept across restarts (default `stereoscope/<rig name>`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub source_id: Option<String>,
     /// Default: the world frame in metres.
