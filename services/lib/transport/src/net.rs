@@ -213,9 +213,24 @@ pub fn open_client(spec: &ZenohSpec) -> Result<zenoh::Session, TransportError> {
     })
 }
 
+/// Batches in each link's real-time send queue (Zenoh allows 1–16; its default is 2).
+pub const REAL_TIME_QUEUE_BATCHES: usize = 16;
+
 /// Opens a session. A client waits up to 10 s for its router; peers and routers keep
 /// retrying their `connect` endpoints in the background.
 pub fn open(spec: &ZenohSpec) -> Result<zenoh::Session, TransportError> {
+    let cfg = config(spec)?;
+    let what = format!(
+        "open {} session (connect {:?}, listen {:?})",
+        spec.mode.as_str(),
+        spec.connect,
+        spec.listen
+    );
+    zenoh::open(cfg).wait().map_err(|e| zerr(what, e))
+}
+
+/// The Zenoh configuration [`open`] opens `spec` with.
+fn config(spec: &ZenohSpec) -> Result<zenoh::Config, TransportError> {
     let mut cfg = zenoh::Config::default();
     let set = |cfg: &mut zenoh::Config, k: &str, v: &str| {
         cfg.insert_json5(k, v)
@@ -227,6 +242,13 @@ pub fn open(spec: &ZenohSpec) -> Result<zenoh::Session, TransportError> {
     set(&mut cfg, "listen/endpoints", &json_list(&spec.listen))?;
     if spec.mode == ZenohMode::Client {
         set(&mut cfg, "connect/timeout_ms", "10000")?;
+        // Zenoh retries at 1, 3 and 7 s: a recorder started before its rig missed the first
+        // 3.5 s of the take. Every 250 ms catches the router within a frame or two of its start.
+        set(
+            &mut cfg,
+            "connect/retry",
+            "{ period_init_ms: 100, period_max_ms: 250, period_increase_factor: 2 }",
+        )?;
     }
     if spec.mode != ZenohMode::Router {
         // Peers would otherwise listen on every interface; a client listens on nothing.
@@ -252,13 +274,17 @@ pub fn open(spec: &ZenohSpec) -> Result<zenoh::Session, TransportError> {
     if let Some(acl) = &spec.access_control {
         set(&mut cfg, "access_control", acl)?;
     }
-    let what = format!(
-        "open {} session (connect {:?}, listen {:?})",
-        spec.mode.as_str(),
-        spec.connect,
-        spec.listen
-    );
-    zenoh::open(cfg).wait().map_err(|e| zerr(what, e))
+    // Poses, observations and health go out at real-time priority, each message express (a
+    // batch of its own), dropped after 1 ms when no batch is free. Zenoh's default of two
+    // batches drops pose frames whenever the link's sending task is kept off the CPU for two
+    // frames (a recording on a loaded 2-core PC lost 2–7 pose frames in 580); sixteen, the
+    // most Zenoh allows, ride out such a stall (docs/recording.md).
+    set(
+        &mut cfg,
+        "transport/link/tx/queue/size/real_time",
+        &REAL_TIME_QUEUE_BATCHES.to_string(),
+    )?;
+    Ok(cfg)
 }
 
 /// Publishes messages as JSON on one key, express, real-time priority, dropping rather than
@@ -429,6 +455,26 @@ pub fn alive(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Every mode's configuration is one Zenoh takes (a misspelt key fails at open, in every
+    /// service, not here).
+    #[test]
+    fn every_modes_configuration_is_accepted() {
+        for mode in [ZenohMode::Client, ZenohMode::Peer, ZenohMode::Router] {
+            let spec = ZenohSpec {
+                mode,
+                ..ZenohSpec::client_of("tcp/127.0.0.1:7447")
+            };
+            let cfg = config(&spec).unwrap_or_else(|e| panic!("{mode:?}: {e}"));
+            let queue = cfg
+                .get_json("transport/link/tx/queue/size/real_time")
+                .unwrap();
+            assert_eq!(queue, REAL_TIME_QUEUE_BATCHES.to_string());
+        }
+        let client = config(&ZenohSpec::client_of("tcp/127.0.0.1:7447")).unwrap();
+        let retry = client.get_json("connect/retry").unwrap();
+        assert!(retry.contains("250"), "{retry}");
+    }
 
     /// A client told why it cannot reach its router: a TLS endpoint without a certificate,
     /// and a port nothing listens on (the rig not running), each said at once.
