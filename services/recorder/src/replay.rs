@@ -60,6 +60,22 @@ pub struct Refused {
     pub first_difference: Option<String>,
     /// Pose frames whose observations the session lacks (recorded after the frame).
     pub incomplete: usize,
+    /// Pose frames fusion published and the recording lacks (gaps in the sequence numbers: the
+    /// recorder did not receive them), whose sets were formed again from the recorded
+    /// observations between their neighbours and fused in their place, so fusion's state
+    /// stays the live one's.
+    pub reformed: Vec<u64>,
+    /// Gaps in the sequence numbers that could not be formed again (first, last missing): the
+    /// observations between the neighbours do not make as many sets as are missing (a fusion
+    /// that restarted, or observations lost with the poses). Frames after one may differ.
+    pub gaps: Vec<(u64, u64)>,
+    /// Objects whose undirected heading (an axis, [`Pose::heading_directed`] false) points the
+    /// other way along the same axis: the sense is chosen when fusion first sees an object, so
+    /// a replay of a recording that began after fusion started may choose the other one. Such
+    /// poses count as reproduced.
+    ///
+    /// [`Pose::heading_directed`]: stereoscope_proto::messages::Pose::heading_directed
+    pub heading_reversed: Vec<u32>,
 }
 
 /// Compares a re-fused pose frame with the recorded one: objects paired by position, ids
@@ -69,6 +85,7 @@ fn differs(
     recorded: &PoseFrame,
     replayed: &[stereoscope_proto::messages::Pose],
     ids: &mut HashMap<u32, u32>,
+    reversed: &mut std::collections::BTreeSet<u32>,
 ) -> Option<String> {
     let at = |p: &[f64; 3]| format!("[{:.4}, {:.4}, {:.4}] m", p[0], p[1], p[2]);
     let frame = format!(
@@ -120,7 +137,17 @@ fn differs(
                 dist(&r.position_m, &p.position_m) * 1e3
             ));
         }
-        if p.heading_deg != r.heading_deg || p.heading_directed != r.heading_directed {
+        let mut heading_deg = p.heading_deg;
+        if heading_deg != r.heading_deg
+            && !r.heading_directed
+            && !p.heading_directed
+            && let (Some(a), Some(b)) = (r.heading_deg, p.heading_deg)
+            && same_axis_reversed(a, b)
+        {
+            reversed.insert(r.object_id);
+            heading_deg = r.heading_deg;
+        }
+        if heading_deg != r.heading_deg || p.heading_directed != r.heading_directed {
             return Some(format!(
                 "{who}: heading {:?}° recorded, {:?}° re-fused",
                 r.heading_deg, p.heading_deg
@@ -128,6 +155,7 @@ fn differs(
         }
         let same_id = stereoscope_proto::messages::Pose {
             object_id: r.object_id,
+            heading_deg,
             ..p.clone()
         };
         if &same_id != r {
@@ -137,6 +165,73 @@ fn differs(
         }
     }
     None
+}
+
+/// One set as fusion takes it: (rig camera index, observation), in camera order.
+type Set = Vec<(usize, Observation)>;
+
+/// Whether headings `a` and `b` (degrees) are one axis's two senses: 180° apart, to the last
+/// bits a sum of 180 can round away.
+fn same_axis_reversed(a: f64, b: f64) -> bool {
+    let d = (a - b).rem_euclid(360.0);
+    (d - 180.0).abs() <= 1e-9 * a.abs().max(b.abs()).max(180.0)
+}
+
+/// The sets fusion formed between two recorded pose frames whose sequence numbers leave `missing`
+/// out, formed again from the recorded observations after `after` (the earlier frame's set,
+/// excluded) and before `before_ns` (the later frame's time): observations in time order,
+/// each set opened by the earliest left and taking every other camera's first observation
+/// within `max_skew_ns` of it, as live fusion pairs them. `None` unless exactly `missing` sets
+/// come out (a fusion restarted, or observations lost with the pose frames).
+fn reform_sets(
+    by_camera: &HashMap<&str, Vec<&Observation>>,
+    rig: &Rig,
+    after: &[(usize, Observation)],
+    after_ns: u64,
+    before_ns: u64,
+    missing: u64,
+    max_skew_ns: u64,
+) -> Option<Vec<Set>> {
+    let mut left: Vec<(usize, &Observation)> = Vec::new();
+    for (cam, list) in by_camera {
+        let ci = rig.camera_index(cam)?;
+        let used = after
+            .iter()
+            .find(|(c, _)| *c == ci)
+            .map(|(_, o)| o.timestamp_ns);
+        left.extend(
+            list.iter()
+                .filter(|o| o.timestamp_ns > after_ns && o.timestamp_ns < before_ns)
+                .filter(|o| used.is_none_or(|t| o.timestamp_ns > t))
+                .map(|o| (ci, *o)),
+        );
+    }
+    left.sort_by_key(|(c, o)| (o.timestamp_ns, *c));
+    let mut sets: Vec<Set> = Vec::new();
+    let mut taken = vec![false; left.len()];
+    for i in 0..left.len() {
+        if taken[i] {
+            continue;
+        }
+        let t0 = left[i].1.timestamp_ns;
+        let mut set: Set = Vec::new();
+        for j in i..left.len() {
+            let (c, o) = left[j];
+            if o.timestamp_ns > t0 + max_skew_ns {
+                break;
+            }
+            if !taken[j] && !set.iter().any(|(k, _)| *k == c) {
+                taken[j] = true;
+                set.push((c, o.clone()));
+            }
+        }
+        set.sort_by_key(|(c, _)| *c);
+        sets.push(set);
+        if sets.len() as u64 > missing {
+            return None;
+        }
+    }
+    (sets.len() as u64 == missing).then_some(sets)
 }
 
 /// Re-fuses `session` and compares with its recorded poses; `progress(done, total)` is called
@@ -171,9 +266,61 @@ pub fn refuse_with(
     }
     let mut out = Refused::default();
     let mut ids: HashMap<u32, u32> = HashMap::new();
+    let mut reversed = std::collections::BTreeSet::new();
+    let max_skew_ns = stereoscope_pipeline::FusionSettings::of_rig(&rig.spec)
+        .pairing
+        .max_skew_ns;
+    // The last fused recorded frame: its sequence, time and set.
+    let mut last: Option<(u64, u64, Set)> = None;
     let total = session.poses.len();
     for (i, pf) in session.poses.iter().enumerate() {
         progress(i, total);
+        if let Some((seq, t_ns, prev_set)) = &last
+            && pf.sequence > seq + 1
+        {
+            let missing = pf.sequence - seq - 1;
+            match reform_sets(
+                &by_camera,
+                &rig,
+                prev_set,
+                *t_ns,
+                pf.timestamp_ns,
+                missing,
+                max_skew_ns,
+            ) {
+                Some(sets) => {
+                    for (k, set) in sets.iter().enumerate() {
+                        let timestamp_ns = set.iter().map(|(_, o)| o.timestamp_ns).min();
+                        let timestamp_ns = timestamp_ns.unwrap_or(*t_ns);
+                        let (poses, bodies) = fusion.fuse(set, timestamp_ns);
+                        let sequence = seq + 1 + k as u64;
+                        out.reformed.push(sequence);
+                        frame(PoseFrame {
+                            sequence,
+                            timestamp_ns,
+                            frame_published_ns: set
+                                .iter()
+                                .map(|(_, o)| o.frame_published_ns)
+                                .max()
+                                .unwrap_or(0),
+                            published_ns: set
+                                .iter()
+                                .map(|(_, o)| o.published_ns)
+                                .max()
+                                .unwrap_or(0),
+                            cameras: set
+                                .iter()
+                                .map(|(c, _)| rig.cameras[*c].id.clone())
+                                .collect(),
+                            poses,
+                            bodies,
+                            ..pf.clone()
+                        });
+                    }
+                }
+                None => out.gaps.push((seq + 1, pf.sequence - 1)),
+            }
+        }
         let mut set = Vec::new();
         for cam in &pf.cameras {
             let Some(ci) = rig.camera_index(cam) else {
@@ -201,10 +348,12 @@ pub fn refuse_with(
         }
         if set.len() != pf.cameras.len() {
             out.incomplete += 1;
+            last = Some((pf.sequence, pf.timestamp_ns, set));
             continue;
         }
         set.sort_by_key(|(c, _)| *c);
         let (poses, found) = fusion.fuse(&set, pf.timestamp_ns);
+        last = Some((pf.sequence, pf.timestamp_ns, set));
         out.frames += 1;
         frame(PoseFrame {
             poses: poses.clone(),
@@ -226,7 +375,7 @@ pub fn refuse_with(
                     .collect::<Vec<_>>()
             )
         });
-        match differs(pf, &poses, &mut ids).or(body_difference) {
+        match differs(pf, &poses, &mut ids, &mut reversed).or(body_difference) {
             None => {
                 out.identical += 1;
                 out.identical_last_frames += 1;
@@ -238,6 +387,7 @@ pub fn refuse_with(
         }
     }
     progress(total, total);
+    out.heading_reversed = reversed.into_iter().collect();
     out.renumbered = ids.into_iter().filter(|(r, p)| r != p).collect();
     out.renumbered.sort_unstable();
     Ok(out)
@@ -822,5 +972,72 @@ mod tests {
             bodies.lines().nth(4).unwrap().ends_with(",3,4,true"),
             "{bodies}"
         );
+    }
+
+    fn observation(camera: &str, t_ns: u64) -> Observation {
+        Observation {
+            schema: 1,
+            rig: "demo".into(),
+            camera: camera.into(),
+            sequence: t_ns,
+            timestamp_ns: t_ns,
+            frame_published_ns: t_ns,
+            published_ns: t_ns,
+            width_px: 320,
+            height_px: 240,
+            threshold: 100,
+            dark: false,
+            full_frame: true,
+            dropped_blobs: 0,
+            blobs: vec![],
+        }
+    }
+
+    /// The sets between two recorded frames are formed again as live pairing forms them
+    /// (each opened by the earliest observation left, one per camera within the skew), the
+    /// earlier frame's own observations left out; a gap with more or fewer sets than missing
+    /// sequence numbers (a fusion restarted, observations lost too) is not formed at all.
+    #[test]
+    fn lost_pose_frames_sets_are_formed_again_only_when_they_add_up() {
+        let rig = Rig::from_recording(include_str!("../../../deploy/rigs/demo.toml")).unwrap();
+        let ms = 1_000_000;
+        // cam1 exposes 2 ms after cam0; the frame at 0 was recorded, 33 and 66 were lost.
+        let obs: Vec<Observation> = [0, 33, 66, 100]
+            .iter()
+            .flat_map(|&t| {
+                [
+                    observation("cam0", t * ms),
+                    observation("cam1", t * ms + 2 * ms),
+                ]
+            })
+            .collect();
+        let mut by_camera: HashMap<&str, Vec<&Observation>> = HashMap::new();
+        for o in &obs {
+            by_camera.entry(o.camera.as_str()).or_default().push(o);
+        }
+        let first = vec![(0, obs[0].clone()), (1, obs[1].clone())];
+        let skew = 5 * ms;
+        let sets = reform_sets(&by_camera, &rig, &first, 0, 100 * ms, 2, skew).unwrap();
+        let times: Vec<Vec<(usize, u64)>> = sets
+            .iter()
+            .map(|s| s.iter().map(|(c, o)| (*c, o.timestamp_ns / ms)).collect())
+            .collect();
+        assert_eq!(times, [vec![(0, 33), (1, 35)], vec![(0, 66), (1, 68)]]);
+        assert!(reform_sets(&by_camera, &rig, &first, 0, 100 * ms, 1, skew).is_none());
+        assert!(reform_sets(&by_camera, &rig, &first, 0, 100 * ms, 3, skew).is_none());
+        // With a skew under the cameras' 2 ms, each camera's frame is a set of its own.
+        let apart = reform_sets(&by_camera, &rig, &first, 0, 100 * ms, 4, ms).unwrap();
+        assert_eq!(apart.len(), 4);
+    }
+
+    /// An undirected heading pointing the other way along its axis, to rounding, is the
+    /// same axis; any other difference is not.
+    #[test]
+    fn undirected_headings_compare_as_axes() {
+        assert!(same_axis_reversed(173.2557730228029, 353.25577302280294));
+        assert!(same_axis_reversed(350.0, 170.0));
+        assert!(same_axis_reversed(0.0, 180.0));
+        assert!(!same_axis_reversed(10.0, 10.0));
+        assert!(!same_axis_reversed(10.0, 190.001));
     }
 }

@@ -68,6 +68,9 @@ pub fn replay(
             "incomplete": r.incomplete,
             "renumbered": r.renumbered,
             "first_difference": r.first_difference,
+            "reformed": r.reformed,
+            "gaps": r.gaps,
+            "heading_reversed": r.heading_reversed,
         });
         println!("{v}");
     } else {
@@ -89,11 +92,45 @@ pub fn replay(
                 if r.renumbered.len() > 8 { ", …" } else { "" }
             );
         }
+        if !r.reformed.is_empty() {
+            println!(
+                "{} pose frame(s) fusion published were not recorded ({}): their sets were formed again from the recorded observations and fused in their place",
+                r.reformed.len(),
+                list_of(r.reformed.iter().map(u64::to_string))
+            );
+        }
+        if !r.gaps.is_empty() {
+            println!(
+                "pose frames missing from the recording whose sets could not be formed again (frames after them may differ): {}",
+                list_of(r.gaps.iter().map(|(a, b)| if a == b {
+                    a.to_string()
+                } else {
+                    format!("{a}–{b}")
+                }))
+            );
+        }
+        if !r.heading_reversed.is_empty() {
+            println!(
+                "undirected headings reversed along the same axis (the sense is chosen when fusion first sees an object; the recording began after fusion started): objects {}",
+                list_of(r.heading_reversed.iter().map(u32::to_string))
+            );
+        }
         if let Some(d) = &r.first_difference {
             println!("first difference: {d}");
         }
     }
     Ok(if r.identical == r.frames { 0 } else { 1 })
+}
+
+/// Up to eight items, comma-separated, then "…" and how many in all.
+fn list_of(items: impl ExactSizeIterator<Item = String>) -> String {
+    let n = items.len();
+    let shown: Vec<String> = items.take(8).collect();
+    if n > 8 {
+        format!("{}, … ({n} in all)", shown.join(", "))
+    } else {
+        shown.join(", ")
+    }
 }
 
 /// `stereoscope replay SESSION --rig RIG --out FILE`: the recorded observations fused again
