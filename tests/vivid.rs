@@ -405,7 +405,7 @@ fn vivid_frames_stamps_and_controls() {
                 [640, 360],
                 &format!(
                     "{{ kind = \"v4l\", device = \"/dev/video0\", format = \"GREY\", fps = 30.0, \
-                     controls = {{ {square} }} }}"
+                     readout_us = 4000.0, controls = {{ {square} }} }}"
                 ),
             ),
             "--count 15 --every 0",
@@ -455,8 +455,9 @@ fn vivid_frames_stamps_and_controls() {
     };
 
     // GREY at 640 × 360: the driver named, the size and rate the rig asked for, the driver's
-    // end-of-frame stamps (vivid has no exposure control), every frame numbered in turn, and
-    // vivid's square (256 × 256, centred) found where it is drawn.
+    // end-of-frame stamps (vivid has no exposure control) less the readout the rig gives,
+    // every frame numbered in turn, and vivid's square (256 × 256, centred) found where it is
+    // drawn.
     let (grey, code) = out("grey");
     assert_eq!(code, 0, "{grey}");
     assert!(
@@ -464,7 +465,7 @@ fn vivid_frames_stamps_and_controls() {
         "{grey}"
     );
     assert!(
-        grey.contains("the driver's end of frame stamp (exposure unknown)"),
+        grey.contains("the driver's end of frame stamp (exposure unknown) less 4.00 ms readout"),
         "{grey}"
     );
     assert!(
@@ -631,6 +632,91 @@ fn genicam_frames_from_aravis_fake_camera() {
         "{out}"
     );
     assert_eq!(out.matches(", 0 blobs)").count(), 2, "{out}");
+
+    // Mono16: 16-bit frames (a 16-bit PGM), blobs found on the 16-bit threshold.
+    let mono16 = source.replace("fps = 20.0", "fps = 20.0, format = \"Mono16\"");
+    let o = grab(
+        &dir,
+        &rig([512, 512], &mono16),
+        &["--count", "2", "--every", "0.1"],
+    );
+    let out = String::from_utf8_lossy(&o.stdout).to_string();
+    assert!(
+        o.status.success() && out.contains("genicam 127.0.0.1 Gray16 512×512"),
+        "{out}{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    assert!(!out.contains(", 0 blobs)"), "{out}");
+    let pgm = std::fs::read(dir.join("cam0-0001.pgm")).unwrap();
+    assert!(pgm.starts_with(b"P5\n512 512\n65535\n"), "{:?}", &pgm[..18]);
+
+    // Triggers. A hardware line: the camera waits for a pulse that never comes (the emulator
+    // has no line), and the error says so. The software trigger fired by the capture at 5 fps
+    // (the emulator in trigger mode otherwise paces itself at 25 Hz, or at the line's pulses:
+    // none): frames come 200 ms apart. "free" turns every trigger off again. A source the camera
+    // lacks is refused with the ones it has.
+    let triggered = |t: &str| {
+        source
+            .replace("fps = 20.0", "fps = 5.0")
+            .replace(" }", &format!(", trigger = \"{t}\" }}"))
+    };
+    std::fs::write(dir.join("line.toml"), rig([512, 512], &triggered("Line0"))).unwrap();
+    let o = Command::new(env!("CARGO_BIN_EXE_stereoscope"))
+        .args(["grab", dir.join("line.toml").to_str().unwrap()])
+        .args(["--camera", "cam0", "--count", "1"])
+        .arg(dir.to_str().unwrap())
+        .output()
+        .unwrap();
+    let (out, err) = (
+        String::from_utf8_lossy(&o.stdout),
+        String::from_utf8_lossy(&o.stderr),
+    );
+    assert!(
+        !o.status.success() && err.contains("it waits for its trigger on Line0"),
+        "{out}{err}"
+    );
+    let o = grab(
+        &dir,
+        &rig([512, 512], &triggered("Software")),
+        &["--count", "4", "--every", "0.5"],
+    );
+    let out = String::from_utf8_lossy(&o.stdout).to_string();
+    assert!(
+        o.status.success() && out.contains("software trigger at 5 fps"),
+        "{out}{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    let f = frames(&out);
+    assert_eq!(f.len(), 4, "{out}");
+    for w in f[1..].windows(2) {
+        let per_frame = (w[1].1 - w[0].1) / (w[1].0 - w[0].0) as f64;
+        assert!(
+            (150.0..300.0).contains(&per_frame),
+            "{per_frame} ms a frame: {out}"
+        );
+    }
+    let o = grab(
+        &dir,
+        &rig([512, 512], &triggered("free")),
+        &["--count", "2", "--every", "0.1"],
+    );
+    let out = String::from_utf8_lossy(&o.stdout).to_string();
+    assert!(o.status.success() && out.contains("free-running"), "{out}");
+    std::fs::write(dir.join("line7.toml"), rig([512, 512], &triggered("Line7"))).unwrap();
+    let o = Command::new(env!("CARGO_BIN_EXE_stereoscope"))
+        .args(["grab", dir.join("line7.toml").to_str().unwrap()])
+        .args(["--camera", "cam0", "--count", "1"])
+        .arg(dir.to_str().unwrap())
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        !o.status.success()
+            && err.contains(
+                "setting TriggerSource Line7: the camera's trigger sources are Line0, Software"
+            ),
+        "{err}"
+    );
 
     // A camera that is not there: the error names the rig's camera and the device asked for.
     let rig_file = dir.join("missing.toml");

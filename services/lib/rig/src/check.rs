@@ -327,8 +327,17 @@ pub(crate) fn check(file: &RigFile, base: Option<&Path>, sources: bool) -> Resul
                 fps,
                 device,
                 controls,
+                readout_us,
                 ..
             }) => {
+                if let Some(r) = readout_us
+                    && !(r.is_finite() && (0.0..=1_000_000.0).contains(r))
+                {
+                    return Err(err(
+                        format!("{key}.source.readout_us"),
+                        format!("{r} must be from 0 to 1 s (1000000 µs)"),
+                    ));
+                }
                 if let Some(f) = fps {
                     fps_in_range(&fps_key, *f)?;
                 }
@@ -365,8 +374,25 @@ pub(crate) fn check(file: &RigFile, base: Option<&Path>, sources: bool) -> Resul
                 fps,
                 exposure_us,
                 gain,
+                trigger,
                 ..
             }) => {
+                if let Some(t) = trigger {
+                    if t.is_empty() || t.contains('\0') || t.len() > 64 {
+                        return Err(err(
+                            format!("{key}.source.trigger"),
+                            format!(
+                                "{t:?}: \"free\", or a trigger source the camera lists (\"Line1\", \"Software\")"
+                            ),
+                        ));
+                    }
+                    if t == "Software" && fps.is_none() {
+                        return Err(err(
+                            format!("{key}.source.trigger"),
+                            "\"Software\" needs the source's fps: how often the capture fires the trigger".to_string(),
+                        ));
+                    }
+                }
                 if let Some(f) = fps {
                     fps_in_range(&fps_key, *f)?;
                 }

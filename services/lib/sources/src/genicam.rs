@@ -83,8 +83,21 @@ pub struct GenicamRequest {
     pub exposure_us: Option<f64>,
     pub gain_db: Option<f64>,
     pub clock: Clock,
+    /// The trigger to set; `None` leaves the camera's own setting.
+    pub trigger: Option<Trigger>,
     /// The library to load (default `libaravis-0.8.so.0`).
     pub library: Option<String>,
+}
+
+/// How the camera's exposures are started.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Trigger {
+    /// Free-running: every trigger off (the camera exposes at its frame rate).
+    Free,
+    /// `TriggerSource` (a hardware line, `Line1`, or `Software`) for `FrameStart`, trigger
+    /// mode on, on the rising edge where the camera has `TriggerActivation`. With `Software`
+    /// the source fires the camera's `TriggerSoftware` once per period of the rig's `fps`.
+    Source(String),
 }
 
 #[repr(C)]
@@ -112,6 +125,11 @@ struct Api {
     set_exposure: unsafe extern "C" fn(*mut c_void, c_double, Err),
     get_exposure: unsafe extern "C" fn(*mut c_void, Err) -> c_double,
     set_gain: unsafe extern "C" fn(*mut c_void, c_double, Err),
+    trigger_sources: unsafe extern "C" fn(*mut c_void, *mut c_uint, Err) -> *mut *const c_char,
+    set_trigger: unsafe extern "C" fn(*mut c_void, *const c_char, Err),
+    clear_triggers: unsafe extern "C" fn(*mut c_void, Err),
+    software_trigger: unsafe extern "C" fn(*mut c_void, Err),
+    get_trigger_source: unsafe extern "C" fn(*mut c_void, Err) -> *const c_char,
     set_acquisition_mode: unsafe extern "C" fn(*mut c_void, c_int, Err),
     get_payload: unsafe extern "C" fn(*mut c_void, Err) -> c_uint,
     create_stream: unsafe extern "C" fn(*mut c_void, *mut c_void, *mut c_void, Err) -> *mut c_void,
@@ -127,6 +145,7 @@ struct Api {
     frame_id: unsafe extern "C" fn(*mut c_void) -> u64,
     unref: unsafe extern "C" fn(*mut c_void),
     error_free: unsafe extern "C" fn(*mut GError),
+    g_free: unsafe extern "C" fn(*mut c_void),
     _gobject: libloading::Library,
     _glib: libloading::Library,
     _aravis: libloading::Library,
@@ -168,6 +187,11 @@ impl Api {
             set_exposure: sym!(aravis, b"arv_camera_set_exposure_time\0"),
             get_exposure: sym!(aravis, b"arv_camera_get_exposure_time\0"),
             set_gain: sym!(aravis, b"arv_camera_set_gain\0"),
+            trigger_sources: sym!(aravis, b"arv_camera_dup_available_trigger_sources\0"),
+            set_trigger: sym!(aravis, b"arv_camera_set_trigger\0"),
+            clear_triggers: sym!(aravis, b"arv_camera_clear_triggers\0"),
+            software_trigger: sym!(aravis, b"arv_camera_software_trigger\0"),
+            get_trigger_source: sym!(aravis, b"arv_camera_get_trigger_source\0"),
             set_acquisition_mode: sym!(aravis, b"arv_camera_set_acquisition_mode\0"),
             get_payload: sym!(aravis, b"arv_camera_get_payload\0"),
             create_stream: sym!(aravis, b"arv_camera_create_stream\0"),
@@ -183,6 +207,7 @@ impl Api {
             frame_id: sym!(aravis, b"arv_buffer_get_frame_id\0"),
             unref: sym!(gobject, b"g_object_unref\0"),
             error_free: sym!(glib, b"g_error_free\0"),
+            g_free: sym!(glib, b"g_free\0"),
             _gobject: gobject,
             _glib: glib,
             _aravis: aravis,
@@ -265,6 +290,10 @@ pub struct GenicamSource {
     fps: Option<f64>,
     exposure_us: Option<f64>,
     clock: Clock,
+    /// The trigger set, in words (`None`: the camera's own setting, left alone).
+    trigger: Option<String>,
+    /// With a software trigger: the period and when the next trigger is due.
+    software: Option<(std::time::Duration, std::time::Instant)>,
     ids: FrameIds,
     offset: Offset,
     acquiring: bool,
@@ -332,6 +361,8 @@ impl GenicamSource {
             fps: None,
             exposure_us: None,
             clock: req.clock,
+            trigger: None,
+            software: None,
             ids: FrameIds::default(),
             offset: Offset::default(),
             acquiring: false,
@@ -389,6 +420,65 @@ impl GenicamSource {
             }
             api.call(|e| unsafe { set(cam, v, e) })
                 .map_err(|m| gerr(&name, &format!("setting {feature} {v} {unit}"), m))?;
+        }
+        match &req.trigger {
+            None => {}
+            Some(Trigger::Free) => {
+                api.call(|e| unsafe { (api.clear_triggers)(cam, e) })
+                    .map_err(|m| gerr(&name, "turning the triggers off", m))?;
+                s.trigger = Some("free-running".into());
+            }
+            Some(Trigger::Source(source)) => {
+                let doing = format!("setting TriggerSource {source}");
+                let sources = trigger_sources(api, cam).map_err(|m| gerr(&name, &doing, m))?;
+                if !sources.iter().any(|s| s == source) {
+                    return Err(gerr(
+                        &name,
+                        &doing,
+                        format!(
+                            "the camera's trigger sources are {}",
+                            if sources.is_empty() {
+                                "none".to_string()
+                            } else {
+                                sources.join(", ")
+                            }
+                        ),
+                    ));
+                }
+                let c_source = CString::new(source.as_str())
+                    .map_err(|_| gerr(&name, &doing, "a NUL byte in the name".into()))?;
+                api.call(|e| unsafe { (api.set_trigger)(cam, c_source.as_ptr(), e) })
+                    .map_err(|m| gerr(&name, &doing, m))?;
+                // What the camera took.
+                let got = api
+                    .call(|e| unsafe { (api.get_trigger_source)(cam, e) })
+                    .ok()
+                    .filter(|p| !p.is_null())
+                    .map(|p| unsafe { CStr::from_ptr(p) }.to_string_lossy().into_owned())
+                    .unwrap_or_default();
+                if &got != source {
+                    return Err(gerr(
+                        &name,
+                        &doing,
+                        format!("the camera reads back TriggerSource {got:?}"),
+                    ));
+                }
+                if source == "Software" {
+                    let Some(fps) = req.fps else {
+                        return Err(gerr(
+                            &name,
+                            &doing,
+                            "a software trigger needs the source's fps (how often to fire it)"
+                                .into(),
+                        ));
+                    };
+                    let period = std::time::Duration::from_secs_f64(1.0 / fps);
+                    s.software = Some((period, std::time::Instant::now()));
+                    s.trigger = Some(format!("software trigger at {fps} fps"));
+                } else {
+                    s.trigger = Some(format!("triggered by {source}"));
+                }
+            }
         }
         // What the camera took.
         let (mut x, mut y, mut cw, mut ch) = (0, 0, 0, 0);
@@ -448,6 +538,26 @@ impl GenicamSource {
     }
 }
 
+/// The trigger sources the camera lists.
+fn trigger_sources(api: &Api, cam: *mut c_void) -> Result<Vec<String>, String> {
+    let mut n: c_uint = 0;
+    // SAFETY: Aravis returns an array of `n` strings that its feature nodes own (valid while
+    // the camera lives) in a container the caller frees with g_free, after they are copied.
+    unsafe {
+        let list = api.call(|e| (api.trigger_sources)(cam, &mut n, e))?;
+        if list.is_null() {
+            return Ok(Vec::new());
+        }
+        let names = (0..n as usize)
+            .map(|i| *list.add(i))
+            .filter(|p| !p.is_null())
+            .map(|p| CStr::from_ptr(p).to_string_lossy().into_owned())
+            .collect();
+        (api.g_free)(list as *mut c_void);
+        Ok(names)
+    }
+}
+
 impl GenicamSource {
     /// Opens the camera again, as it was asked, on a thread of its own.
     fn reopen(&mut self) {
@@ -497,7 +607,7 @@ fn status_name(s: c_int) -> &'static str {
 impl FrameSource for GenicamSource {
     fn describe(&self) -> String {
         format!(
-            "genicam {} {:?} {}×{}{}{}, timestamps {}",
+            "genicam {} {:?} {}×{}{}{}{}, timestamps {}",
             self.name,
             self.format,
             self.width,
@@ -505,6 +615,10 @@ impl FrameSource for GenicamSource {
             self.fps.map(|f| format!(" {f} fps")).unwrap_or_default(),
             self.exposure_us
                 .map(|x| format!(", exposure {x} µs"))
+                .unwrap_or_default(),
+            self.trigger
+                .as_deref()
+                .map(|t| format!(", {t}"))
                 .unwrap_or_default(),
             match self.clock {
                 Clock::Mapped => "mapped from the camera's clock at mid-exposure",
@@ -562,6 +676,28 @@ impl FrameSource for GenicamSource {
                 }
             }
         }
+        if let Some((period, due)) = &mut self.software {
+            // One trigger per period, on the host's clock; a read that fell behind by more
+            // than a period starts the beat again rather than firing a burst.
+            let now = std::time::Instant::now();
+            if *due > now {
+                std::thread::sleep(*due - now);
+            }
+            let now = std::time::Instant::now();
+            *due = if now.duration_since(*due) > *period {
+                now + *period
+            } else {
+                *due + *period
+            };
+            let api = &self.api;
+            let cam = self.camera;
+            // SAFETY: a command on this source's camera.
+            api.call(|e| unsafe { (api.software_trigger)(cam, e) })
+                .map_err(|m| BadFrame::Camera {
+                    device: self.name.clone(),
+                    source: format!("firing TriggerSoftware: {m}").into(),
+                })?;
+        }
         let api = &self.api;
         // SAFETY: popping, reading and pushing back buffers of this source's stream; the data
         // pointer is valid for `size` bytes until the buffer is pushed back, after the copy.
@@ -572,10 +708,16 @@ impl FrameSource for GenicamSource {
                 if self.silent >= 2 && self.reopening.is_none() {
                     self.reopen();
                 }
+                let waiting = match &self.req.trigger {
+                    Some(Trigger::Source(line)) if line != "Software" => {
+                        format!(" (it waits for its trigger on {line})")
+                    }
+                    _ => String::new(),
+                };
                 return Err(BadFrame::Camera {
                     device: self.name.clone(),
                     source: format!(
-                        "no frame within {} s; opening the camera again",
+                        "no frame within {} s{waiting}; opening the camera again",
                         POP_TIMEOUT_US / 1_000_000
                     )
                     .into(),
@@ -657,6 +799,7 @@ mod tests {
             exposure_us: None,
             gain_db: None,
             clock: Clock::Mapped,
+            trigger: None,
             library: Some("/nonexistent/libaravis.so".into()),
         })
         .unwrap_err();

@@ -195,6 +195,7 @@ pub fn open_in_run(
             exposure,
             gain,
             controls,
+            readout_us,
         } => Box::new(
             v4l2::V4lSource::open(
                 device,
@@ -205,6 +206,7 @@ pub fn open_in_run(
                     exposure: *exposure,
                     gain: *gain,
                     controls: controls.iter().map(|(k, v)| (k.as_str(), v)).collect(),
+                    readout_ns: readout_us.map(|us| (us * 1e3) as u64),
                 },
             )
             .map_err(wrap)?,
@@ -216,6 +218,7 @@ pub fn open_in_run(
             exposure_us,
             gain,
             timestamps,
+            trigger,
             library,
         } => Box::new(
             genicam::GenicamSource::open(&genicam::GenicamRequest {
@@ -236,6 +239,10 @@ pub fn open_in_run(
                     Some(stereoscope_rig::schema::GenicamClock::Ptp) => genicam::Clock::Ptp,
                     _ => genicam::Clock::Mapped,
                 },
+                trigger: trigger.as_deref().map(|t| match t {
+                    "free" => genicam::Trigger::Free,
+                    source => genicam::Trigger::Source(source.to_string()),
+                }),
                 library: library.clone(),
             })
             .map_err(wrap)?,

@@ -368,6 +368,11 @@ pub enum SourceSpec {
         /// a boolean, or a menu item's name. Set in name order after exposure and gain.
         #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
         controls: BTreeMap<String, ControlValue>,
+        /// From the end of exposure to the driver's end-of-frame stamp, µs: the sensor's
+        /// readout (a global shutter's whole readout, a rolling shutter's middle row's: half
+        /// of it), which V4L2 does not report. Subtracted from end-of-frame stamps.
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        readout_us: Option<f64>,
     },
     /// A GenICam camera (GigE Vision, USB3 Vision) through Aravis, loaded at run time.
     Genicam {
@@ -388,6 +393,11 @@ pub enum SourceSpec {
         /// clock is already Unix time (PTP).
         #[serde(default, skip_serializing_if = "Option::is_none")]
         timestamps: Option<GenicamClock>,
+        /// "free" (every trigger off: the camera runs at `fps`), or a trigger source the camera
+        /// lists (`"Line1"`: hardware sync; `"Software"`: the capture fires it at `fps`).
+        /// Absent: the camera's own setting.
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        trigger: Option<String>,
         /// The Aravis library (default `libaravis-0.8.so.0` on the library path).
         #[serde(default, skip_serializing_if = "Option::is_none")]
         library: Option<String>,
