@@ -211,9 +211,34 @@ fn rig(size: [u32; 2], source: &str) -> String {
     )
 }
 
-/// Boots the guest with `runs` (name, rig text, grab arguments) and returns each run's output
-/// and exit status.
-fn boot(runs: &[(&str, String, &str)]) -> Vec<(String, String, i32)> {
+/// `tests/guest/v4l2_button.c`, built statically with the host's C compiler: presses a V4L2
+/// button control by name in the guest (vivid's "Disconnect").
+fn v4l2_button() -> Vec<u8> {
+    let cc = need("cc", "gcc");
+    let dir = std::env::temp_dir().join(format!("stsc-button-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let out = dir.join("v4l2-button");
+    let source = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tests/guest/v4l2_button.c");
+    let o = Command::new(cc)
+        .args(["-static", "-O2", "-o"])
+        .arg(&out)
+        .arg(&source)
+        .output()
+        .expect("running cc");
+    assert!(
+        o.status.success(),
+        "building {}: {}",
+        source.display(),
+        String::from_utf8_lossy(&o.stderr)
+    );
+    let bytes = std::fs::read(&out).unwrap();
+    let _ = std::fs::remove_dir_all(&dir);
+    bytes
+}
+
+/// Boots the guest with `runs` (name, rig text, grab arguments, shell commands run beside the
+/// grab from its start) and returns each run's output and exit status.
+fn boot(runs: &[(&str, String, &str, &str)]) -> Vec<(String, String, i32)> {
     let qemu = need("qemu-system-x86_64", "qemu-system-x86");
     let busybox = ["/usr/bin/busybox", "/bin/busybox"]
         .into_iter()
@@ -245,7 +270,9 @@ fn boot(runs: &[(&str, String, &str)]) -> Vec<(String, String, i32)> {
         cpio.dir(d);
     }
     cpio.file("bin/busybox", &std::fs::read(&busybox).unwrap(), true);
-    for tool in ["sh", "mount", "insmod", "sleep", "poweroff", "echo"] {
+    for tool in [
+        "sh", "mount", "insmod", "sleep", "poweroff", "echo", "killall",
+    ] {
         cpio.link(&format!("bin/{tool}"), "busybox");
     }
     // vivid after what it needs, in load order.
@@ -258,6 +285,7 @@ fn boot(runs: &[(&str, String, &str)]) -> Vec<(String, String, i32)> {
         );
     }
     cpio.file("bin/stereoscope", &std::fs::read(&binary).unwrap(), true);
+    cpio.file("bin/v4l2-button", &v4l2_button(), true);
     for lib in libraries(&binary) {
         let inside = lib.to_string_lossy().trim_start_matches('/').to_string();
         parents(&mut cpio, &mut made, &inside);
@@ -270,10 +298,15 @@ fn boot(runs: &[(&str, String, &str)]) -> Vec<(String, String, i32)> {
          *) insmod $m ;; esac\ndone\nn=0\nwhile [ ! -e /dev/video0 ] && [ $n -lt 100 ]; do sleep 0.1; \
          n=$((n+1)); done\n",
     );
-    for (name, text, args) in runs {
+    for (name, text, args, during) in runs {
         cpio.file(&format!("rigs/{name}.toml"), text.as_bytes(), false);
+        let beside = if during.is_empty() {
+            String::new()
+        } else {
+            format!("( {during} ) &\n")
+        };
         init.push_str(&format!(
-            "echo '@@ begin {name}'\n/bin/stereoscope grab /rigs/{name}.toml --camera cam0 {args} /tmp/{name} 2>&1\necho \"@@ end {name} $?\"\n"
+            "echo '@@ begin {name}'\n{beside}/bin/stereoscope grab /rigs/{name}.toml --camera cam0 {args} /tmp/{name} 2>&1\necho \"@@ end {name} $?\"\nwait\n"
         ));
     }
     init.push_str("poweroff -f\n");
@@ -336,7 +369,7 @@ fn boot(runs: &[(&str, String, &str)]) -> Vec<(String, String, i32)> {
     );
     let _ = std::io::stderr().write_all(console.as_bytes());
     runs.iter()
-        .map(|(name, _, _)| {
+        .map(|(name, _, _, _)| {
             let begin = format!("@@ begin {name}");
             let end = format!("@@ end {name} ");
             let a = console
@@ -409,6 +442,7 @@ fn vivid_frames_stamps_and_controls() {
                 ),
             ),
             "--count 15 --every 0",
+            "",
         ),
         (
             "yuyv",
@@ -421,6 +455,7 @@ fn vivid_frames_stamps_and_controls() {
                 ),
             ),
             "--count 15 --every 0",
+            "",
         ),
         (
             "badcontrol",
@@ -429,6 +464,7 @@ fn vivid_frames_stamps_and_controls() {
                 "{ kind = \"v4l\", device = \"/dev/video0\", controls = { brightness = 9999 } }",
             ),
             "--count 1",
+            "",
         ),
         (
             "badrate",
@@ -437,6 +473,7 @@ fn vivid_frames_stamps_and_controls() {
                 "{ kind = \"v4l\", device = \"/dev/video0\", fps = 30.0 }",
             ),
             "--count 1",
+            "",
         ),
         (
             "nocontrol",
@@ -445,6 +482,43 @@ fn vivid_frames_stamps_and_controls() {
                 "{ kind = \"v4l\", device = \"/dev/video0\", controls = { focus_absolute = 3 } }",
             ),
             "--count 1",
+            "",
+        ),
+        (
+            "y16",
+            rig(
+                [640, 360],
+                &format!(
+                    "{{ kind = \"v4l\", device = \"/dev/video0\", format = \"Y16\", fps = 30.0, \
+                     controls = {{ {square} }} }}"
+                ),
+            ),
+            "--count 5 --every 0",
+            "",
+        ),
+        (
+            "stall",
+            rig(
+                [640, 360],
+                &format!(
+                    "{{ kind = \"v4l\", device = \"/dev/video0\", format = \"GREY\", fps = 30.0, \
+                     controls = {{ {square} }} }}"
+                ),
+            ),
+            "--count 40 --every 0",
+            "sleep 0.5; killall -STOP stereoscope; sleep 0.5; killall -CONT stereoscope",
+        ),
+        (
+            "unplug",
+            rig(
+                [640, 360],
+                &format!(
+                    "{{ kind = \"v4l\", device = \"/dev/video0\", format = \"GREY\", fps = 30.0, \
+                     controls = {{ {square} }} }}"
+                ),
+            ),
+            "--count 60 --every 0",
+            "sleep 1; /bin/v4l2-button /dev/video0 disconnect",
         ),
     ]);
     let out = |name: &str| {
@@ -516,6 +590,59 @@ fn vivid_frames_stamps_and_controls() {
         none.contains("control focus_absolute: the camera has no such control")
             && none.contains("\"show_square\""),
         "{none}"
+    );
+
+    // Y16: vivid's 16-bit grey, read as 16-bit frames; the square found as in GREY.
+    let (y16, code) = out("y16");
+    assert_eq!(code, 0, "{y16}");
+    assert!(y16.contains("Y16 640×360 30.0 fps"), "{y16}");
+    assert!(
+        y16.contains("centroid (319.50, 179.50) px, area 65536 px²"),
+        "{y16}"
+    );
+
+    // A consumer that stops reading for half a second (the grab stopped by a signal): the
+    // driver fills the four buffers and drops the frames after them; the frames read after
+    // carry the driver's stamps, as many periods apart as their numbers across the gap — not
+    // the burst of their late reading.
+    let (stall, code) = out("stall");
+    assert_eq!(code, 0, "{stall}");
+    let f = frames(&stall);
+    assert_eq!(f.len(), 40, "{stall}");
+    let widest = f.windows(2).map(|w| w[1].0 - w[0].0).max().unwrap_or(0);
+    assert!(
+        widest >= 8,
+        "no frames dropped while the reader stood still: {stall}"
+    );
+    stamps_follow_frame_numbers(&f, 30.0, &stall);
+
+    // Unplugged while streaming (vivid's Disconnect pressed by another process a second in):
+    // the reads say the camera is gone and it is being opened again, the device comes back
+    // once nothing holds it, and the same grab reads on to its 60 frames, their numbers going
+    // on from the last before the loss by the frame periods it was away.
+    let (unplug, code) = out("unplug");
+    assert_eq!(code, 0, "{unplug}");
+    assert!(unplug.contains("pressed Disconnect"), "{unplug}");
+    assert!(
+        unplug.contains("skipped a frame: /dev/video0:")
+            && unplug.contains("opening the camera again"),
+        "{unplug}"
+    );
+    let f = frames(&unplug);
+    assert_eq!(f.len(), 60, "{unplug}");
+    assert!(
+        f.windows(2).all(|w| w[1].0 > w[0].0),
+        "frame numbers went back: {unplug}"
+    );
+    // The second or so the camera was away is a gap of as many frame periods.
+    let (gap, ms) = f
+        .windows(2)
+        .map(|w| (w[1].0 - w[0].0, w[1].1 - w[0].1))
+        .max_by(|a, b| a.1.total_cmp(&b.1))
+        .unwrap();
+    assert!(
+        ms > 500.0 && (gap as f64 - ms / (1000.0 / 30.0)).abs() <= 1.0,
+        "{gap} frame numbers over the {ms} ms the camera was away: {unplug}"
     );
 }
 
@@ -651,7 +778,7 @@ fn genicam_frames_from_aravis_fake_camera() {
     assert!(pgm.starts_with(b"P5\n512 512\n65535\n"), "{:?}", &pgm[..18]);
 
     // Triggers. A hardware line: the camera waits for a pulse that never comes (the emulator
-    // has no line), and the error says so. The software trigger fired by the capture at 5 fps
+    // has no line); grab says so while it waits, and gives up after 5 s. The software trigger fired by the capture at 5 fps
     // (the emulator in trigger mode otherwise paces itself at 25 Hz, or at the line's pulses:
     // none): frames come 200 ms apart. "free" turns every trigger off again. A source the camera
     // lacks is refused with the ones it has.
@@ -672,7 +799,7 @@ fn genicam_frames_from_aravis_fake_camera() {
         String::from_utf8_lossy(&o.stderr),
     );
     assert!(
-        !o.status.success() && err.contains("it waits for its trigger on Line0"),
+        !o.status.success() && out.contains("it waits for its trigger on Line0"),
         "{out}{err}"
     );
     let o = grab(

@@ -14,6 +14,9 @@ use stereoscope_proto::messages::Observation;
 use stereoscope_sources::Read;
 use stereoscope_vision::GrayImage;
 
+/// How long `grab` goes on skipping spoilt frames before it gives up.
+const GIVE_UP_AFTER: Duration = Duration::from_secs(5);
+
 /// How to save the frames.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
 pub enum GrabFormat {
@@ -213,11 +216,28 @@ pub fn run(opts: &GrabOptions, out: &mut impl Write) -> anyhow::Result<usize> {
     let mut kept = 0u32;
     let mut last: Option<(Vec<u8>, Observation)> = None;
     let mut first_stamp_ns: Option<Option<u64>> = None;
+    let mut last_good = Instant::now();
     while kept < opts.count {
         let t_s = index_in_source as f64 / fps;
-        let read = source
-            .read(index_in_source, t_s, &mut buf)
-            .with_context(|| format!("reading frame {index_in_source} of {}", opts.camera))?;
+        // A frame the camera spoilt (lost packets, the camera gone and being opened again) is
+        // skipped and said, as the capture service does; five seconds without a good one end
+        // the grab with the last reason.
+        let read = match source.read(index_in_source, t_s, &mut buf) {
+            Err(stereoscope_sources::SourceError::BadFrame(bad))
+                if last_good.elapsed() < GIVE_UP_AFTER =>
+            {
+                writeln!(
+                    out,
+                    "skipped a frame: {}",
+                    stereoscope_transport::error_chain(&bad)
+                )?;
+                continue;
+            }
+            r => {
+                r.with_context(|| format!("reading frame {index_in_source} of {}", opts.camera))?
+            }
+        };
+        last_good = Instant::now();
         let (stamp_ns, camera_sequence) = match read {
             Read::Frame {
                 timestamp_ns,

@@ -16,6 +16,11 @@
 //! is subtracted from an end-of-frame stamp when given. A driver that does not stamp on the monotonic clock is stamped at dequeue.
 //! [`V4lSource::describe`] says which applies. The driver's sequence number numbers the frame,
 //! so frames the driver dropped are counted by the moment worker as gaps.
+//!
+//! **A camera that goes away** (unplugged, its driver reset: the device answers `ENODEV` or
+//! `EIO`) or gives no frame for 2 s is closed at once and opened again as it was asked, once a
+//! second, on a thread of its own; meanwhile each read is a bad frame naming why, and frames
+//! then resume in the same process, their numbers going on ([`V4lSource`]).
 
 pub(crate) mod sys;
 
@@ -88,7 +93,8 @@ impl Drop for Mapped {
     }
 }
 
-pub struct V4lSource {
+/// One open, streaming device.
+struct Stream {
     device: String,
     card: String,
     // Declared before `fd`: unmapped before the device is closed.
@@ -106,6 +112,226 @@ pub struct V4lSource {
     realtime_minus_monotonic_ns: i128,
     sequence: Sequence,
     streaming: bool,
+}
+
+/// A V4L2 camera as the capture service reads it: its stream, opened again when the device
+/// goes away (unplugged, its driver reset) or stops giving frames for 2 s — closed at once
+/// (the device can come back only when nothing holds it open), then opened as it was asked
+/// once a second on a thread of its own, so the service goes on reporting; frames then resume
+/// in the same process, their numbers going on from the last.
+pub struct V4lSource {
+    device: String,
+    asked: Asked,
+    stream: Option<Stream>,
+    /// What the first stream gave (a stream opened again as asked gives the same).
+    format: PixelFormat,
+    size: (u32, u32),
+    fps: Option<f64>,
+    described: String,
+    reopening: Option<std::sync::mpsc::Receiver<Stream>>,
+    /// The last frame number given, and what to add to a reopened stream's numbers.
+    last_sequence: Option<u64>,
+    sequence_base: Option<i128>,
+    /// The last frame's time: the frames the camera made while it was away become a gap.
+    last_ns: Option<u64>,
+    /// Held while the source lives: a reopening thread stops when it is gone.
+    alive: std::sync::Arc<()>,
+}
+
+/// A [`V4lRequest`] kept, to open the device again.
+#[derive(Debug, Clone)]
+struct Asked {
+    format: Option<String>,
+    size_px: Option<(u32, u32)>,
+    fps: Option<f64>,
+    exposure: Option<i64>,
+    gain: Option<i64>,
+    controls: Vec<(String, ControlValue)>,
+    readout_ns: Option<u64>,
+}
+
+impl Asked {
+    fn of(want: &V4lRequest) -> Asked {
+        Asked {
+            format: want.format.map(str::to_string),
+            size_px: want.size_px,
+            fps: want.fps,
+            exposure: want.exposure,
+            gain: want.gain,
+            controls: want
+                .controls
+                .iter()
+                .map(|(k, v)| (k.to_string(), (*v).clone()))
+                .collect(),
+            readout_ns: want.readout_ns,
+        }
+    }
+
+    fn request(&self) -> V4lRequest<'_> {
+        V4lRequest {
+            format: self.format.as_deref(),
+            size_px: self.size_px,
+            fps: self.fps,
+            exposure: self.exposure,
+            gain: self.gain,
+            controls: self.controls.iter().map(|(k, v)| (k.as_str(), v)).collect(),
+            readout_ns: self.readout_ns,
+        }
+    }
+}
+
+/// The number of the first frame of a device opened again: the frame periods since the last
+/// frame given, after it (at least the next number), so frames missed while the camera was
+/// away count as a gap; 0 for the very first.
+fn next_after(
+    last: Option<u64>,
+    last_ns: Option<u64>,
+    now_ns: Option<u64>,
+    fps: Option<f64>,
+) -> u64 {
+    let Some(last) = last else { return 0 };
+    let periods = match (last_ns, now_ns, fps) {
+        (Some(a), Some(b), Some(f)) if b > a && f > 0.0 => {
+            ((b - a) as f64 * f * 1e-9).round().clamp(1.0, 1e12) as u64
+        }
+        _ => 1,
+    };
+    last.saturating_add(periods)
+}
+
+/// Whether a read's failure means the device went away or stopped (open it again) rather
+/// than a fault of this build or rig.
+fn gone(e: &SourceError) -> Option<String> {
+    let SourceError::Io { doing, source, .. } = e else {
+        return None;
+    };
+    let lost = source.kind() == std::io::ErrorKind::TimedOut
+        || matches!(
+            source.raw_os_error(),
+            Some(libc::ENODEV | libc::EIO | libc::ENXIO | libc::EPIPE)
+        );
+    lost.then(|| format!("{doing}: {source}"))
+}
+
+impl V4lSource {
+    pub fn open(device: &str, want: &V4lRequest) -> Result<Self, SourceError> {
+        let stream = Stream::open(device, want)?;
+        Ok(V4lSource {
+            device: device.to_string(),
+            asked: Asked::of(want),
+            format: stream.format(),
+            size: (stream.width, stream.height),
+            fps: stream.fps,
+            described: stream.describe(),
+            stream: Some(stream),
+            reopening: None,
+            last_sequence: None,
+            sequence_base: Some(0),
+            last_ns: None,
+            alive: std::sync::Arc::new(()),
+        })
+    }
+
+    /// Closes the stream now and opens the device again, once a second, on a thread of its
+    /// own, until it answers or this source is dropped.
+    fn reopen(&mut self) {
+        self.stream = None;
+        let (tx, rx) = std::sync::mpsc::channel();
+        let device = self.device.clone();
+        let asked = self.asked.clone();
+        let alive = std::sync::Arc::downgrade(&self.alive);
+        std::thread::spawn(move || {
+            loop {
+                std::thread::sleep(std::time::Duration::from_secs(1));
+                // The source was dropped: nobody waits any more.
+                if alive.upgrade().is_none() {
+                    return;
+                }
+                if let Ok(s) = Stream::open(&device, &asked.request()) {
+                    let _ = tx.send(s);
+                    return;
+                }
+            }
+        });
+        self.reopening = Some(rx);
+    }
+}
+
+impl FrameSource for V4lSource {
+    fn describe(&self) -> String {
+        match &self.stream {
+            Some(s) => s.describe(),
+            None => self.described.clone(),
+        }
+    }
+
+    fn format(&self) -> PixelFormat {
+        self.format
+    }
+
+    fn size(&self) -> (u32, u32) {
+        self.size
+    }
+
+    fn fps(&self) -> Option<f64> {
+        self.fps
+    }
+
+    fn realtime(&self) -> bool {
+        false
+    }
+
+    fn read(&mut self, _i: u64, _t: f64, out: &mut [u8]) -> Result<Read, SourceError> {
+        let device = self.device.clone();
+        let camera = |m: String| -> SourceError {
+            BadFrame::Camera {
+                device: device.clone(),
+                source: m.into(),
+            }
+            .into()
+        };
+        if let Some(rx) = &self.reopening {
+            match rx.recv_timeout(std::time::Duration::from_millis(500)) {
+                Ok(fresh) => {
+                    self.reopening = None;
+                    self.stream = Some(fresh);
+                    // A device opened again numbers its frames afresh.
+                    self.sequence_base = None;
+                }
+                Err(_) => return Err(camera("the camera is gone; opening it again".into())),
+            }
+        }
+        let Some(stream) = &mut self.stream else {
+            self.reopen();
+            return Err(camera("the camera is gone; opening it again".into()));
+        };
+        match stream.read(out) {
+            Ok(Read::Frame {
+                timestamp_ns,
+                sequence: Some(n),
+            }) => {
+                let (last, last_ns, fps) = (self.last_sequence, self.last_ns, self.fps);
+                let base = *self.sequence_base.get_or_insert_with(|| {
+                    i128::from(next_after(last, last_ns, timestamp_ns, fps)) - i128::from(n)
+                });
+                let sequence = u64::try_from(i128::from(n) + base).unwrap_or(n);
+                self.last_sequence = Some(sequence);
+                self.last_ns = timestamp_ns;
+                Ok(Read::Frame {
+                    timestamp_ns,
+                    sequence: Some(sequence),
+                })
+            }
+            Err(e) => match gone(&e) {
+                Some(why) => {
+                    self.reopen();
+                    Err(camera(format!("{why}; opening the camera again")))
+                }
+                None => Err(e),
+            },
+            other => other,
+        }
+    }
 }
 
 impl std::fmt::Debug for V4lSource {
@@ -153,8 +379,8 @@ fn clock_ns(clock: libc::clockid_t) -> i128 {
     ts.tv_sec as i128 * 1_000_000_000 + ts.tv_nsec as i128
 }
 
-impl V4lSource {
-    pub fn open(device: &str, want: &V4lRequest) -> Result<Self, SourceError> {
+impl Stream {
+    fn open(device: &str, want: &V4lRequest) -> Result<Self, SourceError> {
         let io = |doing: &str, e| SourceError::io(device, doing, e);
         let format_problem = |problem| SourceError::Format {
             device: device.to_string(),
@@ -389,7 +615,7 @@ impl V4lSource {
         }
         let mut kind = sys::BUF_TYPE_VIDEO_CAPTURE as i32;
         ioctl(&fd, sys::VIDIOC_STREAMON, &mut kind).map_err(|e| io("starting the stream", e))?;
-        Ok(V4lSource {
+        Ok(Stream {
             device: device.to_string(),
             card,
             buffers,
@@ -638,7 +864,7 @@ impl Sequence {
     }
 }
 
-impl Drop for V4lSource {
+impl Drop for Stream {
     fn drop(&mut self) {
         if self.streaming {
             let mut kind = sys::BUF_TYPE_VIDEO_CAPTURE as i32;
@@ -647,7 +873,7 @@ impl Drop for V4lSource {
     }
 }
 
-impl FrameSource for V4lSource {
+impl Stream {
     fn describe(&self) -> String {
         format!(
             "v4l2 {} ({}) {:?} {}×{}{}, {}",
@@ -669,19 +895,7 @@ impl FrameSource for V4lSource {
         }
     }
 
-    fn size(&self) -> (u32, u32) {
-        (self.width, self.height)
-    }
-
-    fn fps(&self) -> Option<f64> {
-        self.fps
-    }
-
-    fn realtime(&self) -> bool {
-        false
-    }
-
-    fn read(&mut self, _i: u64, _t: f64, out: &mut [u8]) -> Result<Read, SourceError> {
+    fn read(&mut self, out: &mut [u8]) -> Result<Read, SourceError> {
         let mut b = self.dequeue()?;
         let timestamp_ns = self.timestamp_ns(&b);
         let sequence = self.sequence.extend(b.sequence);
@@ -852,6 +1066,24 @@ mod tests {
         assert_eq!(wire_of("Y16 "), Some(Wire::Y16));
         assert_eq!(wire_of("NV12"), None);
         assert_eq!(sys::fourcc_str(sys::fourcc(b"Y16 ")), "Y16 ");
+    }
+
+    /// A device opened again numbers on from the last frame by the periods between them.
+    #[test]
+    fn a_reopened_camera_numbers_on_by_time() {
+        let ms = 1_000_000u64;
+        assert_eq!(next_after(None, None, Some(5 * ms), Some(30.0)), 0);
+        // 1.1 s at 30 fps after frame 24: 33 periods.
+        assert_eq!(
+            next_after(Some(24), Some(0), Some(1_100 * ms), Some(30.0)),
+            57
+        );
+        // No time or rate known, or time gone back: the next number.
+        assert_eq!(next_after(Some(24), None, Some(1_100 * ms), Some(30.0)), 25);
+        assert_eq!(
+            next_after(Some(24), Some(9 * ms), Some(5 * ms), Some(30.0)),
+            25
+        );
     }
 
     /// The blocked luma copy gives every Y byte, at widths that leave remainders.
