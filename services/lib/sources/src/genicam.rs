@@ -16,7 +16,7 @@
 //! is a bad frame, counted, and the stream goes on. A camera silent for two reads (2 s:
 //! unplugged, restarted, its link down) is opened again as it was asked, on a thread of its own
 //! so the capture service goes on reporting, and again after two more silent reads until it
-//! answers; its fresh frame numbers continue the sequence.
+//! answers; its fresh frame numbers continue the sequence, by the frame periods it was away.
 //!
 //! **Timestamps.** Each buffer carries the camera's timestamp (ns on its own clock, latched at
 //! the start of exposure by GenICam's convention) and the host's time of its arrival. With
@@ -305,6 +305,9 @@ pub struct GenicamSource {
     /// from the last one given (`None`: not yet rebased).
     last_sequence: Option<u64>,
     sequence_base: Option<i128>,
+    /// The host's time of the last frame's arrival: the frames the camera made while it was
+    /// away become a gap in the numbers.
+    last_arrival_ns: Option<u64>,
     /// The camera being opened again on a thread of its own (opening and releasing a camera
     /// that is gone can block for seconds).
     reopening: Option<std::sync::mpsc::Receiver<Result<Box<GenicamSource>, String>>>,
@@ -370,6 +373,7 @@ impl GenicamSource {
             silent: 0,
             last_sequence: None,
             sequence_base: Some(0),
+            last_arrival_ns: None,
             reopening: None,
         };
         let cam = s.camera;
@@ -655,9 +659,10 @@ impl FrameSource for GenicamSource {
             };
             match waited {
                 Ok(Ok(fresh)) => {
-                    let last = self.last_sequence;
+                    let (last, arrival) = (self.last_sequence, self.last_arrival_ns);
                     let old = std::mem::replace(self, *fresh);
                     self.last_sequence = last;
+                    self.last_arrival_ns = arrival;
                     self.sequence_base = None;
                     // Releasing the lost camera can block: not on the capture's thread.
                     std::thread::spawn(move || drop(old));
@@ -752,12 +757,20 @@ impl FrameSource for GenicamSource {
                 Clock::Mapped => i128::from(camera_ns) + self.offset.update(camera_ns, arrival_ns),
             };
             let half = self.exposure_us.map_or(0.0, |us| us * 500.0) as i128;
-            // After a reopen the camera numbers afresh: continue from the last number given.
+            // After a reopen the camera numbers afresh: continue from the last number given,
+            // by the frame periods it was away.
+            let (last, last_arrival, fps) = (self.last_sequence, self.last_arrival_ns, self.fps);
             let base = *self.sequence_base.get_or_insert_with(|| {
-                i128::from(self.last_sequence.map_or(0, |l| l + 1)) - i128::from(id)
+                i128::from(crate::source::number_after(
+                    last,
+                    last_arrival,
+                    Some(arrival_ns),
+                    fps,
+                )) - i128::from(id)
             });
             let sequence = u64::try_from(i128::from(id) + base).unwrap_or(id);
             self.last_sequence = Some(sequence);
+            self.last_arrival_ns = Some(arrival_ns);
             Ok(Read::Frame {
                 timestamp_ns: u64::try_from(start_ns + half).ok(),
                 sequence: Some(sequence),

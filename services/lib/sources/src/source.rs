@@ -182,6 +182,25 @@ pub trait FrameSource: Send {
     }
 }
 
+/// The number of the first frame of a camera opened again (V4L2, GenICam): the frame periods since the last
+/// frame given, after it (at least the next number), so frames missed while the camera was
+/// away count as a gap; 0 for the very first.
+pub(crate) fn number_after(
+    last: Option<u64>,
+    last_ns: Option<u64>,
+    now_ns: Option<u64>,
+    fps: Option<f64>,
+) -> u64 {
+    let Some(last) = last else { return 0 };
+    let periods = match (last_ns, now_ns, fps) {
+        (Some(a), Some(b), Some(f)) if b > a && f > 0.0 => {
+            ((b - a) as f64 * f * 1e-9).round().clamp(1.0, 1e12) as u64
+        }
+        _ => 1,
+    };
+    last.saturating_add(periods)
+}
+
 /// Copies `src` rows (each `row_bytes` long, `src_stride` apart) into tight rows of `out`.
 pub fn copy_rows(src: &[u8], src_stride: usize, row_bytes: usize, rows: usize, out: &mut [u8]) {
     for (y, dst) in out.chunks_exact_mut(row_bytes).take(rows).enumerate() {
@@ -189,5 +208,31 @@ pub fn copy_rows(src: &[u8], src_stride: usize, row_bytes: usize, rows: usize, o
         if let Some(s) = src.get(start..start + row_bytes) {
             dst.copy_from_slice(s);
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A device opened again numbers on from the last frame by the periods between them.
+    #[test]
+    fn a_reopened_camera_numbers_on_by_time() {
+        let ms = 1_000_000u64;
+        assert_eq!(number_after(None, None, Some(5 * ms), Some(30.0)), 0);
+        // 1.1 s at 30 fps after frame 24: 33 periods.
+        assert_eq!(
+            number_after(Some(24), Some(0), Some(1_100 * ms), Some(30.0)),
+            57
+        );
+        // No time or rate known, or time gone back: the next number.
+        assert_eq!(
+            number_after(Some(24), None, Some(1_100 * ms), Some(30.0)),
+            25
+        );
+        assert_eq!(
+            number_after(Some(24), Some(9 * ms), Some(5 * ms), Some(30.0)),
+            25
+        );
     }
 }

@@ -180,25 +180,6 @@ impl Asked {
     }
 }
 
-/// The number of the first frame of a device opened again: the frame periods since the last
-/// frame given, after it (at least the next number), so frames missed while the camera was
-/// away count as a gap; 0 for the very first.
-fn next_after(
-    last: Option<u64>,
-    last_ns: Option<u64>,
-    now_ns: Option<u64>,
-    fps: Option<f64>,
-) -> u64 {
-    let Some(last) = last else { return 0 };
-    let periods = match (last_ns, now_ns, fps) {
-        (Some(a), Some(b), Some(f)) if b > a && f > 0.0 => {
-            ((b - a) as f64 * f * 1e-9).round().clamp(1.0, 1e12) as u64
-        }
-        _ => 1,
-    };
-    last.saturating_add(periods)
-}
-
 /// Whether a read's failure means the device went away or stopped (open it again) rather
 /// than a fault of this build or rig.
 fn gone(e: &SourceError) -> Option<String> {
@@ -312,7 +293,12 @@ impl FrameSource for V4lSource {
             }) => {
                 let (last, last_ns, fps) = (self.last_sequence, self.last_ns, self.fps);
                 let base = *self.sequence_base.get_or_insert_with(|| {
-                    i128::from(next_after(last, last_ns, timestamp_ns, fps)) - i128::from(n)
+                    i128::from(crate::source::number_after(
+                        last,
+                        last_ns,
+                        timestamp_ns,
+                        fps,
+                    )) - i128::from(n)
                 });
                 let sequence = u64::try_from(i128::from(n) + base).unwrap_or(n);
                 self.last_sequence = Some(sequence);
@@ -1066,24 +1052,6 @@ mod tests {
         assert_eq!(wire_of("Y16 "), Some(Wire::Y16));
         assert_eq!(wire_of("NV12"), None);
         assert_eq!(sys::fourcc_str(sys::fourcc(b"Y16 ")), "Y16 ");
-    }
-
-    /// A device opened again numbers on from the last frame by the periods between them.
-    #[test]
-    fn a_reopened_camera_numbers_on_by_time() {
-        let ms = 1_000_000u64;
-        assert_eq!(next_after(None, None, Some(5 * ms), Some(30.0)), 0);
-        // 1.1 s at 30 fps after frame 24: 33 periods.
-        assert_eq!(
-            next_after(Some(24), Some(0), Some(1_100 * ms), Some(30.0)),
-            57
-        );
-        // No time or rate known, or time gone back: the next number.
-        assert_eq!(next_after(Some(24), None, Some(1_100 * ms), Some(30.0)), 25);
-        assert_eq!(
-            next_after(Some(24), Some(9 * ms), Some(5 * ms), Some(30.0)),
-            25
-        );
     }
 
     /// The blocked luma copy gives every Y byte, at widths that leave remainders.
