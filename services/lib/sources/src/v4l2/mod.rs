@@ -22,32 +22,19 @@
 //! second, on a thread of its own; meanwhile each read is a bad frame naming why, and frames
 //! then resume in the same process, their numbers going on ([`V4lSource`]).
 
+mod controls;
+mod convert;
+mod stamps;
 pub(crate) mod sys;
 
-use crate::source::{BadFrame, ControlProblem, FormatProblem, FrameSource, Read, SourceError};
+pub use convert::{ConvertError, Wire, convert, wire_of};
+
+use crate::source::{BadFrame, FormatProblem, FrameSource, Read, SourceError};
+use controls::{control_value, list_controls};
+use stamps::{Sequence, Stamp, clock_ns, clock_offset_ns, mid_exposure_ns};
 use std::os::fd::{AsRawFd, FromRawFd, OwnedFd};
 use stereoscope_proto::frame::PixelFormat;
 use stereoscope_rig::schema::ControlValue;
-
-/// A frame's layout as the driver gives it.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Wire {
-    Grey,
-    Y16,
-    Yuyv,
-    Mjpg,
-}
-
-/// The layout of a V4L2 four-character code this source reads.
-pub fn wire_of(code: &str) -> Option<Wire> {
-    match code.trim_end() {
-        "GREY" => Some(Wire::Grey),
-        "Y16" => Some(Wire::Y16),
-        "YUYV" => Some(Wire::Yuyv),
-        "MJPG" => Some(Wire::Mjpg),
-        _ => None,
-    }
-}
 
 /// What the rig asks of a V4L2 camera.
 #[derive(Debug, Clone, Default)]
@@ -65,15 +52,6 @@ pub struct V4lRequest<'a> {
     /// From the end of exposure to an end-of-frame stamp, ns (the sensor's readout, which
     /// V4L2 does not report: the rig gives it).
     pub readout_ns: Option<u64>,
-}
-
-/// How a frame's time is found (see the module's header).
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-enum Stamp {
-    /// The driver's monotonic stamp; `+1` start of exposure, `-1` end of frame.
-    Driver { start_of_exposure: bool },
-    /// When the buffer was dequeued.
-    Dequeue,
 }
 
 struct Mapped {
@@ -339,30 +317,6 @@ fn ioctl<T>(fd: &OwnedFd, request: libc::c_ulong, arg: &mut T) -> std::io::Resul
             return Err(e);
         }
     }
-}
-
-/// The real-time clock minus the monotonic one: of five readings of the pair, the one read
-/// closest together (the least disturbed by a preemption between the two reads).
-fn clock_offset_ns() -> i128 {
-    (0..5)
-        .map(|_| {
-            let m0 = clock_ns(libc::CLOCK_MONOTONIC);
-            let r = clock_ns(libc::CLOCK_REALTIME);
-            let m1 = clock_ns(libc::CLOCK_MONOTONIC);
-            (m1 - m0, r - (m0 + m1) / 2)
-        })
-        .min_by_key(|&(spread, _)| spread)
-        .map_or(0, |(_, offset)| offset)
-}
-
-fn clock_ns(clock: libc::clockid_t) -> i128 {
-    let mut ts = libc::timespec {
-        tv_sec: 0,
-        tv_nsec: 0,
-    };
-    // SAFETY: `ts` is a valid timespec to write.
-    unsafe { libc::clock_gettime(clock, &mut ts) };
-    ts.tv_sec as i128 * 1_000_000_000 + ts.tv_nsec as i128
 }
 
 impl Stream {
@@ -712,144 +666,6 @@ impl Stream {
     }
 }
 
-/// A control's name as `v4l2-ctl` shows it: lower case, runs of anything but letters and
-/// digits as one `_` ("Exposure Time, Absolute" → `exposure_time_absolute`).
-fn control_name(driver_name: &str) -> String {
-    let mut out = String::new();
-    for c in driver_name.chars() {
-        if c.is_ascii_alphanumeric() {
-            out.push(c.to_ascii_lowercase());
-        } else if !out.is_empty() && !out.ends_with('_') {
-            out.push('_');
-        }
-    }
-    out.trim_end_matches('_').to_string()
-}
-
-/// The device's controls (enabled ones), by the driver's enumeration.
-fn list_controls(fd: &OwnedFd) -> Vec<sys::QueryCtrl> {
-    let mut out = Vec::new();
-    let mut id = sys::CTRL_FLAG_NEXT_CTRL;
-    // Bounded: a driver lists a few dozen.
-    for _ in 0..1024 {
-        let mut q: sys::QueryCtrl = sys::zeroed();
-        q.id = id;
-        if ioctl(fd, sys::VIDIOC_QUERYCTRL, &mut q).is_err() {
-            break;
-        }
-        id = q.id | sys::CTRL_FLAG_NEXT_CTRL;
-        if q.flags & sys::CTRL_FLAG_DISABLED == 0 && q.type_ != sys::CTRL_TYPE_CTRL_CLASS {
-            out.push(q);
-        }
-    }
-    out
-}
-
-/// The id and value of control `name` = `value`, checked against what the driver says of it.
-fn control_value(
-    fd: &OwnedFd,
-    known: &[sys::QueryCtrl],
-    name: &str,
-    value: &ControlValue,
-) -> Result<(u32, i64), ControlProblem> {
-    let Some(q) = known
-        .iter()
-        .find(|q| control_name(&sys::c_name(&q.name)) == name)
-    else {
-        let names: Vec<String> = known
-            .iter()
-            .map(|q| control_name(&sys::c_name(&q.name)))
-            .filter(|n| !n.is_empty())
-            .collect();
-        return Err(ControlProblem::Unknown { known: names });
-    };
-    let (min, max) = (q.minimum as i64, q.maximum as i64);
-    let v = match value {
-        ControlValue::Bool(b) => *b as i64,
-        ControlValue::Integer(i) => *i,
-        ControlValue::Item(item) => {
-            if q.type_ != sys::CTRL_TYPE_MENU {
-                return Err(ControlProblem::NotAMenu {
-                    item: item.clone(),
-                    min,
-                    max,
-                });
-            }
-            let mut items = Vec::new();
-            for index in q.minimum.max(0)..=q.maximum.min(255) {
-                let mut m: sys::QueryMenu = sys::zeroed();
-                m.id = q.id;
-                m.index = index as u32;
-                if ioctl(fd, sys::VIDIOC_QUERYMENU, &mut m).is_ok() {
-                    let text = sys::c_name(&{ m.name });
-                    if control_name(&text) == control_name(item) {
-                        return Ok((q.id, index as i64));
-                    }
-                    items.push(text);
-                }
-            }
-            return Err(ControlProblem::NoSuchItem {
-                item: item.clone(),
-                items,
-            });
-        }
-    };
-    if !(min..=max).contains(&v) {
-        return Err(ControlProblem::OutOfRange {
-            value: value.to_string(),
-            min,
-            max,
-        });
-    }
-    Ok((q.id, v))
-}
-
-/// A frame's mid-exposure on the real-time clock: the driver's stamp (`driver_ns`, monotonic)
-/// moved by half the exposure towards its middle (and, from an end-of-frame stamp, back by the
-/// readout first), then by the clocks' offset (`realtime_ns` and `monotonic_ns` read together).
-fn mid_exposure_ns(
-    stamp: Stamp,
-    driver_ns: i128,
-    exposure_ns: Option<u64>,
-    readout_ns: Option<u64>,
-    realtime_ns: i128,
-    monotonic_ns: i128,
-) -> u64 {
-    let ns = match stamp {
-        Stamp::Dequeue => realtime_ns,
-        Stamp::Driver { start_of_exposure } => {
-            let half = exposure_ns.unwrap_or(0) as i128 / 2;
-            let mid = if start_of_exposure {
-                driver_ns + half
-            } else {
-                driver_ns - readout_ns.unwrap_or(0) as i128 - half
-            };
-            realtime_ns - (monotonic_ns - mid)
-        }
-    };
-    ns.clamp(0, u64::MAX as i128) as u64
-}
-
-/// The driver's 32-bit sequence number, continued past its wrap.
-#[derive(Debug, Default)]
-struct Sequence {
-    last: Option<u32>,
-    wraps: u64,
-}
-
-impl Sequence {
-    fn extend(&mut self, seq: u32) -> u64 {
-        if let Some(last) = self.last
-            && seq < last
-            && last - seq > u32::MAX / 2
-        {
-            self.wraps += 1;
-        }
-        self.last = Some(seq);
-        (self.wraps << 32) | seq as u64
-    }
-}
-
 impl Drop for Stream {
     fn drop(&mut self) {
         if self.streaming {
@@ -918,201 +734,9 @@ impl Stream {
     }
 }
 
-/// Why a camera buffer is not a frame.
-#[derive(Debug, thiserror::Error)]
-pub enum ConvertError {
-    #[error("frame of {got} bytes, {need} expected")]
-    Short { got: usize, need: usize },
-    #[error("MJPEG frame")]
-    Jpeg(#[source] jpeg_decoder::Error),
-    #[error("MJPEG frame is {got_w}×{got_h}, the stream {w}×{h}")]
-    JpegSize {
-        got_w: u16,
-        got_h: u16,
-        w: usize,
-        h: usize,
-    },
-    #[error("the driver flagged the buffer as corrupted")]
-    DriverError,
-    #[error("the driver returned buffer {index}, which it never gave")]
-    NoSuchBuffer { index: u32 },
-}
-
-/// Every other byte of `yuyv` (Y0 U Y1 V …) into `luma`, in blocks of 16 the compiler turns
-/// into byte shuffles (a byte-by-byte `step_by(2)` loop took 93 µs at 640 × 480; the
-/// frame_copy bench).
-fn luma_of_yuyv(yuyv: &[u8], luma: &mut [u8]) {
-    let mut blocks = luma.chunks_exact_mut(16);
-    let mut pairs = yuyv.chunks_exact(32);
-    for (d, s) in (&mut blocks).zip(&mut pairs) {
-        for i in 0..16 {
-            d[i] = s[2 * i];
-        }
-    }
-    for (d, s) in blocks
-        .into_remainder()
-        .iter_mut()
-        .zip(pairs.remainder().chunks_exact(2))
-    {
-        *d = s[0];
-    }
-}
-
-/// One camera buffer (`stride` bytes per row as the driver gives them) into tight grey rows:
-/// the one pass each frame takes from the driver's buffer into the shared-memory frame.
-pub fn convert(
-    wire: Wire,
-    data: &[u8],
-    w: usize,
-    h: usize,
-    stride: usize,
-    out: &mut [u8],
-) -> Result<(), ConvertError> {
-    let short = |need: usize| ConvertError::Short {
-        got: data.len(),
-        need,
-    };
-    match wire {
-        Wire::Grey | Wire::Y16 => {
-            let bpp = if wire == Wire::Y16 { 2 } else { 1 };
-            let stride = stride.max(w * bpp);
-            if h == 0 || data.len() < stride * (h - 1) + w * bpp {
-                return Err(short(stride * h));
-            }
-            crate::source::copy_rows(data, stride, w * bpp, h, out);
-        }
-        Wire::Yuyv => {
-            let stride = stride.max(w * 2);
-            if h == 0 || data.len() < stride * (h - 1) + w * 2 {
-                return Err(short(stride * h));
-            }
-            for (y, row) in out.chunks_exact_mut(w).enumerate() {
-                let src = &data[y * stride..y * stride + 2 * w];
-                luma_of_yuyv(src, row);
-            }
-        }
-        Wire::Mjpg => {
-            let mut dec = jpeg_decoder::Decoder::new(data);
-            let pixels = dec.decode().map_err(ConvertError::Jpeg)?;
-            let info = dec.info().ok_or_else(|| short(w * h))?;
-            if info.width as usize != w || info.height as usize != h {
-                return Err(ConvertError::JpegSize {
-                    got_w: info.width,
-                    got_h: info.height,
-                    w,
-                    h,
-                });
-            }
-            match pixels.len() / (w * h).max(1) {
-                1 => out.copy_from_slice(&pixels[..w * h]),
-                3 => {
-                    for (d, p) in out.iter_mut().zip(pixels.chunks_exact(3)) {
-                        // BT.601 luma.
-                        *d = ((77 * p[0] as u32 + 150 * p[1] as u32 + 29 * p[2] as u32) >> 8) as u8;
-                    }
-                }
-                _ => return Err(short(w * h * 3)),
-            }
-        }
-    }
-    Ok(())
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn wire_formats_become_grey_rows() {
-        // GREY with padded rows.
-        let data = [1, 2, 3, 0, 4, 5, 6, 0];
-        let mut out = [0u8; 6];
-        convert(Wire::Grey, &data, 3, 2, 4, &mut out).unwrap();
-        assert_eq!(out, [1, 2, 3, 4, 5, 6]);
-        // Y16: two bytes a pixel, little-endian, kept as bytes.
-        let data = [1, 0, 2, 0, 3, 1, 4, 1];
-        let mut out = [0u8; 8];
-        convert(Wire::Y16, &data, 2, 2, 4, &mut out).unwrap();
-        assert_eq!(out, data);
-        // YUYV: the Y bytes.
-        let data = [10, 128, 11, 129, 12, 128, 13, 129];
-        let mut out = [0u8; 4];
-        convert(Wire::Yuyv, &data, 2, 2, 4, &mut out).unwrap();
-        assert_eq!(out, [10, 11, 12, 13]);
-        // Short buffers and broken JPEG are bad frames, not panics.
-        assert!(matches!(
-            convert(Wire::Grey, &[1, 2], 3, 2, 3, &mut [0; 6]),
-            Err(ConvertError::Short { got: 2, .. })
-        ));
-        assert!(convert(Wire::Yuyv, &[1; 7], 2, 2, 4, &mut [0; 4]).is_err());
-        assert!(matches!(
-            convert(Wire::Mjpg, &[0xff, 0xd8, 0, 1], 2, 2, 2, &mut [0; 4]),
-            Err(ConvertError::Jpeg(_))
-        ));
-        assert_eq!(wire_of("Y16 "), Some(Wire::Y16));
-        assert_eq!(wire_of("NV12"), None);
-        assert_eq!(sys::fourcc_str(sys::fourcc(b"Y16 ")), "Y16 ");
-    }
-
-    /// The blocked luma copy gives every Y byte, at widths that leave remainders.
-    #[test]
-    fn yuyv_luma_is_every_other_byte() {
-        for w in [1usize, 15, 16, 17, 37, 640] {
-            let yuyv: Vec<u8> = (0..2 * w).map(|i| (i * 7 % 251) as u8).collect();
-            let mut luma = vec![0u8; w];
-            luma_of_yuyv(&yuyv, &mut luma);
-            let want: Vec<u8> = yuyv.iter().step_by(2).copied().collect();
-            assert_eq!(luma, want, "width {w}");
-        }
-    }
-
-    #[test]
-    fn stamps_move_to_mid_exposure_on_the_real_time_clock() {
-        // The clocks 1,000 s apart; the driver stamped 5 ms before the dequeue.
-        let (real, mono) = (1_001_000_000_000i128, 1_000_000_000i128);
-        let driver = mono - 5_000_000;
-        let eof = Stamp::Driver {
-            start_of_exposure: false,
-        };
-        let soe = Stamp::Driver {
-            start_of_exposure: true,
-        };
-        let at = |s, e| mid_exposure_ns(s, driver, e, None, real, mono) as i128;
-        assert_eq!(at(eof, None), real - 5_000_000);
-        assert_eq!(at(eof, Some(2_000_000)), real - 6_000_000);
-        assert_eq!(at(soe, Some(2_000_000)), real - 4_000_000);
-        assert_eq!(at(Stamp::Dequeue, Some(2_000_000)), real);
-        // A readout of 7 ms moves an end-of-frame stamp back; a start-of-exposure one is not
-        // after the readout.
-        let readout = Some(7_000_000);
-        let at = |s, e| mid_exposure_ns(s, driver, e, readout, real, mono) as i128;
-        assert_eq!(at(eof, Some(2_000_000)), real - 13_000_000);
-        assert_eq!(at(soe, Some(2_000_000)), real - 4_000_000);
-    }
-
-    #[test]
-    fn sequence_numbers_go_on_past_the_drivers_wrap() {
-        let mut s = Sequence::default();
-        assert_eq!(s.extend(u32::MAX - 1), u32::MAX as u64 - 1);
-        assert_eq!(s.extend(u32::MAX), u32::MAX as u64);
-        assert_eq!(s.extend(1), (1u64 << 32) + 1);
-        // A driver that restarts at a small step back is not a wrap.
-        assert_eq!(s.extend(0), 1u64 << 32);
-    }
-
-    #[test]
-    fn control_names_are_v4l2_ctls() {
-        assert_eq!(
-            control_name("Exposure Time, Absolute"),
-            "exposure_time_absolute"
-        );
-        assert_eq!(control_name("Test Pattern"), "test_pattern");
-        assert_eq!(
-            control_name("White Balance, Automatic "),
-            "white_balance_automatic"
-        );
-        assert_eq!(control_name("100% Black"), "100_black");
-    }
 
     #[test]
     fn a_missing_device_is_named() {
