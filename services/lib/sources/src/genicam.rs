@@ -151,13 +151,36 @@ struct Api {
     _aravis: libloading::Library,
 }
 
-fn load(path: &str) -> Result<libloading::Library, String> {
+/// What failed in Aravis or in loading it.
+#[derive(Debug, thiserror::Error)]
+enum AravisError {
+    #[error("{path} (install libaravis-0.8-0, or give the source's library)")]
+    Load {
+        path: String,
+        #[source]
+        source: libloading::Error,
+    },
+    #[error("{symbol} is not in the library")]
+    Symbol {
+        symbol: String,
+        #[source]
+        source: libloading::Error,
+    },
+    /// A `GError` Aravis set: its code and message.
+    #[error("{message} (Aravis error {code})")]
+    Camera { code: i32, message: String },
+}
+
+fn load(path: &str) -> Result<libloading::Library, AravisError> {
     // SAFETY: loading Aravis or GLib runs their initialisers, which set up their own state.
-    unsafe { libloading::Library::new(path) }.map_err(|e| format!("{path}: {e}"))
+    unsafe { libloading::Library::new(path) }.map_err(|source| AravisError::Load {
+        path: path.to_string(),
+        source,
+    })
 }
 
 impl Api {
-    fn load(library: Option<&str>) -> Result<Api, String> {
+    fn load(library: Option<&str>) -> Result<Api, AravisError> {
         let aravis = load(library.unwrap_or("libaravis-0.8.so.0"))?;
         let gobject = load("libgobject-2.0.so.0")?;
         let glib = load("libglib-2.0.so.0")?;
@@ -165,11 +188,9 @@ impl Api {
             ($lib:expr, $name:literal) => {{
                 // SAFETY: the symbol has the signature of the field it fills, as Aravis 0.8's
                 // and GLib's headers declare it.
-                *unsafe { $lib.get($name) }.map_err(|e| {
-                    format!(
-                        "{}: {e}",
-                        String::from_utf8_lossy(&$name[..$name.len() - 1])
-                    )
+                *unsafe { $lib.get($name) }.map_err(|source| AravisError::Symbol {
+                    symbol: String::from_utf8_lossy(&$name[..$name.len() - 1]).into_owned(),
+                    source,
                 })?
             }};
         }
@@ -214,8 +235,8 @@ impl Api {
         })
     }
 
-    /// Runs `f` with a fresh `GError` slot; its message, if it set one.
-    fn call<T>(&self, f: impl FnOnce(Err) -> T) -> Result<T, String> {
+    /// Runs `f` with a fresh `GError` slot; the error, if it set one.
+    fn call<T>(&self, f: impl FnOnce(Err) -> T) -> Result<T, AravisError> {
         let mut e: *mut GError = std::ptr::null_mut();
         let v = f(&mut e);
         if e.is_null() {
@@ -223,16 +244,17 @@ impl Api {
         }
         // SAFETY: Aravis set a GError: its message is a NUL-terminated string it owns until the
         // error is freed, right after it is copied.
-        let m = unsafe {
-            let m = if (*e).message.is_null() {
+        let error = unsafe {
+            let message = if (*e).message.is_null() {
                 "unknown error".to_string()
             } else {
                 CStr::from_ptr((*e).message).to_string_lossy().into_owned()
             };
+            let code = (*e).code;
             (self.error_free)(e);
-            m
+            AravisError::Camera { code, message }
         };
-        Err(m)
+        Err(error)
     }
 }
 
@@ -310,7 +332,7 @@ pub struct GenicamSource {
     last_arrival_ns: Option<u64>,
     /// The camera being opened again on a thread of its own (opening and releasing a camera
     /// that is gone can block for seconds).
-    reopening: Option<std::sync::mpsc::Receiver<Result<Box<GenicamSource>, String>>>,
+    reopening: Option<std::sync::mpsc::Receiver<Result<Box<GenicamSource>, SourceError>>>,
 }
 
 // SAFETY: the camera and stream objects are used only through this owner, from one thread at
@@ -323,35 +345,30 @@ impl std::fmt::Debug for GenicamSource {
     }
 }
 
-/// A GenICam error naming the camera and what was being done.
-fn gerr(camera: &str, doing: &str, message: String) -> SourceError {
-    SourceError::io(camera, doing.to_string(), std::io::Error::other(message))
+/// A GenICam error naming the camera and what was being done: Aravis's own (kept as the
+/// source) or this source's words.
+fn gerr(
+    camera: &str,
+    doing: &str,
+    why: impl Into<Box<dyn std::error::Error + Send + Sync>>,
+) -> SourceError {
+    SourceError::io(camera, doing.to_string(), std::io::Error::other(why))
 }
 
 impl GenicamSource {
     pub fn open(req: &GenicamRequest) -> Result<GenicamSource, SourceError> {
         let name = req.camera.clone();
-        let api = Api::load(req.library.as_deref()).map_err(|m| {
-            gerr(
-                &name,
-                "loading Aravis",
-                format!("{m} (install libaravis-0.8-0, or give the source's library)"),
-            )
-        })?;
-        let c_name = CString::new(name.as_str()).map_err(|_| {
-            gerr(
-                &name,
-                "opening",
-                "the camera's name holds a NUL byte".into(),
-            )
-        })?;
+        let api =
+            Api::load(req.library.as_deref()).map_err(|e| gerr(&name, "loading Aravis", e))?;
+        let c_name = CString::new(name.as_str())
+            .map_err(|_| gerr(&name, "opening", "the camera's name holds a NUL byte"))?;
         // SAFETY (this block and the calls below): Aravis's C API on a camera object it made,
         // every out-pointer a live local, every GError collected by `Api::call`.
         let camera = api
             .call(|e| unsafe { (api.camera_new)(c_name.as_ptr(), e) })
             .map_err(|m| gerr(&name, "opening", m))?;
         if camera.is_null() {
-            return Err(gerr(&name, "opening", "no such camera".into()));
+            return Err(gerr(&name, "opening", "no such camera"));
         }
         let mut s = GenicamSource {
             api,
@@ -450,7 +467,7 @@ impl GenicamSource {
                     ));
                 }
                 let c_source = CString::new(source.as_str())
-                    .map_err(|_| gerr(&name, &doing, "a NUL byte in the name".into()))?;
+                    .map_err(|_| gerr(&name, &doing, "a NUL byte in the name"))?;
                 api.call(|e| unsafe { (api.set_trigger)(cam, c_source.as_ptr(), e) })
                     .map_err(|m| gerr(&name, &doing, m))?;
                 // What the camera took.
@@ -472,8 +489,7 @@ impl GenicamSource {
                         return Err(gerr(
                             &name,
                             &doing,
-                            "a software trigger needs the source's fps (how often to fire it)"
-                                .into(),
+                            "a software trigger needs the source's fps (how often to fire it)",
                         ));
                     };
                     let period = std::time::Duration::from_secs_f64(1.0 / fps);
@@ -521,7 +537,7 @@ impl GenicamSource {
             })
             .map_err(|m| gerr(&name, "creating the stream", m))?;
         if stream.is_null() {
-            return Err(gerr(&name, "creating the stream", "no stream".into()));
+            return Err(gerr(&name, "creating the stream", "no stream"));
         }
         for _ in 0..BUFFERS {
             unsafe {
@@ -543,7 +559,7 @@ impl GenicamSource {
 }
 
 /// The trigger sources the camera lists.
-fn trigger_sources(api: &Api, cam: *mut c_void) -> Result<Vec<String>, String> {
+fn trigger_sources(api: &Api, cam: *mut c_void) -> Result<Vec<String>, AravisError> {
     let mut n: c_uint = 0;
     // SAFETY: Aravis returns an array of `n` strings that its feature nodes own (valid while
     // the camera lives) in a container the caller frees with g_free, after they are copied.
@@ -568,9 +584,7 @@ impl GenicamSource {
         let (tx, rx) = std::sync::mpsc::channel();
         let req = self.req.clone();
         std::thread::spawn(move || {
-            let r = GenicamSource::open(&req)
-                .map(Box::new)
-                .map_err(|e| format!("{e:#}"));
+            let r = GenicamSource::open(&req).map(Box::new);
             let _ = tx.send(r);
         });
         self.reopening = Some(rx);
@@ -667,10 +681,17 @@ impl FrameSource for GenicamSource {
                     // Releasing the lost camera can block: not on the capture's thread.
                     std::thread::spawn(move || drop(old));
                 }
-                Ok(Err(m)) => {
+                Ok(Err(e)) => {
                     self.reopening = None;
                     self.silent = 0;
-                    return gone(format!("opening the camera again: {m}"));
+                    // The error and its causes, as the capture's log shows a chain.
+                    let mut why = e.to_string();
+                    let mut cause = std::error::Error::source(&e);
+                    while let Some(c) = cause {
+                        why = format!("{why}: {c}");
+                        cause = c.source();
+                    }
+                    return gone(format!("opening the camera again: {why}"));
                 }
                 Err(std::sync::mpsc::RecvTimeoutError::Timeout) => {
                     return gone("opening the camera again".into());
@@ -698,9 +719,9 @@ impl FrameSource for GenicamSource {
             let cam = self.camera;
             // SAFETY: a command on this source's camera.
             api.call(|e| unsafe { (api.software_trigger)(cam, e) })
-                .map_err(|m| BadFrame::Camera {
+                .map_err(|e| BadFrame::Camera {
                     device: self.name.clone(),
-                    source: format!("firing TriggerSoftware: {m}").into(),
+                    source: format!("firing TriggerSoftware: {e}").into(),
                 })?;
         }
         let api = &self.api;

@@ -391,7 +391,7 @@ impl QualisysServer {
                 self.clients[i].queue_text(PACKET_XML, &xml);
             }
             "getcurrentframe" => match components(&words[1..]) {
-                Err(e) => c.queue_text(PACKET_ERROR, &e),
+                Err(e) => c.queue_text(PACKET_ERROR, &e.to_string()),
                 Ok(comps) => match self.current_body(&comps) {
                     Some(b) => self.clients[i]
                         .outbuf
@@ -408,7 +408,7 @@ impl QualisysServer {
                 }
                 match stream_request(&words[1..], c.peer) {
                     Ok(s) => c.streaming = Some(s),
-                    Err(e) => c.queue_text(PACKET_ERROR, &e),
+                    Err(e) => c.queue_text(PACKET_ERROR, &e.to_string()),
                 }
             }
             "close" => {
@@ -441,28 +441,48 @@ fn parse_version(v: &str) -> Option<u32> {
     minor.parse().ok()
 }
 
-fn components(words: &[&str]) -> Result<Vec<Component>, String> {
+/// Why a client's `GetCurrentFrame` or `StreamFrames` is refused: its text is the error
+/// packet's, as QTM words them ("Parse error: …").
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+enum RequestError {
+    #[error("Parse error: no component named")]
+    NoComponent,
+    #[error(
+        "Parse error: component {0} is not served (3D, 3DRes, 3DNoLabels, 3DNoLabelsRes, 6D, 6DRes, 6DEuler, 6DEulerRes are)"
+    )]
+    Component(String),
+    #[error("Parse error: StreamFrames needs AllFrames, Frequency:n or FrequencyDivisor:n")]
+    NoRate,
+    #[error("Parse error: {0}: the divisor must be a whole number ≥ 1")]
+    Divisor(String),
+    #[error("Parse error: {0}: the frequency must be a number > 0")]
+    Frequency(String),
+    #[error("Parse error: {0} is not AllFrames, Frequency:n or FrequencyDivisor:n")]
+    Rate(String),
+    #[error("Parse error: {word}: {ip} is not an IP address")]
+    Address { word: String, ip: String },
+    #[error("Parse error: {0} is not UDP:port or UDP:address:port")]
+    Udp(String),
+    #[error("{word}: refused; frames go only to the client's own address ({peer})")]
+    OtherAddress { word: String, peer: IpAddr },
+    #[error("Parse error: {word}: {port} is not a port")]
+    Port { word: String, port: String },
+}
+
+fn components(words: &[&str]) -> Result<Vec<Component>, RequestError> {
     if words.is_empty() {
-        return Err("Parse error: no component named".into());
+        return Err(RequestError::NoComponent);
     }
     words
         .iter()
-        .map(|w| {
-            Component::parse(w).ok_or_else(|| {
-                format!(
-                    "Parse error: component {w} is not served (3D, 3DRes, 3DNoLabels, 3DNoLabelsRes, 6D, 6DRes, 6DEuler, 6DEulerRes are)"
-                )
-            })
-        })
+        .map(|w| Component::parse(w).ok_or_else(|| RequestError::Component(w.to_string())))
         .collect()
 }
 
 /// `StreamFrames`' arguments: the rate, an optional `UDP[:address]:port`, the components.
-fn stream_request(words: &[&str], peer: SocketAddr) -> Result<Stream, String> {
+fn stream_request(words: &[&str], peer: SocketAddr) -> Result<Stream, RequestError> {
     let Some(first) = words.first() else {
-        return Err(
-            "Parse error: StreamFrames needs AllFrames, Frequency:n or FrequencyDivisor:n".into(),
-        );
+        return Err(RequestError::NoRate);
     };
     let lower = first.to_ascii_lowercase();
     let rate = if lower == "allframes" {
@@ -470,25 +490,15 @@ fn stream_request(words: &[&str], peer: SocketAddr) -> Result<Stream, String> {
     } else if let Some(n) = lower.strip_prefix("frequencydivisor:") {
         match n.parse::<u64>() {
             Ok(n) if n >= 1 => Rate::Divisor(n),
-            _ => {
-                return Err(format!(
-                    "Parse error: {first}: the divisor must be a whole number ≥ 1"
-                ));
-            }
+            _ => return Err(RequestError::Divisor(first.to_string())),
         }
     } else if let Some(n) = lower.strip_prefix("frequency:") {
         match n.parse::<f64>() {
             Ok(n) if n.is_finite() && n > 0.0 => Rate::Frequency(n),
-            _ => {
-                return Err(format!(
-                    "Parse error: {first}: the frequency must be a number > 0"
-                ));
-            }
+            _ => return Err(RequestError::Frequency(first.to_string())),
         }
     } else {
-        return Err(format!(
-            "Parse error: {first} is not AllFrames, Frequency:n or FrequencyDivisor:n"
-        ));
+        return Err(RequestError::Rate(first.to_string()));
     };
     let mut rest = &words[1..];
     let mut udp = None;
@@ -500,23 +510,29 @@ fn stream_request(words: &[&str], peer: SocketAddr) -> Result<Stream, String> {
             [_, port] => (peer.ip(), *port),
             [_, ip, port] => match ip.parse::<IpAddr>() {
                 Ok(ip) => (ip, *port),
-                Err(_) => return Err(format!("Parse error: {w}: {ip} is not an IP address")),
+                Err(_) => {
+                    return Err(RequestError::Address {
+                        word: w.to_string(),
+                        ip: ip.to_string(),
+                    });
+                }
             },
-            _ => {
-                return Err(format!(
-                    "Parse error: {w} is not UDP:port or UDP:address:port"
-                ));
-            }
+            _ => return Err(RequestError::Udp(w.to_string())),
         };
         if ip != peer.ip() {
-            return Err(format!(
-                "{w}: refused; frames go only to the client's own address ({})",
-                peer.ip()
-            ));
+            return Err(RequestError::OtherAddress {
+                word: w.to_string(),
+                peer: peer.ip(),
+            });
         }
         let port: u16 = match port.parse() {
             Ok(p) if p > 0 => p,
-            _ => return Err(format!("Parse error: {w}: {port} is not a port")),
+            _ => {
+                return Err(RequestError::Port {
+                    word: w.to_string(),
+                    port: port.to_string(),
+                });
+            }
         };
         udp = Some(SocketAddr::new(ip, port));
         rest = &rest[1..];
@@ -766,9 +782,13 @@ mod tests {
             s.components,
             vec![Component::SixDEuler, Component::ThreeDNoLabels]
         );
-        let e = stream_request(&["AllFrames", "UDP:10.0.0.9:6734", "6D"], peer).unwrap_err();
+        let e = stream_request(&["AllFrames", "UDP:10.0.0.9:6734", "6D"], peer)
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("10.0.0.9") && e.contains("refused"), "{e}");
-        let e = stream_request(&["AllFrames", "Analog"], peer).unwrap_err();
+        let e = stream_request(&["AllFrames", "Analog"], peer)
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("Analog"), "{e}");
         assert!(stream_request(&["Frequency:0", "6D"], peer).is_err());
     }
