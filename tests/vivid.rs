@@ -431,6 +431,16 @@ fn stamps_follow_frame_numbers(f: &[(u64, f64)], fps: f64, out: &str) {
 #[test]
 fn vivid_frames_stamps_and_controls() {
     let square = "test_pattern = \"100% Black\", osd_text_mode = \"None\", show_square = true";
+    // vivid's square at 640 × 360 and 30 fps in `format`.
+    let square_at_30 = |format: &str| {
+        rig(
+            [640, 360],
+            &format!(
+                "{{ kind = \"v4l\", device = \"/dev/video0\", format = \"{format}\", fps = 30.0, \
+                 controls = {{ {square} }} }}"
+            ),
+        )
+    };
     let runs = boot(&[
         (
             "grey",
@@ -484,39 +494,16 @@ fn vivid_frames_stamps_and_controls() {
             "--count 1",
             "",
         ),
-        (
-            "y16",
-            rig(
-                [640, 360],
-                &format!(
-                    "{{ kind = \"v4l\", device = \"/dev/video0\", format = \"Y16\", fps = 30.0, \
-                     controls = {{ {square} }} }}"
-                ),
-            ),
-            "--count 5 --every 0",
-            "",
-        ),
+        ("y16", square_at_30("Y16"), "--count 5 --every 0", ""),
         (
             "stall",
-            rig(
-                [640, 360],
-                &format!(
-                    "{{ kind = \"v4l\", device = \"/dev/video0\", format = \"GREY\", fps = 30.0, \
-                     controls = {{ {square} }} }}"
-                ),
-            ),
+            square_at_30("GREY"),
             "--count 40 --every 0",
             "sleep 0.5; killall -STOP stereoscope; sleep 0.5; killall -CONT stereoscope",
         ),
         (
             "unplug",
-            rig(
-                [640, 360],
-                &format!(
-                    "{{ kind = \"v4l\", device = \"/dev/video0\", format = \"GREY\", fps = 30.0, \
-                     controls = {{ {square} }} }}"
-                ),
-            ),
+            square_at_30("GREY"),
             "--count 60 --every 0",
             "sleep 1; /bin/v4l2-button /dev/video0 disconnect",
         ),
