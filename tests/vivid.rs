@@ -3,9 +3,12 @@
 //! busybox initramfs holding `vivid` and its dependencies from `/lib/modules`, the real
 //! `stereoscope` binary and the C libraries it links. In the guest, `stereoscope grab` reads
 //! the camera as a rig describes it (format, size, rate, controls by name) and prints what
-//! the moment worker finds; the serial console brings that back.
+//! the moment worker finds; the serial console brings that back. Two vivid instances: the
+//! first a webcam, the second an HDMI input looped from its HDMI output, where the guest plays
+//! a frame the renderer made on the host. Two small C helpers (`tests/guest/`), built
+//! statically with the host's C compiler, press vivid's Disconnect and play that frame.
 //!
-//! Needs the Debian packages `qemu-system-x86` and `busybox-static`, and a Debian kernel
+//! Needs the Debian packages `qemu-system-x86` and `busybox-static`, gcc, and a Debian kernel
 //! (`linux-image-amd64` installed, or unpacked into `target/vivid-kernel`): `.ci/run` sees to
 //! all three; the test fails, naming them, without.
 //!
@@ -211,14 +214,17 @@ fn rig(size: [u32; 2], source: &str) -> String {
     )
 }
 
-/// `tests/guest/v4l2_button.c`, built statically with the host's C compiler: presses a V4L2
-/// button control by name in the guest (vivid's "Disconnect").
-fn v4l2_button() -> Vec<u8> {
+/// A helper of `tests/guest/` (`v4l2_button`: presses a V4L2 button control by name, vivid's
+/// "Disconnect"; `v4l2_out`: plays a PGM on a V4L2 output device), built statically with the
+/// host's C compiler for the guest.
+fn guest_helper(name: &str) -> Vec<u8> {
     let cc = need("cc", "gcc");
-    let dir = std::env::temp_dir().join(format!("stsc-button-{}", std::process::id()));
+    let dir = std::env::temp_dir().join(format!("stsc-{name}-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
-    let out = dir.join("v4l2-button");
-    let source = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tests/guest/v4l2_button.c");
+    let out = dir.join(name);
+    let source = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../../tests/guest")
+        .join(format!("{name}.c"));
     let o = Command::new(cc)
         .args(["-static", "-O2", "-o"])
         .arg(&out)
@@ -238,7 +244,10 @@ fn v4l2_button() -> Vec<u8> {
 
 /// Boots the guest with `runs` (name, rig text, grab arguments, shell commands run beside the
 /// grab from its start) and returns each run's output and exit status.
-fn boot(runs: &[(&str, String, &str, &str)]) -> Vec<(String, String, i32)> {
+fn boot(
+    runs: &[(&str, String, &str, &str)],
+    files: &[(&str, Vec<u8>)],
+) -> Vec<(String, String, i32)> {
     let qemu = need("qemu-system-x86_64", "qemu-system-x86");
     let busybox = ["/usr/bin/busybox", "/bin/busybox"]
         .into_iter()
@@ -285,7 +294,12 @@ fn boot(runs: &[(&str, String, &str, &str)]) -> Vec<(String, String, i32)> {
         );
     }
     cpio.file("bin/stereoscope", &std::fs::read(&binary).unwrap(), true);
-    cpio.file("bin/v4l2-button", &v4l2_button(), true);
+    cpio.file("bin/v4l2-button", &guest_helper("v4l2_button"), true);
+    cpio.file("bin/v4l2-out", &guest_helper("v4l2_out"), true);
+    for (path, bytes) in files {
+        parents(&mut cpio, &mut made, path);
+        cpio.file(path, bytes, false);
+    }
     for lib in libraries(&binary) {
         let inside = lib.to_string_lossy().trim_start_matches('/').to_string();
         parents(&mut cpio, &mut made, &inside);
@@ -294,7 +308,8 @@ fn boot(runs: &[(&str, String, &str, &str)]) -> Vec<(String, String, i32)> {
     }
     let mut init = String::from(
         "#!/bin/sh\nmount -t proc proc /proc\nmount -t sysfs sys /sys\nmount -t devtmpfs dev /dev\n\
-         for m in /modules/*.ko; do\n  case $m in *vivid.ko) insmod $m n_devs=1 node_types=0x1 ;; \
+         for m in /modules/*.ko; do\n  case $m in *vivid.ko) insmod $m n_devs=2 node_types=0x1,0x101 num_inputs=4,1 \
+         input_types=0xe4,0x3 num_outputs=2,1 output_types=0x2,0x1 ;; \
          *) insmod $m ;; esac\ndone\nn=0\nwhile [ ! -e /dev/video0 ] && [ $n -lt 100 ]; do sleep 0.1; \
          n=$((n+1)); done\n",
     );
@@ -430,6 +445,27 @@ fn stamps_follow_frame_numbers(f: &[(u64, f64)], fps: f64, out: &str) {
 
 #[test]
 fn vivid_frames_stamps_and_controls() {
+    // The renderer's frame of three still markers at 1280 × 720, and the blobs the moment worker
+    // finds in it here: the guest plays it on vivid's HDMI output, which vivid loops to its
+    // HDMI input.
+    let host = std::env::temp_dir().join(format!("stsc-vivid-scene-{}", std::process::id()));
+    std::fs::create_dir_all(&host).unwrap();
+    let scene = format!(
+        "{}\n[synthetic]\nseed = 3\nnoise_sigma = 2.0\nbackground = 20.0\n\
+         [[synthetic.target]]\nshape = \"sphere\"\nradius = 12.0\nmotion = {{ kind = \"static\", position = [-150.0, 40.0, 0.0] }}\n\
+         [[synthetic.target]]\nshape = \"sphere\"\nradius = 12.0\nmotion = {{ kind = \"static\", position = [90.0, -60.0, 0.0] }}\n\
+         [[synthetic.target]]\nshape = \"sphere\"\nradius = 12.0\nmotion = {{ kind = \"static\", position = [200.0, 120.0, 0.0] }}\n",
+        rig([1280, 720], "{ kind = \"synthetic\", fps = 30.0 }")
+    );
+    let o = grab(&host, &scene, &["--count", "1"]);
+    let rendered = String::from_utf8_lossy(&o.stdout).to_string();
+    assert!(
+        o.status.success(),
+        "{rendered}{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    let pgm = std::fs::read(host.join("cam0-0001.pgm")).unwrap();
+    let _ = std::fs::remove_dir_all(&host);
     let square = "test_pattern = \"100% Black\", osd_text_mode = \"None\", show_square = true";
     // vivid's square at 640 × 360 and 30 fps in `format`.
     let square_at_30 = |format: &str| {
@@ -441,73 +477,94 @@ fn vivid_frames_stamps_and_controls() {
             ),
         )
     };
-    let runs = boot(&[
-        (
-            "grey",
-            rig(
-                [640, 360],
-                &format!(
-                    "{{ kind = \"v4l\", device = \"/dev/video0\", format = \"GREY\", fps = 30.0, \
+    let runs = boot(
+        &[
+            (
+                "grey",
+                rig(
+                    [640, 360],
+                    &format!(
+                        "{{ kind = \"v4l\", device = \"/dev/video0\", format = \"GREY\", fps = 30.0, \
                      readout_us = 4000.0, controls = {{ {square} }} }}"
+                    ),
                 ),
+                "--count 15 --every 0",
+                "",
             ),
-            "--count 15 --every 0",
-            "",
-        ),
-        (
-            "yuyv",
-            rig(
-                [1280, 720],
-                &format!(
-                    "{{ kind = \"v4l\", device = \"/dev/video0\", format = \"YUYV\", fps = 12.5, \
+            (
+                "yuyv",
+                rig(
+                    [1280, 720],
+                    &format!(
+                        "{{ kind = \"v4l\", device = \"/dev/video0\", format = \"YUYV\", fps = 12.5, \
                      controls = {{ {square}, timestamp_source = \"Start of Exposure\", \
                      percentage_of_dropped_buffers = 50 }} }}"
+                    ),
                 ),
+                "--count 15 --every 0",
+                "",
             ),
-            "--count 15 --every 0",
-            "",
-        ),
-        (
-            "badcontrol",
-            rig(
-                [640, 360],
-                "{ kind = \"v4l\", device = \"/dev/video0\", controls = { brightness = 9999 } }",
+            (
+                "badcontrol",
+                rig(
+                    [640, 360],
+                    "{ kind = \"v4l\", device = \"/dev/video0\", controls = { brightness = 9999 } }",
+                ),
+                "--count 1",
+                "",
             ),
-            "--count 1",
-            "",
-        ),
-        (
-            "badrate",
-            rig(
-                [1280, 720],
-                "{ kind = \"v4l\", device = \"/dev/video0\", fps = 30.0 }",
+            (
+                "badrate",
+                rig(
+                    [1280, 720],
+                    "{ kind = \"v4l\", device = \"/dev/video0\", fps = 30.0 }",
+                ),
+                "--count 1",
+                "",
             ),
-            "--count 1",
-            "",
-        ),
-        (
-            "nocontrol",
-            rig(
-                [640, 360],
-                "{ kind = \"v4l\", device = \"/dev/video0\", controls = { focus_absolute = 3 } }",
+            (
+                "nocontrol",
+                rig(
+                    [640, 360],
+                    "{ kind = \"v4l\", device = \"/dev/video0\", controls = { focus_absolute = 3 } }",
+                ),
+                "--count 1",
+                "",
             ),
-            "--count 1",
-            "",
-        ),
-        ("y16", square_at_30("Y16"), "--count 5 --every 0", ""),
-        (
-            "stall",
-            square_at_30("GREY"),
-            "--count 40 --every 0",
-            "sleep 0.5; killall -STOP stereoscope; sleep 0.5; killall -CONT stereoscope",
-        ),
-        (
-            "unplug",
-            square_at_30("GREY"),
-            "--count 60 --every 0",
-            "sleep 1; /bin/v4l2-button /dev/video0 disconnect",
-        ),
-    ]);
+            ("y16", square_at_30("Y16"), "--count 5 --every 0", ""),
+            (
+                "stall",
+                square_at_30("GREY"),
+                "--count 40 --every 0",
+                "sleep 0.5; killall -STOP stereoscope; sleep 0.5; killall -CONT stereoscope",
+            ),
+            (
+                "unplug",
+                square_at_30("GREY"),
+                "--count 60 --every 0",
+                "sleep 1; /bin/v4l2-button /dev/video0 disconnect",
+            ),
+            (
+                "loop",
+                rig(
+                    [1280, 720],
+                    "{ kind = \"v4l\", device = \"/dev/video1\", format = \"YUYV\", \
+                 controls = { osd_text_mode = \"None\", loop_video = true } }",
+                ),
+                "--count 3 --every 0.5",
+                "/bin/v4l2-out /dev/video2 /frames/scene.pgm 150 30",
+            ),
+        ],
+        &[("frames/scene.pgm", pgm)],
+    );
+    let blob_lines = |text: &str| -> Vec<String> {
+        text.lines()
+            .filter(|l| l.starts_with("blob "))
+            .map(str::to_string)
+            .collect()
+    };
+    let on_host = blob_lines(&rendered);
+    assert_eq!(on_host.len(), 3, "{rendered}");
     let out = |name: &str| {
         runs.iter()
             .find(|r| r.0 == name)
@@ -602,6 +659,23 @@ fn vivid_frames_stamps_and_controls() {
         "no frames dropped while the reader stood still: {stall}"
     );
     stamps_follow_frame_numbers(&f, 30.0, &stall);
+
+    // The renderer's frame played on vivid's HDMI output and looped to its HDMI input: read
+    // through the V4L2 source, YUYV at vivid's 720p60, the moment worker finds the very blobs
+    // it finds in the rendered frame on the host — centroids, areas and orientations to the
+    // printed digit (the last frame's, 1 s in; the frame 0.5 s in has the same three).
+    let (looped, code) = out("loop");
+    assert_eq!(code, 0, "{looped}");
+    assert!(
+        looped.contains("/dev/video1 (vivid: vivid) Yuyv 1280×720 60.0 fps"),
+        "{looped}"
+    );
+    assert_eq!(
+        blob_lines(&looped),
+        on_host,
+        "{looped}\non the host:\n{rendered}"
+    );
+    assert!(looped.matches(", 3 blobs)").count() >= 2, "{looped}");
 
     // Unplugged while streaming (vivid's Disconnect pressed by another process a second in):
     // the reads say the camera is gone and it is being opened again, the device comes back
