@@ -44,8 +44,12 @@ pub mod iox {
     pub const FRAME_BORROWED: usize = 2;
     /// Observation and pose samples a subscriber may queue.
     pub const MESSAGE_BUFFER: usize = 16;
-    /// Largest message sample, bytes (an observation of 64 blobs is about 6 KB).
-    pub const MESSAGE_MAX_BYTES: usize = 64 * 1024;
+    /// Largest message sample, bytes: an observation of 512 blobs is about 50 KB, a pose frame
+    /// of 1024 poses seen by 16 cameras about 200 KB (both measured by a unit test).
+    pub const MESSAGE_MAX_BYTES: usize = 512 * 1024;
+    /// What a message publisher's samples hold at first, bytes; they grow by powers of two
+    /// up to [`MESSAGE_MAX_BYTES`] when a message needs it (most never do).
+    pub const MESSAGE_INITIAL_BYTES: usize = 16 * 1024;
     /// Subscribers, publishers and nodes a service admits.
     pub const MAX_SUBSCRIBERS: usize = 8;
     pub const MAX_PUBLISHERS: usize = 4;

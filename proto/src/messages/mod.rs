@@ -327,10 +327,11 @@ pub mod limits {
     pub const MAX_MESSAGE_BYTES: usize = 1 << 20;
     /// Longest rig, camera, host or service name, bytes.
     pub const MAX_NAME_BYTES: usize = 64;
-    /// Most blobs in one observation (what a worker reports at most).
-    pub const MAX_BLOBS: usize = 64;
+    /// Most blobs in one observation (what a worker reports at most: a full-body marker set
+    /// for several people and their props in one view).
+    pub const MAX_BLOBS: usize = 512;
     /// Most poses (objects) in one pose frame, and targets in one truth message.
-    pub const MAX_POSES: usize = 256;
+    pub const MAX_POSES: usize = 1024;
     /// Most cameras named in one pose frame or pose.
     pub const MAX_CAMERAS: usize = 64;
     /// Largest image side, pixels (the rig's own bound).
@@ -881,6 +882,56 @@ mod tests {
         );
         assert!(bin.len() * 2 < json.len());
         assert_eq!(Observation::from_binary(&bin).unwrap(), o);
+
+        // The largest messages the limits allow in use: an observation of MAX_BLOBS blobs and
+        // a pose frame of MAX_POSES poses each seen by 16 cameras fit a shared-memory sample
+        // in binary and the decoder's bound in JSON, and both come back.
+        let full = Observation {
+            blobs: vec![o.blobs[0].clone(); limits::MAX_BLOBS],
+            ..o.clone()
+        };
+        let (bin, json) = (full.to_binary(), full.to_json());
+        println!(
+            "observation with {} blobs: {} bytes binary, {} bytes JSON",
+            limits::MAX_BLOBS,
+            bin.len(),
+            json.len()
+        );
+        assert!(bin.len() <= crate::names::iox::MESSAGE_MAX_BYTES);
+        assert!(json.len() <= limits::MAX_MESSAGE_BYTES);
+        assert_eq!(Observation::from_binary(&bin).unwrap(), full);
+        assert_eq!(Observation::from_json(&json).unwrap(), full);
+        let sixteen: Vec<String> = (0..16).map(|c| format!("cam{c}")).collect();
+        let mut frame = sample();
+        frame.cameras = sixteen.clone();
+        frame.poses = (0..limits::MAX_POSES)
+            .map(|i| Pose {
+                object_id: i as u32 + 1,
+                position_m: [0.123456789, -1.23456789, 2.3456789 + i as f64 * 1e-3],
+                velocity_m_per_s: [0.31234, -0.0451, 1.2e-3],
+                cameras: sixteen.clone(),
+                ..frame.poses[0].clone()
+            })
+            .collect();
+        let (bin, json) = (frame.to_binary(), frame.to_json());
+        println!(
+            "pose frame of {} poses by 16 cameras: {} bytes binary, {} bytes JSON",
+            limits::MAX_POSES,
+            bin.len(),
+            json.len()
+        );
+        assert!(bin.len() <= crate::names::iox::MESSAGE_MAX_BYTES);
+        assert!(json.len() <= limits::MAX_MESSAGE_BYTES);
+        assert_eq!(PoseFrame::from_binary(&bin).unwrap(), frame);
+        assert_eq!(PoseFrame::from_json(&json).unwrap(), frame);
+        let over = Observation {
+            blobs: vec![o.blobs[0].clone(); limits::MAX_BLOBS + 1],
+            ..o
+        };
+        assert!(matches!(
+            Observation::from_binary(&over.to_binary()),
+            Err(DecodeError::Invalid { ref field, .. }) if field == "blobs"
+        ));
     }
 
     #[test]

@@ -46,8 +46,9 @@ pub enum FusionError {
     Identity(#[from] identity::IdentityError),
 }
 
-/// Most new objects one set can make: the id reservation covers them before a set is fused.
-const MAX_NEW_OBJECTS_PER_SET: u32 = 256;
+/// Most new objects one set can make (no more than a pose frame carries): the id reservation
+/// covers them before a set is fused.
+const MAX_NEW_OBJECTS_PER_SET: u32 = stereoscope_proto::messages::limits::MAX_POSES as u32;
 
 /// Runs until shutdown (or `max_sets`); returns the number of pose frames published.
 pub fn run(cfg: FusionConfig, shutdown: Shutdown) -> Result<u64, FusionError> {
@@ -302,7 +303,7 @@ impl FusionService {
         let counters = &mut self.node.counters;
         let now = now_ns();
         let overflowed = self.remote.as_ref().map_or(0, Inlet::overflowed);
-        counters.dropped = self.pairer.discarded + overflowed;
+        counters.dropped = self.pairer.discarded + overflowed + self.fusion.dropped_poses;
         let live: Vec<&str> = (0..rig.cameras.len())
             .filter(|&c| self.pairer.live(c, now))
             .map(|c| rig.cameras[c].id.as_str())

@@ -80,6 +80,9 @@ pub struct Fusion {
     /// Each camera's last two observations, as they came, the newer first (for the
     /// interpolation).
     last: Vec<[Option<Observation>; 2]>,
+    /// Poses left out of sets that made more than a pose frame carries
+    /// ([`stereoscope_proto::messages::limits::MAX_POSES`]), counted.
+    pub dropped_poses: u64,
 }
 
 /// Camera `o`'s blobs moved to `t_ns`: each blob tracked in `prev` too (same track id, neither
@@ -152,6 +155,7 @@ impl Fusion {
             bodies,
             interpolate: true,
             last: vec![[None, None]; cameras.len()],
+            dropped_poses: 0,
         }
     }
 
@@ -200,6 +204,13 @@ impl Fusion {
             .bodies
             .update_refined(&mut poses, timestamp_ns, self.fuser.sightings());
         self.fuser.expect_unseen(timestamp_ns, found.unseen);
+        // A pose frame carries at most MAX_POSES poses (receivers refuse more): the rest of an
+        // overfull set is left out and counted.
+        let max = stereoscope_proto::messages::limits::MAX_POSES;
+        if poses.len() > max {
+            self.dropped_poses += (poses.len() - max) as u64;
+            poses.truncate(max);
+        }
         (poses, found.bodies)
     }
 }

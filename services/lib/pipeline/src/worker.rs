@@ -22,7 +22,7 @@ pub const PREVIEW_EVERY_MS: u64 = 250;
 pub const PREVIEW_MAX_WIDTH_PX: u32 = 320;
 
 /// Most blobs one observation carries.
-pub const MAX_REPORTED_BLOBS: usize = 64;
+pub const MAX_REPORTED_BLOBS: usize = stereoscope_proto::messages::limits::MAX_BLOBS;
 
 /// The periodic threshold's histogram reads every k-th row, at least this many rows: every
 /// row of a frame up to 479 rows high, every 2nd at 640 × 480, every 4th at 1080p (the

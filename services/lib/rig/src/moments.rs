@@ -8,7 +8,7 @@ use stereoscope_vision::extract::{Connectivity, ExtractConfig, Weighting};
 use stereoscope_vision::{PixelRect, ThresholdMethod, TrackerConfig};
 
 /// Most objects one worker tracks (and one observation carries).
-pub const MAX_OBJECTS: usize = 64;
+pub const MAX_OBJECTS: usize = stereoscope_proto::messages::limits::MAX_BLOBS;
 
 /// The worker's settings, checked, from the camera's `moments` table.
 #[derive(Debug, Clone, PartialEq)]

@@ -425,8 +425,8 @@ impl MessagePublisher {
     ) -> Result<Self, TransportError> {
         let publisher = message_service(node, name)?
             .publisher_builder()
-            .initial_max_slice_len(names::MESSAGE_MAX_BYTES)
-            .allocation_strategy(AllocationStrategy::Static)
+            .initial_max_slice_len(names::MESSAGE_INITIAL_BYTES)
+            .allocation_strategy(AllocationStrategy::PowerOfTwo)
             .create()
             .map_err(|e| err("message publisher", name, e))?;
         let mut notifiers = Vec::new();
