@@ -29,7 +29,7 @@ def main():
           f"OpenCV from C++ (no interpreter in its loop).\n")
     print("| frame | blobs | OpenCV threshold | OpenCV threshold+CCstats | OpenCV threshold+contours+moments "
           "| OpenCV C++ threshold | OpenCV C++ threshold+contours+moments "
-          "| ours 1 thread | ours all cores | ours windowed (4 objects) | ours vs C++ contours | ours vs C++ threshold | full vs windowed |")
+          "| ours 1 thread | ours all cores | ours windowed (as many markers) | ours vs C++ contours | ours vs C++ threshold | full vs windowed |")
     print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     for name in sorted(rust, key=lambda n: (rust[n]["width"], rust[n]["blobs"])):
         r, o, c = rust[name], ocv.get(name), cpp.get(name)
