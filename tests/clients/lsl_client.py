@@ -34,8 +34,12 @@ def main():
         receipt_ns = time.time_ns()
         if values is None:
             continue
-        # LSL's clock to the system's, read together here (the same PC as the outlet).
-        offset = time.time() - pylsl.local_clock()
+        # LSL's clock to the system's (the same PC as the outlet): of three readings, the one
+        # read closest together, as the outlet does.
+        offset = min(
+            ((b - a, (a + b) / 2 - lsl) for a, lsl, b in
+             ((time.time(), pylsl.local_clock(), time.time()) for _ in range(3))),
+        )[1]
         corrected = t + correction
         # NaN (a body not measured) as null: JSON has no NaN.
         values = [None if v != v else v for v in values]

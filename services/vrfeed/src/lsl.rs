@@ -14,7 +14,7 @@
 //!
 //! *Time.* Each sample is stamped with its exposure on LSL's clock (`lsl_local_clock`): the
 //! exposure's Unix time less the offset between the system clock and LSL's, read when the
-//! sample goes out; inlets then correct for the clock offset between PCs as LSL does.
+//! sample goes out (the closest-read of three readings); inlets then correct for the clock offset between PCs as LSL does.
 
 use crate::output::{Counts, Output, OutputFrame};
 use nalgebra::Point3;
@@ -216,6 +216,21 @@ impl LslOutlet {
             })
         }
     }
+
+    /// The system clock less LSL's, seconds: of three readings of the pair, the one read
+    /// closest together (a preemption between the two reads would put the stamp off by it).
+    fn clock_offset_s(&self) -> f64 {
+        (0..3)
+            .map(|_| {
+                let a = stereoscope_proto::messages::now_ns() as f64 * 1e-9;
+                // SAFETY: liblsl's clock, no arguments.
+                let lsl = unsafe { (self.api.clock)() };
+                let b = stereoscope_proto::messages::now_ns() as f64 * 1e-9;
+                (b - a, (a + b) / 2.0 - lsl)
+            })
+            .min_by(|x, y| x.0.total_cmp(&y.0))
+            .map_or(0.0, |(_, offset)| offset)
+    }
 }
 
 impl Drop for LslOutlet {
@@ -234,13 +249,9 @@ impl Output for LslOutlet {
 
     fn send(&mut self, f: &OutputFrame) {
         let v = sample(f, self.bodies, &self.frame);
-        // SAFETY: liblsl's clock and push with a buffer of the outlet's channel count.
-        let r = unsafe {
-            let now_unix = stereoscope_proto::messages::now_ns() as f64 * 1e-9;
-            let lsl_now = (self.api.clock)();
-            let stamp = f.exposure_ns as f64 * 1e-9 - (now_unix - lsl_now);
-            (self.api.push)(self.outlet, v.as_ptr(), stamp, 1)
-        };
+        let stamp = f.exposure_ns as f64 * 1e-9 - self.clock_offset_s();
+        // SAFETY: liblsl's push with a buffer of the outlet's channel count.
+        let r = unsafe { (self.api.push)(self.outlet, v.as_ptr(), stamp, 1) };
         if r != 0 {
             self.counts
                 .send_error(format!("LSL: lsl_push_sample_dtp returned {r}"));
