@@ -351,10 +351,25 @@ pub mod limits {
 #[derive(Debug, Clone, PartialEq)]
 pub enum Invalid {
     NotFinite,
-    TooLong { bytes: usize, max: usize },
-    TooMany { count: usize, max: usize },
+    TooLong {
+        bytes: usize,
+        max: usize,
+    },
+    TooMany {
+        count: usize,
+        max: usize,
+    },
     Empty,
-    OutOfRange { value: f64, min: f64, max: f64 },
+    OutOfRange {
+        value: f64,
+        min: f64,
+        max: f64,
+    },
+    /// An identifier that must be unique within the message appears again.
+    Repeated {
+        value: u64,
+        first: usize,
+    },
 }
 
 impl std::fmt::Display for Invalid {
@@ -366,6 +381,9 @@ impl std::fmt::Display for Invalid {
             Invalid::Empty => write!(f, "is empty"),
             Invalid::OutOfRange { value, min, max } => {
                 write!(f, "{value} is outside {min}–{max}")
+            }
+            Invalid::Repeated { value, first } => {
+                write!(f, "repeats {value}, first at entry {first}")
             }
         }
     }
@@ -461,6 +479,22 @@ impl Checker {
             ));
         }
         Ok(())
+    }
+
+    /// Each entry of list `list` has a different `field` (its values in `ids`, in order).
+    fn unique(&self, list: &str, field: &str, ids: impl Iterator<Item = u64>) -> Checked {
+        let mut seen: Vec<(u64, usize)> = ids.enumerate().map(|(i, id)| (id, i)).collect();
+        seen.sort_unstable();
+        match seen.windows(2).find(|w| w[0].0 == w[1].0) {
+            Some(w) => Err(self.fail(
+                &format!("{list}[{}].{field}", w[1].1),
+                Invalid::Repeated {
+                    value: w[0].0,
+                    first: w[0].1,
+                },
+            )),
+            None => Ok(()),
+        }
     }
 
     fn count(&self, field: &str, count: usize, max: usize) -> Checked {
@@ -583,6 +617,13 @@ impl Observation {
         for (i, b) in self.blobs.iter().enumerate() {
             c.within(format!("blobs[{i}]"), |c| b.validate(c))?;
         }
+        // A worker numbers its tracks uniquely; fusion follows a blob from frame to frame
+        // by its number, so two blobs with one number would be followed as one.
+        c.unique(
+            "blobs",
+            "track_id",
+            self.blobs.iter().map(|b| u64::from(b.track_id)),
+        )?;
         Ok(())
     }
 }
@@ -595,6 +636,11 @@ impl PoseFrame {
         for (i, p) in self.poses.iter().enumerate() {
             c.within(format!("poses[{i}]"), |c| p.validate(c))?;
         }
+        c.unique(
+            "poses",
+            "object_id",
+            self.poses.iter().map(|p| u64::from(p.object_id)),
+        )?;
         c.count("bodies", self.bodies.len(), limits::MAX_BODIES)?;
         for (i, b) in self.bodies.iter().enumerate() {
             c.within(format!("bodies[{i}]"), |c| b.validate(c))?;
@@ -837,8 +883,8 @@ mod tests {
         assert!(text.contains("\"method\":\"triangulated\""), "{text}");
     }
 
-    #[test]
-    fn binary_form_is_compact() {
+    /// An observation of four blobs numbered 1–4 as a worker reports them.
+    fn sample_observation() -> Observation {
         let blob = BlobObservation {
             track_id: 3,
             status: TrackState::Tracked,
@@ -858,7 +904,7 @@ mod tests {
             window_px: [141, 88, 201, 148],
             bbox_px: [165, 114, 178, 122],
         };
-        let o = Observation {
+        Observation {
             schema: SCHEMA_VERSION,
             rig: "demo".into(),
             camera: "cam0".into(),
@@ -872,8 +918,13 @@ mod tests {
             dark: false,
             full_frame: false,
             dropped_blobs: 0,
-            blobs: vec![blob; 4],
-        };
+            blobs: numbered(&blob, 4),
+        }
+    }
+
+    #[test]
+    fn binary_form_is_compact() {
+        let o = sample_observation();
         let (bin, json) = (o.to_binary(), o.to_json());
         println!(
             "observation with 4 blobs: {} bytes binary, {} bytes JSON",
@@ -887,7 +938,7 @@ mod tests {
         // a pose frame of MAX_POSES poses each seen by 16 cameras fit a shared-memory sample
         // in binary and the decoder's bound in JSON, and both come back.
         let full = Observation {
-            blobs: vec![o.blobs[0].clone(); limits::MAX_BLOBS],
+            blobs: numbered(&o.blobs[0], limits::MAX_BLOBS),
             ..o.clone()
         };
         let (bin, json) = (full.to_binary(), full.to_json());
@@ -925,13 +976,43 @@ mod tests {
         assert_eq!(PoseFrame::from_binary(&bin).unwrap(), frame);
         assert_eq!(PoseFrame::from_json(&json).unwrap(), frame);
         let over = Observation {
-            blobs: vec![o.blobs[0].clone(); limits::MAX_BLOBS + 1],
-            ..o
+            blobs: numbered(&o.blobs[0], limits::MAX_BLOBS + 1),
+            ..o.clone()
         };
         assert!(matches!(
             Observation::from_binary(&over.to_binary()),
             Err(DecodeError::Invalid { ref field, .. }) if field == "blobs"
         ));
+    }
+
+    /// `n` copies of `blob` numbered 1, 2, … as a worker numbers its tracks.
+    fn numbered(blob: &BlobObservation, n: usize) -> Vec<BlobObservation> {
+        (0..n)
+            .map(|i| BlobObservation {
+                track_id: i as u32 + 1,
+                ..blob.clone()
+            })
+            .collect()
+    }
+
+    #[test]
+    fn a_repeated_track_or_object_number_is_refused_by_entry() {
+        let mut o = sample_observation();
+        o.blobs = numbered(&o.blobs[0], 5);
+        o.blobs[3].track_id = 2;
+        let e = Observation::from_json(&o.to_json()).unwrap_err();
+        assert_eq!(
+            e.to_string(),
+            "blobs[3].track_id repeats 2, first at entry 1",
+            "{e:?}"
+        );
+        let mut p = sample();
+        p.poses.push(p.poses[0].clone());
+        let e = PoseFrame::from_binary(&p.to_binary()).unwrap_err();
+        assert!(
+            matches!(e, DecodeError::Invalid { ref field, .. } if field == "poses[1].object_id"),
+            "{e}"
+        );
     }
 
     #[test]

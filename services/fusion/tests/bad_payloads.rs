@@ -7,7 +7,7 @@ use std::sync::mpsc;
 use std::time::{Duration, Instant};
 use stereoscope_fusion::{FusionConfig, run};
 use stereoscope_proto::messages::{
-    BlobObservation, Health, Message, Observation, PoseFrame, SCHEMA_VERSION, TrackState,
+    BlobObservation, Health, Message, Observation, PoseFrame, SCHEMA_VERSION, TrackState, limits,
 };
 use stereoscope_proto::names::zenoh as keys;
 use stereoscope_rig::Rig;
@@ -221,8 +221,8 @@ fn undecodable_payload_is_named_and_fusion_goes_on() {
 }
 
 /// The attacks a host on the network could make on fusion: an observation stamped an hour
-/// ahead (it used to stop pose output for good), one of another rig, one with 500 blobs, one
-/// with a NaN, a 10 MB payload and a 10 MB rig name. Each is refused before it changes
+/// ahead (it used to stop pose output for good), one of another rig, one with a blob more than
+/// the limit, one with a NaN, a 10 MB payload and a 10 MB rig name. Each is refused before it changes
 /// anything and counted by reason; poses from the good observations keep coming, and the
 /// health report stays small.
 #[test]
@@ -238,7 +238,7 @@ fn hostile_observations_are_refused_by_reason_and_poses_go_on() {
         foreign.rig = "other".into();
         h.cams[0].put(&foreign).unwrap();
         let mut many = observation("cam1", h.px(1, &point), now);
-        many.blobs = vec![many.blobs[0].clone(); 500];
+        many.blobs = vec![many.blobs[0].clone(); limits::MAX_BLOBS + 1];
         h.cams[1].put(&many).unwrap();
         // JSON has no NaN: a NaN written out is not JSON (non-finite floats that do
         // decode, from postcard on iceoryx2, are `invalid`: proto's unit tests).
