@@ -17,7 +17,8 @@ pub enum Detail {
     CoresWidened,
     /// fusion: cameras heard recently, objects followed, observations late for their set or
     /// before the start, recorded sets formed short, and blobs left out (outside the volume,
-    /// hiding another, cut by an edge, out of line by area, seen by one camera only, merged).
+    /// hiding another, cut by an edge, out of line by area, seen by one camera only, points
+    /// seen by too few cameras to start an object, merged).
     CamerasLive,
     Objects,
     Late,
@@ -28,6 +29,7 @@ pub enum Detail {
     Clipped,
     AreaMismatch,
     SingleViewUnmatched,
+    TooFewViews,
     MergedBlobs,
     /// Any service that names what it lost last (`cam0 frames 212–213`).
     LastLost,
@@ -81,6 +83,7 @@ impl Detail {
             Detail::Clipped => "clipped",
             Detail::AreaMismatch => "area_mismatch",
             Detail::SingleViewUnmatched => "single_view_unmatched",
+            Detail::TooFewViews => "too_few_views",
             Detail::MergedBlobs => "merged_blobs",
             Detail::LastLost => "last_lost",
             Detail::Port => "port",

@@ -323,6 +323,7 @@ impl FusionService {
         counters.set_nonzero(Detail::Clipped, fuser.clipped);
         counters.set_nonzero(Detail::AreaMismatch, fuser.area_mismatch);
         counters.set_nonzero(Detail::SingleViewUnmatched, fuser.single_view_unmatched);
+        counters.set_nonzero(Detail::TooFewViews, fuser.too_few_views);
         counters.set_nonzero(Detail::MergedBlobs, self.merged_blobs);
     }
 }

@@ -233,6 +233,84 @@ impl Assigner {
     }
 }
 
+/// The assignment of a sparse problem given as its allowed pairs `(row, column, cost)` (rows
+/// `< rows`, columns `< cols`; a pair given twice keeps its least cost): for each row, its
+/// column or `None`. The pairs split into groups that share no row or column (connected
+/// components); each group is solved on its own dense matrix, so the work follows the pairs
+/// given, not `rows × cols` — a dense scene's thousand points each near one or two blobs is
+/// a thousand small problems. The same optimum as [`Assigner::solve`] on the whole matrix:
+/// no pair links two groups.
+pub fn assign_sparse(
+    pairs: &[(usize, usize, f64)],
+    rows: usize,
+    cols: usize,
+    assigner: &mut Assigner,
+) -> Vec<Option<usize>> {
+    let mut out = vec![None; rows];
+    // Union-find over rows (0..rows) and columns (rows..rows + cols).
+    let mut parent: Vec<usize> = (0..rows + cols).collect();
+    fn root(parent: &mut [usize], mut x: usize) -> usize {
+        while parent[x] != x {
+            parent[x] = parent[parent[x]];
+            x = parent[x];
+        }
+        x
+    }
+    let ok = |&&(r, c, v): &&(usize, usize, f64)| r < rows && c < cols && v.is_finite();
+    for &(r, c, _) in pairs.iter().filter(ok) {
+        let (a, b) = (root(&mut parent, r), root(&mut parent, rows + c));
+        if a != b {
+            parent[a] = b;
+        }
+    }
+    // Each group's rows and columns, in order.
+    let mut group_of: Vec<usize> = vec![usize::MAX; rows + cols];
+    let mut groups: Vec<(Vec<usize>, Vec<usize>)> = Vec::new();
+    let mut slot = vec![usize::MAX; rows + cols];
+    for &(r, c, _) in pairs.iter().filter(ok) {
+        let g = root(&mut parent, r);
+        if group_of[g] == usize::MAX {
+            group_of[g] = groups.len();
+            groups.push((Vec::new(), Vec::new()));
+        }
+        let k = group_of[g];
+        if slot[r] == usize::MAX {
+            slot[r] = groups[k].0.len();
+            groups[k].0.push(r);
+        }
+        if slot[rows + c] == usize::MAX {
+            slot[rows + c] = groups[k].1.len();
+            groups[k].1.push(c);
+        }
+    }
+    let mut costs: Vec<Vec<f64>> = groups
+        .iter()
+        .map(|(r, c)| vec![f64::INFINITY; r.len() * c.len()])
+        .collect();
+    for &(r, c, v) in pairs.iter().filter(ok) {
+        let k = group_of[root(&mut parent, r)];
+        let w = groups[k].1.len();
+        let e = &mut costs[k][slot[r] * w + slot[rows + c]];
+        if v < *e {
+            *e = v;
+        }
+    }
+    for (k, (rs, cs)) in groups.iter().enumerate() {
+        if let ([r], [c]) = (rs.as_slice(), cs.as_slice()) {
+            out[*r] = Some(*c);
+            continue;
+        }
+        for (i, col) in assigner
+            .solve(&costs[k], rs.len(), cs.len())
+            .iter()
+            .enumerate()
+        {
+            out[rs[i]] = col.map(|j| cs[j]);
+        }
+    }
+    out
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -266,6 +344,52 @@ mod tests {
         let cols = cost.iter().map(|r| r.len()).max().unwrap_or(0);
         go(0, cost, &mut vec![false; cols], 0.0, 0, &mut best);
         best.1
+    }
+
+    #[test]
+    fn sparse_pairs_give_the_dense_optimum() {
+        let mut rng = crate::SplitMix64::new(11);
+        let mut a = Assigner::default();
+        for round in 0..300 {
+            let (rows, cols) = (
+                1 + (rng.next_u64() % 9) as usize,
+                1 + (rng.next_u64() % 9) as usize,
+            );
+            let density = [0.1, 0.3, 0.7][round % 3];
+            let mut dense = vec![vec![f64::INFINITY; cols]; rows];
+            let mut pairs = Vec::new();
+            for (r, row) in dense.iter_mut().enumerate() {
+                for (c, v) in row.iter_mut().enumerate() {
+                    if rng.uniform() < density {
+                        *v = (rng.uniform() * 10.0).round();
+                        pairs.push((r, c, *v));
+                    }
+                }
+            }
+            let got = assign_sparse(&pairs, rows, cols, &mut a);
+            let total: f64 = got
+                .iter()
+                .enumerate()
+                .filter_map(|(r, c)| c.map(|c| dense[r][c]))
+                .sum();
+            let count = got.iter().flatten().count();
+            let want = assign_min_cost(&dense);
+            let want_total: f64 = want
+                .iter()
+                .enumerate()
+                .filter_map(|(r, c)| c.map(|c| dense[r][c]))
+                .sum();
+            assert_eq!(count, want.iter().flatten().count(), "round {round}");
+            assert!(
+                (total - want_total).abs() < 1e-9,
+                "round {round}: {total} {want_total}"
+            );
+            assert!((total - brute(&dense)).abs() < 1e-9, "round {round}");
+            let mut cols_used: Vec<usize> = got.iter().flatten().copied().collect();
+            cols_used.sort_unstable();
+            cols_used.dedup();
+            assert_eq!(cols_used.len(), count, "a column twice in round {round}");
+        }
     }
 
     #[test]

@@ -61,6 +61,15 @@ pub struct FuserConfig {
     /// sphere's image, roundness ≥ 0.8) holds another marker's image too (two markers merged
     /// in that view, whatever the 2D tracker saw) and leaves the match.
     pub max_area_ratio: f64,
+    /// A triangulated point that continues no object starts one (a tentative object) only
+    /// when this many cameras see it whole (blobs not cut by an edge; 2 asks only that it was
+    /// triangulated), an object unseen in the last set is taken up again only so, and a
+    /// tentative object's set counts towards `confirm_sets` only when it does; an object
+    /// followed from the last set continues with two. A ghost of a wrong pair has only its
+    /// pair's views, and where a third camera looks it is found out by correspondence
+    /// (`stereoscope_geometry::correspond`), but near the volume's edges only two cameras may
+    /// look. (Optical motion capture's "cameras to start a trajectory".)
+    pub min_views_to_start: usize,
 }
 
 /// [`FuserConfig::confirm_sets`] by default.
@@ -79,6 +88,7 @@ impl Default for FuserConfig {
             volume_m: None,
             claim_px: 6.0,
             max_area_ratio: 1.6,
+            min_views_to_start: 2,
         }
     }
 }
@@ -147,6 +157,9 @@ pub struct Fuser {
     /// Blobs left out because another followed object's image is hidden in them
     /// (`Fuser::hiding`).
     pub hiding_blobs: u64,
+    /// Triangulated points that continued no object and started none, seen by fewer than
+    /// [`FuserConfig::min_views_to_start`] cameras, since start.
+    pub too_few_views: u64,
     /// Rigid bodies' markers unseen in the last set (`expect_unseen`): when, and each one's
     /// world position and velocity.
     unseen: (u64, Vec<MarkerMotion>),
@@ -210,6 +223,7 @@ impl Fuser {
             area_mismatch: 0,
             clipped: 0,
             hiding_blobs: 0,
+            too_few_views: 0,
             unseen: (0, Vec::new()),
         }
     }
@@ -602,6 +616,30 @@ impl Fuser {
         let mut poses = Vec::with_capacity(points.len());
         let mut pixels = Vec::with_capacity(points.len());
         for (pi, p) in points.iter().enumerate() {
+            // Whole blobs only: the centroid of one cut by the frame's edge or its window is
+            // pulled inwards, and where several are cut their rays may meet off any marker.
+            let views = if p.method == PoseMethod::Triangulated {
+                let mut cams: Vec<usize> = p
+                    .blobs
+                    .iter()
+                    .filter(|&&(s, i)| !set[s].1.blobs[i].clipped)
+                    .map(|&(s, _)| s)
+                    .collect();
+                cams.dedup();
+                cams.len()
+            } else {
+                usize::MAX
+            };
+            // Two asks nothing more of a point than that it was triangulated.
+            let enough = self.cfg.min_views_to_start <= 2 || views >= self.cfg.min_views_to_start;
+            // An object back after sets unseen is taken up again as a new one is started:
+            // its prediction has grown uncertain, and its gate wide.
+            let resumed = owner[pi]
+                .is_some_and(|oi| last_set.is_some_and(|t| self.objects[oi].last_seen_ns < t));
+            if (owner[pi].is_none() || resumed) && !enough {
+                self.too_few_views += 1;
+                continue;
+            }
             let oi = match owner[pi] {
                 Some(oi) => {
                     let o = &mut self.objects[oi];
@@ -613,7 +651,7 @@ impl Fuser {
                     }
                     o.position_m = p.position_m;
                     o.last_seen_ns = timestamp_ns;
-                    if o.id == 0 {
+                    if o.id == 0 && enough {
                         o.hits += 1;
                         if o.hits >= self.cfg.confirm_sets {
                             o.id = self.next_id;
@@ -795,6 +833,75 @@ mod tests {
                 (c, o)
             })
             .collect()
+    }
+
+    /// One ball at `point` as the cameras `views` (`(rig camera, cut by an edge)`) see it.
+    fn seen_by(
+        rig: &Rig,
+        point: Point3<f64>,
+        t_ns: u64,
+        views: &[(usize, bool)],
+    ) -> Vec<(usize, Observation)> {
+        let template = set_at(&Rig::from_toml(RIG).unwrap(), point, t_ns)
+            .remove(0)
+            .1;
+        views
+            .iter()
+            .map(|&(c, clipped)| {
+                let cam = &rig.cameras[c];
+                let px = cam.camera.project(&point).unwrap();
+                let mut o = template.clone();
+                o.camera = cam.id.clone();
+                o.rig = rig.name.clone();
+                o.width_px = 640;
+                o.height_px = 480;
+                o.blobs[0].x_px = px.x;
+                o.blobs[0].y_px = px.y;
+                o.blobs[0].clipped = clipped;
+                o.blobs[0].window_px = [0, 0, 639, 479];
+                (c, o)
+            })
+            .collect()
+    }
+
+    /// In a rig of four cameras a marker starts only when three see it whole; it then goes on
+    /// with two, and is taken up again after a set unseen only with three.
+    #[test]
+    fn a_marker_starts_with_three_whole_views_and_goes_on_with_two() {
+        let rig = Rig::from_toml(&stereoscope_rig::scenes::dense_ring(4, 1, 30.0, None)).unwrap();
+        let cfg = crate::fusion::FusionSettings::of_rig(&rig.spec).fuser;
+        assert_eq!(cfg.min_views_to_start, 3);
+        let mut f = Fuser::new(
+            &rig.cameras,
+            FuserConfig {
+                confirm_sets: 1,
+                ..cfg
+            },
+        );
+        let p = Point3::new(0.1, -0.05, 0.9);
+        let ms = 33_000_000;
+        // Two whole views and two cut by an edge: no start.
+        let two_whole = [(0, false), (1, false), (2, true), (3, true)];
+        assert!(f.fuse(&seen_by(&rig, p, ms, &two_whole), ms).is_empty());
+        assert_eq!(f.too_few_views, 1);
+        // Three whole: it starts.
+        let three_whole = [(0, false), (1, false), (2, false), (3, true)];
+        let first = f.fuse(&seen_by(&rig, p, 2 * ms, &three_whole), 2 * ms);
+        assert_eq!(first.len(), 1, "{first:?}");
+        let id = first[0].object_id;
+        // Followed: two cameras alone carry it on.
+        let two = [(0, false), (1, false)];
+        let next = f.fuse(&seen_by(&rig, p, 3 * ms, &two), 3 * ms);
+        assert_eq!(next.iter().map(|p| p.object_id).collect::<Vec<_>>(), [id]);
+        // A set without it, then back with two whole views: not taken up; with three, it is.
+        assert!(f.fuse(&seen_by(&rig, p, 4 * ms, &[]), 4 * ms).is_empty());
+        assert!(
+            f.fuse(&seen_by(&rig, p, 5 * ms, &two_whole), 5 * ms)
+                .is_empty()
+        );
+        assert_eq!(f.too_few_views, 2);
+        let back = f.fuse(&seen_by(&rig, p, 6 * ms, &three_whole), 6 * ms);
+        assert_eq!(back.iter().map(|p| p.object_id).collect::<Vec<_>>(), [id]);
     }
 
     /// An object gone for 0.6 s (a camera restart, an occlusion) and back 0.15 m from its

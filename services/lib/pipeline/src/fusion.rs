@@ -46,10 +46,14 @@ impl FusionSettings {
             correspond: CorrespondConfig {
                 max_epipolar_px: f.max_epipolar_px.unwrap_or(d.max_epipolar_px),
                 max_residual_px: f.max_residual_px.unwrap_or(d.max_residual_px),
+                ..d
             },
             gate_m: f.association_gate.map(|g| g * scale).unwrap_or(0.1),
             drop_after_ns: (f.drop_after_s.unwrap_or(2.0) * 1e9) as u64,
             confirm_sets: f.confirm_sets.unwrap_or(DEFAULT_CONFIRM_SETS),
+            min_views_to_start: f
+                .min_views_to_start
+                .map_or(if file.cameras.len() >= 3 { 3 } else { 2 }, |n| n as usize),
             volume_m: f.volume.map(|v| {
                 let p =
                     |a: [f64; 3]| nalgebra::Point3::new(a[0] * scale, a[1] * scale, a[2] * scale);

@@ -485,6 +485,23 @@ pub(crate) fn check(file: &RigFile, base: Option<&Path>, sources: bool) -> Resul
                 format!("{n} is not between 1 and {MAX_CONFIRM_SETS}"),
             ));
         }
+        if let Some(n) = f.min_views_to_start {
+            let cameras = file.cameras.len();
+            if n < 2 {
+                return Err(err(
+                    "fusion.min_views_to_start",
+                    format!("{n} is under 2: a point is triangulated from two cameras or more"),
+                ));
+            }
+            if n as usize > cameras.max(2) {
+                return Err(err(
+                    "fusion.min_views_to_start",
+                    format!(
+                        "{n} is more than the rig's {cameras} cameras: no marker would ever start"
+                    ),
+                ));
+            }
+        }
     }
     let mut ports = HashSet::new();
     for (i, s) in file.serial.iter().enumerate() {

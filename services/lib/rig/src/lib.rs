@@ -10,6 +10,7 @@ pub mod cameras;
 mod check;
 pub mod error;
 pub mod moments;
+pub mod scenes;
 pub mod schema;
 pub mod security;
 pub mod settings;

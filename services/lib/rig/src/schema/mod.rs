@@ -579,6 +579,10 @@ pub struct FusionSpec {
     /// consecutive sets (default 3; 1 publishes at once).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub confirm_sets: Option<u32>,
+    /// A point that continues no object starts one only when this many cameras see it
+    /// (default 3 in a rig of three cameras or more, else 2; 2 up to the rig's cameras).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub min_views_to_start: Option<u32>,
     /// The capture volume: points triangulated outside `min`–`max` (world, file unit) are
     /// dropped and counted (none by default).
     #[serde(default, skip_serializing_if = "Option::is_none")]
