@@ -864,11 +864,11 @@ mod tests {
             .collect()
     }
 
-    /// In a rig of four cameras a marker starts only when three see it whole; it then goes on
+    /// In a rig of six cameras a marker starts only when three see it whole; it then goes on
     /// with two, and is taken up again after a set unseen only with three.
     #[test]
     fn a_marker_starts_with_three_whole_views_and_goes_on_with_two() {
-        let rig = Rig::from_toml(&stereoscope_rig::scenes::dense_ring(4, 1, 30.0, None)).unwrap();
+        let rig = Rig::from_toml(&stereoscope_rig::scenes::dense_ring(6, 1, 30.0, None)).unwrap();
         let cfg = crate::fusion::FusionSettings::of_rig(&rig.spec).fuser;
         assert_eq!(cfg.min_views_to_start, 3);
         let mut f = Fuser::new(

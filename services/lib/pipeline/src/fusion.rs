@@ -53,7 +53,7 @@ impl FusionSettings {
             confirm_sets: f.confirm_sets.unwrap_or(DEFAULT_CONFIRM_SETS),
             min_views_to_start: f
                 .min_views_to_start
-                .map_or(if file.cameras.len() >= 3 { 3 } else { 2 }, |n| n as usize),
+                .map_or(if file.cameras.len() >= 6 { 3 } else { 2 }, |n| n as usize),
             volume_m: f.volume.map(|v| {
                 let p =
                     |a: [f64; 3]| nalgebra::Point3::new(a[0] * scale, a[1] * scale, a[2] * scale);

@@ -580,7 +580,7 @@ pub struct FusionSpec {
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub confirm_sets: Option<u32>,
     /// A point that continues no object starts one only when this many cameras see it
-    /// (default 3 in a rig of three cameras or more, else 2; 2 up to the rig's cameras).
+    /// (default 3 in a rig of six cameras or more, else 2; 2 up to the rig's cameras).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub min_views_to_start: Option<u32>,
     /// The capture volume: points triangulated outside `min`–`max` (world, file unit) are
