@@ -1506,7 +1506,10 @@ fn a_pyserial_receiver_decodes_legacy_and_framed_packets_as_documented() {
 /// Exports `session` to C3D at `out` and checks what both PyPI readers find against the
 /// session's poses: one marker per object (and one along its heading, for objects with one),
 /// the pose frames' rate, every position in millimetres at its frame, nothing where no pose is.
-fn check_c3d_export(session: &std::path::Path, out: &std::path::Path) {
+/// Exports `session` to C3D at `out`, plain and with gaps of up to 10 frames filled, checks
+/// both through two readers the project did not write, and returns how many samples were
+/// filled.
+fn check_c3d_export(session: &std::path::Path, out: &std::path::Path) -> usize {
     let o = run_with_limit(
         &[
             "export",
@@ -1662,7 +1665,87 @@ fn check_c3d_export(session: &std::path::Path, out: &std::path::Path) {
                 stderr(&o)
             );
         }
+        // Every measured marker has a residual above 0 (C3D's mark of a measured point).
+        let residuals = r["residuals"].as_array().unwrap();
+        for (k, row) in c3d_frames.iter().enumerate() {
+            for (i, v) in row.as_array().unwrap().iter().enumerate() {
+                let measured = !labels[i].ends_with("_heading") && !labels[i].ends_with(":origin");
+                if !v.is_null() && measured {
+                    let res = residuals[k][i].as_f64().unwrap();
+                    assert!(
+                        res > 0.0,
+                        "{reader}: {} in frame {k}: residual {res}",
+                        labels[i]
+                    );
+                }
+            }
+        }
     }
+    // With gaps filled: the readers see every point filled where the plain export had none,
+    // each with a zero residual, and the summary counts them.
+    let filled_out = out.with_extension("filled.c3d");
+    let o = run_with_limit(
+        &[
+            "export",
+            session.to_str().unwrap(),
+            "--format",
+            "c3d",
+            "--fill-gaps",
+            "10",
+            "--out",
+            filled_out.to_str().unwrap(),
+        ],
+        Duration::from_secs(120),
+    );
+    assert!(o.status.success(), "{}", stderr(&o));
+    let said = stderr(&o);
+    println!("{said}");
+    let count: usize = said
+        .split("; ")
+        .nth(1)
+        .and_then(|s| s.split(' ').next())
+        .and_then(|n| n.parse().ok())
+        .unwrap_or_else(|| panic!("no count of filled samples: {said}"));
+    let again = python_client(
+        "c3d_reader.py",
+        &[filled_out.to_str().unwrap()],
+        Duration::from_secs(300),
+    );
+    for (plain, r) in found.iter().zip(&again) {
+        let reader = r["reader"].as_str().unwrap();
+        let (before, after) = (
+            plain["frames"].as_array().unwrap(),
+            r["frames"].as_array().unwrap(),
+        );
+        let residuals = r["residuals"].as_array().unwrap();
+        let mut new = 0;
+        for (k, (b, a)) in before.iter().zip(after).enumerate() {
+            for (i, (bv, av)) in b
+                .as_array()
+                .unwrap()
+                .iter()
+                .zip(a.as_array().unwrap())
+                .enumerate()
+            {
+                match (bv.is_null(), av.is_null()) {
+                    (false, false) => assert_eq!(bv, av, "{reader}: a measured point moved"),
+                    (true, false) => {
+                        new += 1;
+                        assert_eq!(
+                            residuals[k][i].as_f64(),
+                            Some(0.0),
+                            "{reader}: {}",
+                            labels[i]
+                        );
+                    }
+                    (false, true) => panic!("{reader}: {} lost in frame {k}", labels[i]),
+                    (true, true) => {}
+                }
+            }
+        }
+        assert_eq!(new, count, "{reader}: {said}");
+    }
+    count
 }
 
 #[test]
@@ -1679,6 +1762,8 @@ fn a_long_session_exports_to_c3d_with_every_frame() {
     let mut poses = String::new();
     // Frame 500 comes twice, the second 1 ms later and elsewhere (exposure times that jitter):
     // the C3D frame keeps the first.
+    // The object is missing in frames 1000–1007 (a gap the export fills when asked) and
+    // 2000–2019 (one too long to fill).
     let mut stamps: Vec<(u64, u64, f64)> = (0..70_000u64)
         .map(|k| (k, 1_000_000_000 + k * 8_333_333, 0.0))
         .collect();
@@ -1693,18 +1778,22 @@ fn a_long_session_exports_to_c3d_with_every_frame() {
             frame_published_ns: 0,
             published_ns: 0,
             cameras: vec!["cam0".into(), "cam1".into()],
-            poses: vec![stereoscope_proto::messages::Pose {
-                object_id: 1,
-                position_m: [0.3 * a.cos(), 0.3 * a.sin(), 0.5],
-                velocity_m_per_s: [0.0; 3],
-                heading_deg: Some((a.to_degrees() + 90.0).rem_euclid(360.0)),
-                heading_directed: true,
-                method: stereoscope_proto::messages::PoseMethod::Triangulated,
-                cameras: vec!["cam0".into(), "cam1".into()],
-                residual_px: 0.1,
-                out_of_range: false,
-                body: None,
-            }],
+            poses: if (1000..1008).contains(&k) || (2000..2020).contains(&k) {
+                vec![]
+            } else {
+                vec![stereoscope_proto::messages::Pose {
+                    object_id: 1,
+                    position_m: [0.3 * a.cos(), 0.3 * a.sin(), 0.5],
+                    velocity_m_per_s: [0.0; 3],
+                    heading_deg: Some((a.to_degrees() + 90.0).rem_euclid(360.0)),
+                    heading_directed: true,
+                    method: stereoscope_proto::messages::PoseMethod::Triangulated,
+                    cameras: vec!["cam0".into(), "cam1".into()],
+                    residual_px: 0.1,
+                    out_of_range: false,
+                    body: None,
+                }]
+            },
             bodies: Vec::new(),
         };
         poses.push_str(std::str::from_utf8(&f.to_json()).unwrap());
@@ -1712,7 +1801,7 @@ fn a_long_session_exports_to_c3d_with_every_frame() {
     }
     std::fs::write(session.join("poses.jsonl"), poses).unwrap();
     std::fs::write(session.join("observations.jsonl"), "").unwrap();
-    check_c3d_export(&session, &dir.0.join("long.c3d"));
+    assert_eq!(check_c3d_export(&session, &dir.0.join("long.c3d")), 8);
 }
 
 #[test]

@@ -1,6 +1,7 @@
 """Clients the project did not write: opens a C3D file with the PyPI readers `c3d` (py-c3d)
 and `ezc3d`, and prints what each found as one JSON line:
-{"reader", "rate", "markers", "labels", "units", "frames": [[[x, y, z] or null, ...], ...]}.
+{"reader", "rate", "markers", "labels", "units", "frames": [[[x, y, z] or null, ...], ...],
+ "residuals": [[residual as the reader gives it, ...], ...]}.
 
 usage: c3d_reader.py FILE.c3d
 """
@@ -16,13 +17,15 @@ def with_py_c3d(path):
     with open(path, "rb") as f:
         r = c3d.Reader(f)
         labels = [l.strip() for l in r.point_labels]
-        frames = []
+        frames, residuals = [], []
         for _, points, _ in r.read_frames():
             frames.append([None if p[3] < 0 else [float(p[0]), float(p[1]), float(p[2])]
                            for p in points])
+            residuals.append([float(p[3]) for p in points])
         units = r.get("POINT:UNITS").string_value.strip()
         return {"reader": "c3d " + getattr(c3d, "__version__", "?"), "rate": float(r.point_rate),
-                "markers": int(r.point_used), "labels": labels, "units": units, "frames": frames}
+                "markers": int(r.point_used), "labels": labels, "units": units, "frames": frames,
+                "residuals": residuals}
 
 
 def with_ezc3d(path):
@@ -36,9 +39,10 @@ def with_ezc3d(path):
         frames.append([None if residuals[0, m, k] < 0 or np.isnan(xyz[0, m, k])
                        else [float(xyz[0, m, k]), float(xyz[1, m, k]), float(xyz[2, m, k])]
                        for m in range(xyz.shape[1])])
+    res = [[float(residuals[0, m, k]) for m in range(xyz.shape[1])] for k in range(xyz.shape[2])]
     return {"reader": "ezc3d", "rate": float(point["RATE"]["value"][0]),
             "markers": int(point["USED"]["value"][0]), "labels": labels,
-            "units": point["UNITS"]["value"][0].strip(), "frames": frames}
+            "units": point["UNITS"]["value"][0].strip(), "frames": frames, "residuals": res}
 
 
 if __name__ == "__main__":

@@ -20,7 +20,8 @@
 //!   TRIAL (ACTUAL_START_FIELD, ACTUAL_END_FIELD: 32-bit frame numbers as two words).
 //! - then the data, unpadded: per frame, per point, x, y, z (millimetres) and a fourth f32 whose integer
 //!   value packs the cameras that saw the point (high byte, bit i = the rig's camera i) over a
-//!   residual byte (0: not given); −1 marks a point not seen in that frame (x = y = z = 0).
+//!   residual byte (millimetres, 1–255 for a measured point; 0 with no camera bits: computed
+//!   or filled, not measured); −1 marks a point not seen in that frame (x = y = z = 0).
 
 use std::collections::BTreeMap;
 
@@ -35,6 +36,10 @@ pub struct C3dPoint {
     pub xyz_mm: [f32; 3],
     /// Bit i: camera i of the rig saw it (cameras 0–6).
     pub cameras: u8,
+    /// The point's residual in millimetres, 1–255 for a measured point; 0 for one that was
+    /// computed (a body's origin, a heading marker) or filled in a gap (C3D's convention: a
+    /// zero residual and no camera bits mark a point that was not measured).
+    pub residual_mm: u8,
 }
 
 /// A trial: labelled points at a constant frame rate; `frames[f][p]` is point `p` in frame `f`,
@@ -335,7 +340,8 @@ pub fn write(trial: &C3dTrial) -> Result<Vec<u8>, C3dError> {
                     for v in p.xyz_mm {
                         out.extend(v.to_le_bytes());
                     }
-                    let packed = (u16::from(p.cameras & 0x7F) << 8) as f32;
+                    let packed =
+                        ((u16::from(p.cameras & 0x7F) << 8) | u16::from(p.residual_mm)) as f32;
                     out.extend(packed.to_le_bytes());
                 }
                 None => {
@@ -502,6 +508,7 @@ pub fn read(bytes: &[u8]) -> Result<C3dTrial, C3dError> {
                 Some(C3dPoint {
                     xyz_mm: [v(0), v(1), v(2)],
                     cameras: ((v(3) as u32 >> 8) & 0x7F) as u8,
+                    residual_mm: (v(3) as u32 & 0xFF) as u8,
                 })
             });
         }
@@ -530,10 +537,12 @@ mod tests {
                         Some(C3dPoint {
                             xyz_mm: [f as f32, -2.5, 1000.25],
                             cameras: 0b11,
+                            residual_mm: 1,
                         }),
                         (f % 3 != 0).then_some(C3dPoint {
                             xyz_mm: [f as f32 + 100.0, -2.5, 1000.25],
                             cameras: 0b01,
+                            residual_mm: 7,
                         }),
                         None,
                     ]
@@ -611,6 +620,7 @@ mod tests {
                         Some(C3dPoint {
                             xyz_mm: [f as f32, 2.0, 3.0],
                             cameras: 3,
+                            residual_mm: 1,
                         }),
                         None,
                     ]

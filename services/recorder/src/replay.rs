@@ -440,6 +440,8 @@ pub struct C3dExport {
     /// Object poses that fell into a C3D frame where the same object already was (pose frames
     /// closer than half a period); the first one is kept.
     pub merged: usize,
+    /// The samples filled in gaps: (point, frame, how).
+    pub filled: Vec<(usize, usize, stereoscope_bodies::gaps::FillMethod)>,
     pub pose_frames: usize,
 }
 
@@ -453,7 +455,16 @@ pub const MAX_C3D_CELLS: usize = 100_000_000;
 /// in the horizontal plane; millimetres, world frame. The frame rate is the pose frames' median
 /// spacing; each pose frame goes to the C3D frame nearest its timestamp, frames without one
 /// have every marker missing.
-pub fn export_c3d(session: &Session) -> Result<C3dExport, ReplayError> {
+///
+/// With `fill_gaps_frames`, gaps of at most that many frames between two sightings of a marker
+/// are filled (`stereoscope_bodies::gaps`): a body's marker from the body's other markers, a
+/// loose one on a spline; a filled point has no camera bits and a zero residual (C3D's mark of
+/// a point not measured), and is listed in [`C3dExport::filled`]. Origins and heading markers
+/// are computed from the markers and are not filled.
+pub fn export_c3d(
+    session: &Session,
+    fill_gaps_frames: Option<usize>,
+) -> Result<C3dExport, ReplayError> {
     use crate::c3d::{C3dPoint, C3dTrial};
     use std::collections::BTreeMap;
     let rig = Rig::from_recording(&session.info.rig_file)?;
@@ -543,6 +554,7 @@ pub fn export_c3d(session: &Session) -> Result<C3dExport, ReplayError> {
                 row[c] = Some(C3dPoint {
                     xyz_mm: b.position_m.map(|v| (v * 1000.0) as f32),
                     cameras: 0,
+                    residual_mm: 0,
                 });
             }
         }
@@ -573,6 +585,7 @@ pub fn export_c3d(session: &Session) -> Result<C3dExport, ReplayError> {
             row[pos] = Some(C3dPoint {
                 xyz_mm: mm.map(|v| v as f32),
                 cameras,
+                residual_mm: residual_mm(&rig, p),
             });
             if let (Some(h), Some(deg)) = (head, p.heading_deg) {
                 let (s, c) = deg.to_radians().sin_cos();
@@ -582,11 +595,16 @@ pub fn export_c3d(session: &Session) -> Result<C3dExport, ReplayError> {
                         (mm[1] + HEADING_MARKER_MM * s) as f32,
                         mm[2] as f32,
                     ],
-                    cameras,
+                    cameras: 0,
+                    residual_mm: 0,
                 });
             }
         }
     }
+    let filled = match fill_gaps_frames {
+        Some(max) => fill_c3d_gaps(&mut frames, &column, &body_column, &bodies, max),
+        None => Vec::new(),
+    };
     Ok(C3dExport {
         trial: C3dTrial {
             frame_rate_hz: (1e9 / period_ns as f64) as f32,
@@ -595,8 +613,87 @@ pub fn export_c3d(session: &Session) -> Result<C3dExport, ReplayError> {
             frames,
         },
         merged,
+        filled,
         pose_frames: session.poses.len(),
     })
+}
+
+/// A measured point's residual for C3D, millimetres (1–255): its reprojection residual in
+/// pixels taken to its distance by each camera that saw it (pixels × depth / focal length),
+/// averaged; 1 where that cannot be worked out (a measured point is never 0).
+fn residual_mm(rig: &Rig, p: &stereoscope_proto::messages::Pose) -> u8 {
+    let at = nalgebra::Point3::from(p.position_m);
+    let per_camera: Vec<f64> = p
+        .cameras
+        .iter()
+        .filter_map(|c| rig.camera_index(c))
+        .filter_map(|i| {
+            let cam = &rig.cameras.get(i)?.camera;
+            let depth = (cam.cam_from_world * at).z;
+            let f = 0.5 * (cam.intrinsics.fx + cam.intrinsics.fy);
+            (depth > 0.0).then(|| p.residual_px * depth / f * 1000.0)
+        })
+        .collect();
+    let mm = per_camera.iter().sum::<f64>() / per_camera.len().max(1) as f64;
+    if mm.is_finite() {
+        mm.round().clamp(1.0, 255.0) as u8
+    } else {
+        1
+    }
+}
+
+/// Fills the markers' gaps of at most `max` frames in a C3D table (see [`export_c3d`]):
+/// loose objects' columns on splines, each body's marker columns as one rigid set.
+fn fill_c3d_gaps(
+    frames: &mut [Vec<Option<crate::c3d::C3dPoint>>],
+    column: &std::collections::BTreeMap<u32, (usize, Option<usize>)>,
+    body_column: &std::collections::BTreeMap<String, usize>,
+    bodies: &std::collections::BTreeMap<String, u32>,
+    max: usize,
+) -> Vec<(usize, usize, stereoscope_bodies::gaps::FillMethod)> {
+    use stereoscope_bodies::gaps::{Track, fill_gaps};
+    let mut cols: Vec<usize> = column.values().map(|&(pos, _)| pos).collect();
+    let mut sets: Vec<Vec<usize>> = Vec::new();
+    for (name, &origin) in body_column {
+        let n = bodies.get(name).copied().unwrap_or(0) as usize;
+        let first = cols.len();
+        cols.extend(
+            (0..n.min(stereoscope_proto::messages::MAX_BODY_MARKERS as usize))
+                .map(|k| origin + 1 + k),
+        );
+        sets.push((first..cols.len()).collect());
+    }
+    let mut tracks: Vec<Track> = cols
+        .iter()
+        .map(|&c| {
+            frames
+                .iter()
+                .map(|row| {
+                    row[c].map(|p| {
+                        nalgebra::Point3::new(
+                            p.xyz_mm[0] as f64,
+                            p.xyz_mm[1] as f64,
+                            p.xyz_mm[2] as f64,
+                        )
+                    })
+                })
+                .collect()
+        })
+        .collect();
+    let filled = fill_gaps(&mut tracks, &sets, max);
+    filled
+        .into_iter()
+        .filter_map(|f| {
+            let c = *cols.get(f.marker)?;
+            let p = tracks.get(f.marker)?.get(f.frame).copied().flatten()?;
+            frames.get_mut(f.frame)?[c] = Some(crate::c3d::C3dPoint {
+                xyz_mm: [p.x as f32, p.y as f32, p.z as f32],
+                cameras: 0,
+                residual_mm: 0,
+            });
+            Some((c, f.frame, f.method))
+        })
+        .collect()
 }
 
 /// The recorded frames of `camera` in a session folder.
@@ -885,13 +982,13 @@ mod tests {
         let ms = 1_000_000;
         let mut poses: Vec<PoseFrame> = (0..5).map(|i| frame(i * 33 * ms, &[0.1])).collect();
         poses.push(frame(u64::MAX, &[0.1]));
-        let err = export_c3d(&session_of(poses)).unwrap_err();
+        let err = export_c3d(&session_of(poses), None).unwrap_err();
         assert!(matches!(err, ReplayError::TooLong { .. }), "{err:?}");
 
         let many: Vec<f64> = (0..200).map(|i| i as f64 * 0.01).collect();
         let mut poses: Vec<PoseFrame> = (0..5).map(|i| frame(i * 33 * ms, &many)).collect();
         poses.push(frame(40_000_000 * 33 * ms, &many));
-        let err = export_c3d(&session_of(poses)).unwrap_err();
+        let err = export_c3d(&session_of(poses), None).unwrap_err();
         assert!(
             matches!(
                 err,
@@ -909,8 +1006,84 @@ mod tests {
 
         // An ordinary session still exports.
         let poses: Vec<PoseFrame> = (0..5).map(|i| frame(i * 33 * ms, &[0.1, 0.2])).collect();
-        let e = export_c3d(&session_of(poses)).unwrap();
+        let e = export_c3d(&session_of(poses), None).unwrap();
         assert_eq!(e.trial.frames.len(), 5);
+    }
+
+    /// Gaps of a loose marker and of a body's marker are filled when asked, flagged by a zero
+    /// residual and no camera bits; measured points keep a residual of at least 1 mm; a gap
+    /// longer than asked is left.
+    #[test]
+    fn c3d_gaps_are_filled_and_flagged_only_when_asked() {
+        use stereoscope_bodies::gaps::FillMethod;
+        use stereoscope_proto::messages::BodyLabel;
+        // A marker moving 1 m/s along x, object 1; a body "wand" of four markers translating
+        // with it (objects 2–5), each 8.33 mm a frame.
+        let layout = [
+            [0.0, 0.0, 0.0],
+            [0.1, 0.0, 0.0],
+            [0.0, 0.12, 0.0],
+            [0.02, 0.03, 0.15],
+        ];
+        let poses: Vec<PoseFrame> = (0..40u64)
+            .map(|i| {
+                let x = i as f64 / 120.0;
+                let mut f = frame(i * 8_333_333, &[x]);
+                f.poses[0].residual_px = 0.4;
+                for (k, l) in layout.iter().enumerate() {
+                    let mut p = f.poses[0].clone();
+                    p.object_id = 2 + k as u32;
+                    p.position_m = [0.5 + x + l[0], l[1], 1.0 + l[2]];
+                    p.body = Some(BodyLabel {
+                        name: "wand".into(),
+                        marker: k as u32,
+                    });
+                    f.poses.push(p);
+                }
+                // Object 1 missing in frames 10–14 and 20–31, body marker 0 in 15–19.
+                f.poses.retain(|p| {
+                    !(p.object_id == 1 && ((10..15).contains(&i) || (20..32).contains(&i)))
+                        && !(p.object_id == 2 && (15..20).contains(&i))
+                });
+                f
+            })
+            .collect();
+        let session = session_of(poses);
+        let plain = export_c3d(&session, None).unwrap();
+        assert!(plain.filled.is_empty());
+        assert!(plain.trial.frames[12][0].is_none());
+        let e = export_c3d(&session, Some(10)).unwrap();
+        let at = |f: usize, c: usize| e.trial.frames[f][c];
+        // Object 1 (column 0): frames 10–14 filled on a spline, 20–31 (12 frames) left.
+        let loose: Vec<usize> = e.filled.iter().filter(|f| f.0 == 0).map(|f| f.1).collect();
+        assert_eq!(loose, (10..15).collect::<Vec<_>>());
+        assert!(at(25, 0).is_none());
+        assert!(
+            e.filled
+                .iter()
+                .filter(|f| f.0 == 0)
+                .all(|f| f.2 == FillMethod::Spline)
+        );
+        for f in 10..15 {
+            let p = at(f, 0).unwrap();
+            assert_eq!((p.cameras, p.residual_mm), (0, 0));
+            let want_mm = f as f64 / 120.0 * 1000.0;
+            assert!((p.xyz_mm[0] as f64 - want_mm).abs() < 0.01, "{f}: {p:?}");
+        }
+        // The body's marker 0 (column of "wand:m0") from the other three.
+        let m0 = e.trial.labels.iter().position(|l| l == "wand:m0").unwrap();
+        let rigid: Vec<_> = e.filled.iter().filter(|f| f.0 == m0).collect();
+        assert_eq!(rigid.len(), 5);
+        assert!(rigid.iter().all(|f| f.2 == FillMethod::Rigid));
+        let p = at(17, m0).unwrap();
+        let want = 500.0 + 17.0 / 120.0 * 1000.0;
+        assert!((p.xyz_mm[0] as f64 - want).abs() < 0.01, "{p:?}");
+        // Measured points: camera bits and a residual of at least 1 mm.
+        let measured = at(5, 0).unwrap();
+        assert!(
+            measured.cameras != 0 && measured.residual_mm >= 1,
+            "{measured:?}"
+        );
     }
 
     /// A body's markers are labelled by body and index in C3D and CSV, its origin too; loose
@@ -942,7 +1115,7 @@ mod tests {
             })
             .collect();
         let session = session_of(poses);
-        let e = export_c3d(&session).unwrap();
+        let e = export_c3d(&session, None).unwrap();
         assert_eq!(
             e.trial.labels,
             [

@@ -607,6 +607,11 @@ pub struct ExportArgs {
     /// all.
     #[arg(long)]
     pub out: Option<PathBuf>,
+    /// c3d only: fill each marker's gaps of at most this many frames between two sightings
+    /// (a body's marker from its other markers, a loose one on a spline); filled samples have
+    /// a zero residual and no camera bits (docs/recording.md).
+    #[arg(long, value_parser = clap::value_parser!(u32).range(1..=1000))]
+    pub fill_gaps: Option<u32>,
 }
 
 /// `stereoscope triangulate`: its options.

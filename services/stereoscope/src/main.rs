@@ -298,7 +298,13 @@ fn main() -> ExitCode {
             session,
             format,
             out,
-        }) => finish(stereoscope::sessions::export(session, &format, out)),
+            fill_gaps,
+        }) => finish(stereoscope::sessions::export(
+            session,
+            &format,
+            out,
+            fill_gaps.map(|n| n as usize),
+        )),
         Command::Demo(args::DemoArgs {
             seconds,
             rig,

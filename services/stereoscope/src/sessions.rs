@@ -401,9 +401,17 @@ fn losses(
 }
 
 /// `stereoscope export --format csv|bodies-csv|c3d`.
-pub fn export(session: PathBuf, format: &str, out: Option<PathBuf>) -> anyhow::Result<usize> {
+pub fn export(
+    session: PathBuf,
+    format: &str,
+    out: Option<PathBuf>,
+    fill_gaps: Option<usize>,
+) -> anyhow::Result<usize> {
     if !["csv", "bodies-csv", "c3d"].contains(&format) {
         anyhow::bail!("--format {format}: csv, bodies-csv or c3d");
+    }
+    if fill_gaps.is_some() && format != "c3d" {
+        anyhow::bail!("--fill-gaps: only --format c3d fills gaps (its frames are on one clock)");
     }
     if format == "c3d" && out.is_none() {
         anyhow::bail!("--format c3d needs --out FILE (it is binary)");
@@ -414,7 +422,7 @@ pub fn export(session: PathBuf, format: &str, out: Option<PathBuf>) -> anyhow::R
     }
     // The summary is said only once the file is written: a failed --out prints no success.
     let (bytes, summary) = if format == "c3d" {
-        let e = stereoscope_recorder::replay::export_c3d(&s)
+        let e = stereoscope_recorder::replay::export_c3d(&s, fill_gaps)
             .with_context(|| session.display().to_string())?;
         let bytes = stereoscope_recorder::c3d::write(&e.trial)
             .map_err(|e| anyhow::anyhow!("{}: {e}", session.display()))?;
@@ -433,6 +441,18 @@ pub fn export(session: PathBuf, format: &str, out: Option<PathBuf>) -> anyhow::R
                 String::new()
             }
         );
+        let summary = match fill_gaps {
+            Some(max) => {
+                use stereoscope_bodies::gaps::FillMethod;
+                let rigid = e.filled.iter().filter(|f| f.2 == FillMethod::Rigid).count();
+                format!(
+                    "{summary}; {} samples filled in gaps of up to {max} frames ({rigid} from their body's other markers, {} on splines; residual 0, no camera bits)",
+                    e.filled.len(),
+                    e.filled.len() - rigid
+                )
+            }
+            None => summary,
+        };
         (bytes, Some(summary))
     } else if format == "bodies-csv" {
         (

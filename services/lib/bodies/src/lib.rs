@@ -787,6 +787,7 @@ fn search_body(
 }
 
 pub mod filter;
+pub mod gaps;
 pub mod tracker;
 
 #[cfg(test)]
