@@ -15,7 +15,7 @@
 
 use nalgebra::{Point2, Point3, Vector3};
 use stereoscope_geometry::Camera;
-use stereoscope_geometry::correspond::{Claims, CorrespondConfig, Match, match_labelled};
+use stereoscope_geometry::correspond::{ByX, Claims, CorrespondConfig, Match, match_labelled};
 use stereoscope_geometry::depth::{on_axis_area, point_from_depth};
 use stereoscope_geometry::triangulate::{Observation as View, triangulate};
 use stereoscope_geometry::world_heading::{AxisView, fuse};
@@ -261,6 +261,7 @@ impl Fuser {
         if self.cfg.claim_px <= 0.0 {
             return out;
         }
+        let by_x: Vec<ByX> = pixels.iter().map(|p| ByX::new(p)).collect();
         for o in &self.objects {
             if o.id == 0 || self.last_set_ns != Some(o.last_seen_ns) {
                 continue;
@@ -270,10 +271,8 @@ impl Fuser {
                 let Some(q) = self.cameras[*c].project(&predicted) else {
                     continue;
                 };
-                for (j, p) in pixels[s].iter().enumerate() {
-                    if (p - q).norm() <= self.cfg.claim_px {
-                        out[s][j].push(o.id);
-                    }
+                for (j, _) in by_x[s].near(&pixels[s], q, self.cfg.claim_px) {
+                    out[s][j].push(o.id);
                 }
             }
         }
@@ -319,14 +318,16 @@ impl Fuser {
             .iter()
             .filter(|_| dt_unseen * 1e9 <= HIDDEN_WITHIN_NS as f64)
             .map(|(p, v)| p + v * dt_unseen);
+        let by_x: Vec<ByX> = pixels.iter().map(|p| ByX::new(p)).collect();
         for predicted in followed.chain(unseen) {
             for (s, (c, obs)) in set.iter().enumerate() {
                 let Some(q) = self.cameras[*c].project(&predicted) else {
                     continue;
                 };
-                if pixels[s]
-                    .iter()
-                    .any(|p| (p - q).norm() <= self.cfg.claim_px)
+                if by_x[s]
+                    .near(&pixels[s], q, self.cfg.claim_px)
+                    .next()
+                    .is_some()
                 {
                     continue;
                 }
