@@ -10,6 +10,7 @@
 
 pub mod c3d;
 pub mod cli;
+pub mod export;
 pub mod replay;
 pub mod session;
 

@@ -422,7 +422,7 @@ pub fn export(
     }
     // The summary is said only once the file is written: a failed --out prints no success.
     let (bytes, summary) = if format == "c3d" {
-        let e = stereoscope_recorder::replay::export_c3d(&s, fill_gaps)
+        let e = stereoscope_recorder::export::export_c3d(&s, fill_gaps)
             .with_context(|| session.display().to_string())?;
         let bytes = stereoscope_recorder::c3d::write(&e.trial)
             .map_err(|e| anyhow::anyhow!("{}: {e}", session.display()))?;
@@ -456,12 +456,12 @@ pub fn export(
         (bytes, Some(summary))
     } else if format == "bodies-csv" {
         (
-            stereoscope_recorder::replay::export_bodies_csv(&s).into_bytes(),
+            stereoscope_recorder::export::export_bodies_csv(&s).into_bytes(),
             None,
         )
     } else {
         (
-            stereoscope_recorder::replay::export_csv(&s).into_bytes(),
+            stereoscope_recorder::export::export_csv(&s).into_bytes(),
             None,
         )
     };
