@@ -46,7 +46,7 @@ pub const CORE_MARGIN_PX: i64 = 3;
 /// A track's core for this frame ([`CoreScan`]): its last blob's box moved by its motion,
 /// widened by [`CORE_MARGIN_PX`] plus half the motion and an eighth of the box's longer
 /// side, inside its window. `None` for a track not found in the last frame.
-fn core_rect(t: &Track) -> Option<PixelRect> {
+pub(super) fn core_rect(t: &Track) -> Option<PixelRect> {
     if t.lost_frames > 0 {
         return None;
     }

@@ -29,12 +29,15 @@
 //!
 //! A lost object inside another's merged blob (two markers whose images joined: it is there,
 //! not anywhere else) rests instead: no window of its own is read and the frame is not searched
-//! for it but on each search period's first frame, as for new objects; on the frames between
-//! it takes back the blob nearest its prediction of those in the other's window that no track
-//! took — its image come out of the merged one — so it is followed again from the first frame
-//! the two images part, under its id. (Searching the frame for it on every frame cost the
-//! live bench's markers more than all else: one of 12 was inside another's blob on 26 of 120
-//! frames, docs/performance.md.)
+//! for it but on each search period's first frame, as for new objects. It is predicted where it
+//! went into the merged blob, moved with that blob, and competes in the assignment for the
+//! blobs whose centroids lie in the merged track's core — once one of them is no other found
+//! track's nearest (its image come out of the merged one): the assignment then decides which
+//! parted image is whose, so it is followed again from the first frame the two images part,
+//! under its id, and no other lost track takes its image. A merge lasts while a lost track is
+//! inside it. (Searching the frame for it on every frame cost the live bench's markers more
+//! than all else: one of 12 was inside another's blob on 26 of 120 frames,
+//! docs/performance.md.)
 //!
 //! The windowed step reads each object found in the last frame in its core first (its last box
 //! moved by its motion, widened), and the whole windows only when the cores do not settle the
@@ -50,8 +53,8 @@ use crate::extract::{
 use crate::histogram::{Histogram, ThresholdMethod};
 use crate::image::{GrayView, Pixel, PixelRect};
 use crate::moments::{AxisShape, CentralMoments, directed_angle_deg, validate_par};
-use stereoscope_numeric::Assigner;
 use stereoscope_numeric::heading::{HeadingConfig, HeadingTracker, HeadingUpdate};
+use stereoscope_numeric::{Assigner, cheapest_allowed};
 
 mod cores;
 mod merged;
@@ -193,12 +196,17 @@ pub struct Track {
     /// Lost inside the merged blob of the track with this id ([`Track::merged`]: that blob
     /// holds the place where this one was last seen or is predicted): its image is there,
     /// joined to the other's. Its window is read, and the frame searched for it, on the first
-    /// frame of each search period only; between, it may take back only a blob in that
-    /// track's window that no track took (its image come out of the merged one), module docs.
+    /// frame of each search period only; between, it competes only for the blobs in that
+    /// track's core, and only once one of them is no found track's nearest (its image come
+    /// out of the merged one), module docs.
     pub inside_merged: Option<u32>,
-    /// This step left the track out of the windows and the assignment (inside a merged blob
-    /// and no search due).
+    /// This step left the track's own window unread (inside a merged blob and no search due):
+    /// it competes in the assignment for the blobs in its host's window only.
     resting: bool,
+    /// Where it was, from the merged track's centroid, when it went inside that track's blob:
+    /// while inside, it is predicted there from the merged track's prediction (its own motion,
+    /// run on over the frames it is hidden, would take it away from where it comes back out).
+    merge_offset_px: (f64, f64),
     /// The window searched this frame.
     pub window: PixelRect,
     pub lost_frames: u32,
@@ -466,17 +474,59 @@ impl Tracker {
         }
         // Row by row into a matrix made whole first (no per-element growth checks).
         self.cost.resize(self.tracks.len() * n, f64::INFINITY);
-        for (t, row) in self.tracks.iter().zip(self.cost.chunks_exact_mut(n)) {
-            if t.resting {
-                continue;
-            }
-            let (px, py) = t.predicted();
-            let win = t.window;
+        let tracks = &self.tracks;
+        for (t, row) in tracks.iter().zip(self.cost.chunks_exact_mut(n)) {
+            // A resting track (inside a merged blob) competes for the blobs in its host's
+            // window: its image comes out of the merged one there, and the assignment decides
+            // which of the parted images is whose (module docs).
+            let win = if t.resting {
+                match host_of(tracks, t) {
+                    Some(h) => cores::core_rect(h).unwrap_or(h.window),
+                    None => continue,
+                }
+            } else {
+                t.window
+            };
+            let (px, py) = prediction(tracks, t);
             for ((cost, &(bx, by)), &masked) in row.iter_mut().zip(&self.centroids).zip(&self.taken)
             {
                 if !masked && win.contains(bx, by) {
                     *cost = (bx - px).powi(2) + (by - py).powi(2);
                 }
+            }
+        }
+        if tracks.iter().any(|t| t.resting) {
+            self.leave_resting_out_of_followed_blobs(n);
+        }
+    }
+
+    /// A resting track whose every candidate is the nearest blob of a track found in the last
+    /// frame stays out of the assignment: no image has come out of the merged one, so it
+    /// rests, and those tracks keep their nearest blobs (the cores settle such a frame
+    /// as they would without it). A candidate no such track has as its nearest is an
+    /// image come out: the resting track then competes for all its candidates and the assignment
+    /// decides which of the parted images is whose. Its candidates are the blobs whose
+    /// centroids lie in the merged track's core (the same in the cores' read and the windows'),
+    /// so both reads give the same rows.
+    fn leave_resting_out_of_followed_blobs(&mut self, n: usize) {
+        let nearest = &mut self.nearest_taken;
+        nearest.clear();
+        nearest.resize(n, false);
+        for (t, row) in self.tracks.iter().zip(self.cost.chunks_exact(n)) {
+            if t.lost_frames > 0 {
+                continue;
+            }
+            if let Some(j) = cheapest_allowed(row) {
+                nearest[j] = true;
+            }
+        }
+        for (t, row) in self.tracks.iter().zip(self.cost.chunks_exact_mut(n)) {
+            let nothing_out = row
+                .iter()
+                .zip(nearest.iter())
+                .all(|(c, &followed)| !c.is_finite() || followed);
+            if t.resting && nothing_out {
+                row.fill(f64::INFINITY);
             }
         }
     }
@@ -504,7 +554,7 @@ impl Tracker {
         let mut needs_full = self.tracks.is_empty();
         for i in 0..self.tracks.len() {
             let t = &self.tracks[i];
-            let (px, py) = t.predicted();
+            let (px, py) = prediction(&self.tracks, t);
             let half = self.half_width(t, limit);
             let rect = clamp_window(px, py, half, w, h);
             // A lost object inside a merged blob is where that blob is: its window is read (and
@@ -602,7 +652,6 @@ impl Tracker {
         };
         let par = self.cfg.par;
         let skew = self.cfg.direction_min_skewness;
-        let mut resting = false;
         for (t, a) in self.tracks.iter_mut().zip(assignment) {
             match a {
                 Some(j) => {
@@ -610,15 +659,11 @@ impl Tracker {
                     t.take(&blobs[*j], self.centroids[*j], par, skew);
                     step.tracked += 1;
                 }
-                None if t.resting => resting = true,
                 None => {
                     t.lose();
                     step.lost += 1;
                 }
             }
-        }
-        if resting {
-            self.take_back_resting(&mut step);
         }
         self.flag_merged();
         let before = self.tracks.len();
@@ -657,6 +702,7 @@ impl Tracker {
                     merged: false,
                     inside_merged: None,
                     resting: false,
+                    merge_offset_px: (0.0, 0.0),
                     window: PixelRect::full(w, h),
                     lost_frames: 0,
                     blob: Some(b),
@@ -669,6 +715,24 @@ impl Tracker {
             }
         }
         Ok(step)
+    }
+}
+
+/// The track `t` is inside (its merged blob's), if it is still followed.
+fn host_of<'a>(tracks: &'a [Track], t: &Track) -> Option<&'a Track> {
+    let host = t.inside_merged?;
+    tracks.iter().find(|h| h.id == host)
+}
+
+/// Where track `t` is expected this frame: by its own motion (Eq. 5.3), or, inside another
+/// track's merged blob, at its place in that blob moved with it.
+fn prediction(tracks: &[Track], t: &Track) -> (f64, f64) {
+    match host_of(tracks, t) {
+        Some(h) => {
+            let (hx, hy) = h.predicted();
+            (hx + t.merge_offset_px.0, hy + t.merge_offset_px.1)
+        }
+        None => t.predicted(),
     }
 }
 
@@ -1082,6 +1146,7 @@ mod tests {
             merged: false,
             inside_merged: None,
             resting: false,
+            merge_offset_px: (0.0, 0.0),
             window: PixelRect::full(1, 1),
             lost_frames: 0,
             blob: None,
@@ -1484,5 +1549,97 @@ mod tests {
             }
         }
         assert_eq!(rested, 11);
+    }
+
+    /// Two markers merge and part while a third, gone out of the frame, is still lost with a
+    /// window grown to the frame: the parted image goes back to the marker that was inside
+    /// the merged blob (it competes for the merged track's core), not to the lost third,
+    /// and each track is on its own disc again.
+    #[test]
+    fn a_parted_image_goes_back_to_the_marker_inside_not_to_a_lost_one() {
+        let a = (100.0, 120.0, 5.0);
+        let bx = |f: u64| match f {
+            0..4 => 140.0 - 10.0 * f as f64,
+            4..17 => 106.0,
+            _ => 106.0 + 8.0 * (f - 16) as f64,
+        };
+        // The third leaves through the top edge on frame 2 and stays out.
+        let c = |f: u64| (200.0, 6.0 - 8.0 * f as f64, 4.0);
+        let mut tr = Tracker::new(TrackerConfig::default(), ExtractConfig::default()).unwrap();
+        let (mut id_a, mut id_b, mut id_c) = (0, 0, 0);
+        for f in 0..20u64 {
+            let discs = [a, (bx(f), 120.0, 5.0), c(f)];
+            tr.step_frame(frame(&discs).view(), 100, f).unwrap();
+            let near = |x: f64, y: f64| {
+                tr.tracks()
+                    .iter()
+                    .find(|t| (t.x_px - x).abs() < 1.0 && (t.y_px - y).abs() < 1.0)
+                    .map(|t| t.id)
+            };
+            if f == 0 {
+                (id_a, id_b, id_c) = (
+                    near(a.0, a.1).unwrap(),
+                    near(bx(0), 120.0).unwrap(),
+                    near(200.0, 6.0).unwrap(),
+                );
+            }
+            if f == 12 {
+                let b = tr.tracks().iter().find(|t| t.id == id_b).unwrap();
+                assert_eq!(b.inside_merged, Some(id_a), "frame {f}");
+                let c = tr.tracks().iter().find(|t| t.id == id_c).unwrap();
+                assert_eq!(c.status, TrackStatus::Lost);
+                assert!(c.window.width() == 320 && c.window.height() == 240);
+            }
+            if f >= 17 {
+                // Apart again: each id on its own disc; the lost third still lost.
+                assert_eq!(near(a.0, a.1), Some(id_a), "frame {f}: {:?}", tr.tracks());
+                assert_eq!(
+                    near(bx(f), 120.0),
+                    Some(id_b),
+                    "frame {f}: {:?}",
+                    tr.tracks()
+                );
+                let c = tr.tracks().iter().find(|t| t.id == id_c).unwrap();
+                assert_eq!(c.status, TrackStatus::Lost, "frame {f}");
+                assert!(tr.tracks().iter().all(|t| !t.merged), "frame {f}");
+            }
+        }
+    }
+
+    /// A merge lasts while a lost track is inside it: a marker hidden behind another that
+    /// grew (came nearer) is dropped after `drop_after_lost_frames`, and the other's blob is
+    /// a measurement again from then on, its usual area following it.
+    #[test]
+    fn a_merge_ends_when_the_marker_inside_it_is_dropped() {
+        let cfg = TrackerConfig::default();
+        let drop_after = cfg.drop_after_lost_frames as u64;
+        let mut tr = Tracker::new(cfg, ExtractConfig::default()).unwrap();
+        // B beside A, then behind it from frame 4 on, while A's image grows to radius 7.
+        let discs = |f: u64| match f {
+            0..4 => vec![(100.0, 120.0, 5.0), (112.0 - 2.0 * f as f64, 120.0, 4.0)],
+            _ => vec![(100.0, 120.0, 7.0)],
+        };
+        let last = drop_after + 20;
+        let mut merged_frames = 0;
+        for f in 0..=last {
+            tr.step_frame(frame(&discs(f)).view(), 100, f).unwrap();
+            let a = tr
+                .tracks()
+                .iter()
+                .filter(|t| t.status != TrackStatus::Lost)
+                .min_by(|p, q| (p.x_px - 100.0).abs().total_cmp(&(q.x_px - 100.0).abs()))
+                .unwrap();
+            merged_frames += u32::from(a.merged);
+            if f == 10 {
+                assert!(a.merged, "frame {f}: {:?}", tr.tracks());
+            }
+            if f == last {
+                assert_eq!(tr.tracks().len(), 1, "the hidden one dropped");
+                assert!(!a.merged, "frame {f}: {a:?}");
+                let area = a.blob.unwrap().area_px() as f64;
+                assert!((a.usual_area_px - area).abs() < 0.1 * area, "{a:?}");
+            }
+        }
+        assert!(merged_frames as u64 <= drop_after + 2, "{merged_frames}");
     }
 }
