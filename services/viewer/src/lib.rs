@@ -88,6 +88,69 @@ pub struct ViewerSummary {
     pub connections: u64,
 }
 
+/// A connection that has not sent a request's headers within this long is closed (one that
+/// connects and sends nothing, or a byte at a time, holds nothing for long).
+pub const HEADER_TIMEOUT: Duration = Duration::from_secs(5);
+
+/// Connections open at once (pages, their files, WebSockets being opened); more are closed as
+/// they come, and counted with the refused sockets. Browsers beyond `max_clients` are
+/// answered 503 below this.
+pub const MAX_CONNECTIONS: usize = 256;
+
+/// Serves `app` on `listener` until `stop`: HTTP/1 with WebSocket upgrades, each connection
+/// given [`HEADER_TIMEOUT`] to send a request's headers, at most [`MAX_CONNECTIONS`] at once.
+async fn serve(
+    listener: tokio::net::TcpListener,
+    app: Router,
+    shared: Arc<Shared>,
+    stop: tokio::sync::oneshot::Receiver<()>,
+) {
+    let open = Arc::new(tokio::sync::Semaphore::new(MAX_CONNECTIONS));
+    let (closing, closed) = tokio::sync::watch::channel(false);
+    tokio::pin!(stop);
+    loop {
+        let stream = tokio::select! {
+            accepted = listener.accept() => match accepted {
+                Ok((stream, _)) => stream,
+                Err(e) => {
+                    // Out of descriptors, or a connection reset before it was taken: wait a
+                    // moment instead of spinning.
+                    tracing::debug!("accepting a connection: {e}");
+                    tokio::time::sleep(Duration::from_millis(20)).await;
+                    continue;
+                }
+            },
+            _ = &mut stop => break,
+        };
+        let Ok(permit) = open.clone().try_acquire_owned() else {
+            shared.stats.refused.fetch_add(1, Ordering::Relaxed);
+            drop(stream);
+            continue;
+        };
+        let service = hyper_util::service::TowerToHyperService::new(app.clone());
+        let mut closed = closed.clone();
+        tokio::spawn(async move {
+            let _permit = permit;
+            let mut builder = hyper::server::conn::http1::Builder::new();
+            builder
+                .timer(hyper_util::rt::TokioTimer::new())
+                .header_read_timeout(HEADER_TIMEOUT);
+            let conn = builder
+                .serve_connection(hyper_util::rt::TokioIo::new(stream), service)
+                .with_upgrades();
+            tokio::pin!(conn);
+            tokio::select! {
+                _ = conn.as_mut() => {}
+                _ = closed.changed() => {
+                    conn.as_mut().graceful_shutdown();
+                    let _ = conn.await;
+                }
+            }
+        });
+    }
+    let _ = closing.send(true);
+}
+
 #[derive(Debug, Default)]
 struct Stats {
     clients: AtomicUsize,
@@ -244,16 +307,7 @@ impl ViewerService {
             tokio::net::TcpListener::from_std(listener)
                 .map_err(|source| ViewerError::Bind { addr, source })?
         };
-        runtime.spawn(async move {
-            let served = axum::serve(listener, app)
-                .with_graceful_shutdown(async {
-                    let _ = stopped.await;
-                })
-                .await;
-            if let Err(e) = served {
-                tracing::error!("the web server stopped: {e}");
-            }
-        });
+        runtime.spawn(serve(listener, app, shared.clone(), stopped));
         tracing::info!("live view on http://{addr}/ (rig {rig:?}, cameras {cameras:?})");
         Ok(ViewerService {
             node,
@@ -697,6 +751,72 @@ mod tests {
             rejections: Mutex::new(Vec::new()),
             stats: Stats::default(),
         }
+    }
+
+    /// The server closes a connection that sends no complete request head within
+    /// [`HEADER_TIMEOUT`] (a request line alone, then nothing), answers one that does, and
+    /// closes the connections over [`MAX_CONNECTIONS`] as they come, counting them.
+    #[test]
+    fn slow_headers_are_cut_off_and_connections_capped() {
+        use std::io::{Read, Write};
+        let s = Arc::new(shared());
+        let rt = tokio::runtime::Builder::new_multi_thread()
+            .worker_threads(1)
+            .enable_all()
+            .build()
+            .unwrap();
+        let std_listener = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+        std_listener.set_nonblocking(true).unwrap();
+        let addr = std_listener.local_addr().unwrap();
+        let listener = {
+            let _guard = rt.enter();
+            tokio::net::TcpListener::from_std(std_listener).unwrap()
+        };
+        let (stop, stopped) = tokio::sync::oneshot::channel();
+        let app = Router::new().route("/", get(|| async { "here" }));
+        rt.spawn(serve(listener, app, s.clone(), stopped));
+        // A whole request is answered.
+        let mut ok = std::net::TcpStream::connect(addr).unwrap();
+        ok.write_all(b"GET / HTTP/1.1\r\nHost: x\r\nConnection: close\r\n\r\n")
+            .unwrap();
+        let mut answer = String::new();
+        ok.read_to_string(&mut answer).unwrap();
+        assert!(
+            answer.starts_with("HTTP/1.1 200") && answer.ends_with("here"),
+            "{answer}"
+        );
+        // A request line and nothing more: closed after the timeout, not before.
+        let started = std::time::Instant::now();
+        let mut slow = std::net::TcpStream::connect(addr).unwrap();
+        slow.write_all(b"GET / HTTP/1.1\r\n").unwrap();
+        slow.set_read_timeout(Some(HEADER_TIMEOUT * 3)).unwrap();
+        let mut buf = [0u8; 512];
+        let n = slow.read(&mut buf);
+        let waited = started.elapsed();
+        assert!(
+            n.is_ok() && waited >= HEADER_TIMEOUT && waited < HEADER_TIMEOUT * 3,
+            "{n:?} after {waited:?}"
+        );
+        // Connections beyond the cap are closed as they come, and counted.
+        let held: Vec<_> = (0..MAX_CONNECTIONS)
+            .map(|_| std::net::TcpStream::connect(addr).unwrap())
+            .collect();
+        let end = std::time::Instant::now() + Duration::from_secs(10);
+        let mut extra = std::net::TcpStream::connect(addr).unwrap();
+        extra
+            .set_read_timeout(Some(Duration::from_secs(10)))
+            .unwrap();
+        assert_eq!(extra.read(&mut buf).unwrap_or(0), 0);
+        while s.stats.refused.load(Ordering::Relaxed) == 0 {
+            assert!(
+                std::time::Instant::now() < end,
+                "the extra connection was not counted"
+            );
+            std::thread::sleep(Duration::from_millis(10));
+        }
+        drop(held);
+        let _ = stop.send(());
+        rt.shutdown_timeout(Duration::from_secs(1));
     }
 
     /// A browser's requests: a camera list is taken only if every camera is the rig's, and
