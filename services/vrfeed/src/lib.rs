@@ -344,7 +344,15 @@ impl VrFeedService {
             },
             None => None,
         };
-        let udp = UdpSocket::bind("0.0.0.0:0").map_err(VrFeedError::Udp)?;
+        let destinations: Vec<SocketAddr> = [
+            settings.vmt.as_ref().map(|v| v.0),
+            settings.vmc.as_ref().map(|v| v.0),
+            settings.opentrack.as_ref().map(|v| v.0),
+        ]
+        .into_iter()
+        .flatten()
+        .collect();
+        let udp = UdpSocket::bind(udp_source(&destinations)).map_err(VrFeedError::Udp)?;
         udp.set_nonblocking(true).map_err(VrFeedError::Udp)?;
         let mut node = ServiceNode::start(stereoscope_transport::NodeSpec {
             exclusive: stereoscope_transport::Exclusive::Host,
@@ -741,5 +749,45 @@ impl Service for VrFeedService {
             frames: self.frames,
             latency_us: self.latency_us.iter().copied().collect(),
         }
+    }
+}
+
+/// The address the UDP feeds (VMT, VMC, opentrack) send from: loopback when every
+/// destination is on this PC, so nothing on another host can reach the socket; any address of
+/// the destinations' family otherwise.
+fn udp_source(destinations: &[SocketAddr]) -> SocketAddr {
+    let all_v6 = !destinations.is_empty() && destinations.iter().all(SocketAddr::is_ipv6);
+    let here = destinations.iter().all(|d| d.ip().is_loopback());
+    let ip: std::net::IpAddr = match (here, all_v6) {
+        (true, true) => std::net::Ipv6Addr::LOCALHOST.into(),
+        (true, false) => std::net::Ipv4Addr::LOCALHOST.into(),
+        (false, true) => std::net::Ipv6Addr::UNSPECIFIED.into(),
+        (false, false) => std::net::Ipv4Addr::UNSPECIFIED.into(),
+    };
+    SocketAddr::new(ip, 0)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_udp_feeds_send_from_loopback_when_every_destination_is_here() {
+        let at = |s: &str| s.parse::<SocketAddr>().unwrap();
+        let here = [at("127.0.0.1:39570"), at("127.0.0.1:4242")];
+        assert_eq!(udp_source(&here), at("127.0.0.1:0"));
+        assert_eq!(udp_source(&[]), at("127.0.0.1:0"));
+        assert_eq!(udp_source(&[at("[::1]:4242")]), at("[::1]:0"));
+        let away = [at("127.0.0.1:39570"), at("192.168.1.20:4242")];
+        assert_eq!(udp_source(&away), at("0.0.0.0:0"));
+        assert_eq!(udp_source(&[at("[fe80::1]:4242")]), at("[::]:0"));
+        // Sending from loopback to a loopback destination works.
+        let rx = UdpSocket::bind("127.0.0.1:0").unwrap();
+        let tx = UdpSocket::bind(udp_source(&[rx.local_addr().unwrap()])).unwrap();
+        tx.send_to(b"x", rx.local_addr().unwrap()).unwrap();
+        let mut buf = [0u8; 4];
+        rx.set_read_timeout(Some(std::time::Duration::from_secs(2)))
+            .unwrap();
+        assert_eq!(rx.recv_from(&mut buf).unwrap().0, 1);
     }
 }
