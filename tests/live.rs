@@ -118,6 +118,15 @@ fn running_demo(dir: &TempDir, tag: char) -> (Proc, PoseWatcher, String, u16) {
     (launcher, watcher, path, port)
 }
 
+/// The services `stereoscope run` starts for the demo rig on one PC, besides its router.
+const DEMO_SERVICES: [&str; 5] = [
+    "capture/cam0",
+    "capture/cam1",
+    "moments/cam0",
+    "moments/cam1",
+    "fusion",
+];
+
 fn both_cameras(p: &PoseFrame) -> bool {
     p.cameras.len() == 2 && p.poses.len() >= 3
 }
@@ -318,6 +327,79 @@ fn a_killed_capture_leaves_fusion_on_one_camera_and_is_restarted() {
     .filter(|p| p.rsplit('/').next().is_some_and(|n| n.starts_with(&prefix)))
     .collect();
     assert!(left.is_empty(), "left behind: {left:?}");
+}
+
+/// This PC's Zenoh router is a child of the launcher: killed outright (twice), it is
+/// restarted, the services and a consumer rejoin it without being restarted themselves, poses
+/// flow again, and `status` lists it as a service. The launcher stays up throughout.
+#[test]
+fn a_killed_router_is_restarted_and_the_services_rejoin_it() {
+    let _serial = serial();
+    let dir = TempDir::new("kill-router");
+    let (launcher, watcher, path, _port) = running_demo(&dir, 'r');
+    for round in 1..=2 {
+        let log = launcher.output();
+        let pid = if round == 1 {
+            pid_of(&log, "router")
+        } else {
+            log.rsplit("restarted router (pid ")
+                .next()
+                .and_then(|s| s.split(')').next())
+                .and_then(|s| s.parse().ok())
+                .unwrap()
+        };
+        // SAFETY: killing a process this test started (through the launcher).
+        assert_eq!(unsafe { libc::kill(pid, libc::SIGKILL) }, 0);
+        let killed = Instant::now();
+        launcher.wait_for(Duration::from_secs(20), "the router's restart", |o| {
+            o.matches("restarted router (pid ").count() == round
+        });
+        // Pose frames sent after the restart reach the consumer: its session rejoined, and
+        // so did fusion's.
+        let after = stereoscope_proto::messages::now_ns();
+        watcher.until(Duration::from_secs(30), "poses after the restart", |p| {
+            both_cameras(p) && p.published_ns > after
+        });
+        eprintln!(
+            "router killed (round {round}): poses again at the consumer {:.0} ms later",
+            killed.elapsed().as_secs_f64() * 1e3
+        );
+    }
+    let log = launcher.output();
+    for s in DEMO_SERVICES {
+        assert!(
+            !log.contains(&format!("restarted {s} ")),
+            "{s} restarted:\n{log}"
+        );
+    }
+    // `status` lists the router, alive and reporting, with what it listens on.
+    let end = Instant::now() + Duration::from_secs(30);
+    loop {
+        let out = run_with_limit(&["status", &path, "--json"], Duration::from_secs(30));
+        assert!(out.status.success(), "{}", stderr(&out));
+        let v: serde_json::Value =
+            serde_json::from_str(String::from_utf8_lossy(&out.stdout).trim()).unwrap();
+        let router = v["services"]
+            .as_array()
+            .and_then(|a| a.iter().find(|x| x["service"] == "router"))
+            .cloned();
+        if let Some(r) = router.filter(|r| r["alive"] == true && r["health"].is_object()) {
+            assert!(
+                r["health"]["detail"]["listen"]
+                    .as_str()
+                    .is_some_and(|l| l.contains("tcp/127.0.0.1:")),
+                "{r}"
+            );
+            break;
+        }
+        assert!(
+            Instant::now() < end,
+            "no router in the status within 30 s: {v}"
+        );
+        std::thread::sleep(Duration::from_millis(200));
+    }
+    let mut launcher = launcher;
+    launcher.stop();
 }
 
 #[test]
@@ -906,13 +988,7 @@ fn status_lists_every_service_and_flags_a_stalled_camera() {
             })
         })
     };
-    let all = [
-        "capture/cam0",
-        "capture/cam1",
-        "moments/cam0",
-        "moments/cam1",
-        "fusion",
-    ];
+    let all = DEMO_SERVICES;
     // Every service has reported a rate (its second health report) and fusion hears both.
     let v = status_when(&[], "every service reporting", &|v| {
         all.iter().all(|s| reported(v, s))
@@ -935,13 +1011,7 @@ fn status_lists_every_service_and_flags_a_stalled_camera() {
         .iter()
         .map(|s| s["service"].as_str().unwrap())
         .collect();
-    for s in [
-        "capture/cam0",
-        "capture/cam1",
-        "moments/cam0",
-        "moments/cam1",
-        "fusion",
-    ] {
+    for s in DEMO_SERVICES {
         assert!(names.contains(&s), "{s} missing: {v}");
     }
     for s in services {

@@ -501,9 +501,14 @@ fn three_pcs_over_mutual_tls_survive_kills_a_cut_cable_and_forgers() {
         context()
     );
     assert!(longest_gap(&seen, restored, last) < 1.0, "{}", context());
-    // The rig's liveliness as the consumer sees it: its nine services, nothing forged.
+    // The rig's liveliness as the consumer sees it: its nine services and each PC's router
+    // (a service of its launcher), nothing forged.
     let alive = alive_tokens(&py(&["alive", FUSION, "lab", &ca, &cc, &ck]));
-    assert_eq!(alive.len(), 9, "{alive:?}");
+    assert_eq!(alive.len(), 12, "{alive:?}");
+    for pc in ["capture1", "capture2", "fusion"] {
+        let router = format!("stereoscope/lab/alive/{pc}/router");
+        assert!(alive.contains(&router), "{router} missing: {alive:?}");
+    }
     assert!(
         !alive
             .iter()

@@ -61,6 +61,9 @@ pub enum Detail {
     SentBytes,
     Previews,
     Url,
+    /// router: the endpoints it listens on, and the routers of other PCs linked to it.
+    Listen,
+    Routers,
 }
 
 impl Detail {
@@ -108,6 +111,8 @@ impl Detail {
             Detail::SentBytes => "sent_bytes",
             Detail::Previews => "previews",
             Detail::Url => "url",
+            Detail::Listen => "listen",
+            Detail::Routers => "routers",
         }
     }
 }

@@ -27,14 +27,6 @@ pub enum DemoError {
     NoPoses,
     #[error("demo: the launcher thread panicked")]
     LauncherPanicked,
-    #[error("demo: no service program to start")]
-    NoProgram,
-    #[error("demo: starting the router ({program})")]
-    Router {
-        program: String,
-        #[source]
-        source: std::io::Error,
-    },
     #[error("demo")]
     Launch(#[from] LaunchError),
     #[error("demo")]
@@ -298,10 +290,9 @@ pub fn run(cfg: DemoConfig, shutdown: Shutdown) -> Result<DemoSummary, DemoError
             key: "camera".into(),
             message: "the demo rig has no cameras".into(),
         }))?;
-    // The router runs in a process of its own, as on a PC where `stereoscope run` runs it
-    // beside nothing that measures it: sharing this process (and Zenoh's runtime) with the
-    // watcher put a tail of three frame periods on the latency it measures.
-    let router = RouterChild::start(&cfg.program, &rig_path, &prefix)?;
+    // The router runs in a process of its own, the launcher's child, as `stereoscope run`
+    // runs it: sharing this process (and Zenoh's runtime) with the watcher put a tail of
+    // three frame periods on the latency it measures.
     let launch_stop = Shutdown::new();
     let launcher = {
         let stop = launch_stop.clone();
@@ -309,7 +300,7 @@ pub fn run(cfg: DemoConfig, shutdown: Shutdown) -> Result<DemoSummary, DemoError
             ctx,
             program: cfg.program.clone(),
             env: Vec::new(),
-            router: false,
+            router: true,
             until_sources_end: false,
         };
         std::thread::spawn(move || stereoscope_launcher::run(lc, stop))
@@ -324,55 +315,10 @@ pub fn run(cfg: DemoConfig, shutdown: Shutdown) -> Result<DemoSummary, DemoError
         Ok(Err(e)) => return Err(e.into()),
         Err(_) => return Err(DemoError::LauncherPanicked),
     };
-    drop(router);
     let _ = std::fs::remove_file(&rig_path);
     let mut s = result?;
     s.restarts = restarts;
     Ok(s)
-}
-
-/// The demo's Zenoh router, `PROGRAM router --rig RIG --host demo` (the service program is
-/// `stereoscope service`): stopped (SIGTERM, then SIGKILL after 2 s) and reaped when dropped.
-struct RouterChild(std::process::Child);
-
-impl RouterChild {
-    fn start(
-        program: &[String],
-        rig: &std::path::Path,
-        prefix: &str,
-    ) -> Result<RouterChild, DemoError> {
-        let (exe, first) = program.split_first().ok_or(DemoError::NoProgram)?;
-        std::process::Command::new(exe)
-            .args(first)
-            .args(["router", "--rig"])
-            .arg(rig)
-            .args(["--host", "demo", "--iox-prefix", prefix])
-            .stdin(std::process::Stdio::null())
-            .spawn()
-            .map(RouterChild)
-            .map_err(|source| DemoError::Router {
-                program: exe.clone(),
-                source,
-            })
-    }
-}
-
-impl Drop for RouterChild {
-    fn drop(&mut self) {
-        // SAFETY: signalling our own child, which is not reaped yet.
-        unsafe {
-            libc::kill(self.0.id() as libc::pid_t, libc::SIGTERM);
-        }
-        let end = std::time::Instant::now() + std::time::Duration::from_secs(2);
-        while std::time::Instant::now() < end {
-            if let Ok(Some(_)) = self.0.try_wait() {
-                return;
-            }
-            std::thread::sleep(std::time::Duration::from_millis(10));
-        }
-        let _ = self.0.kill();
-        let _ = self.0.wait();
-    }
 }
 
 fn watch(

@@ -5,20 +5,27 @@
 //! successfully has finished (a capture at the end of a file) and is not restarted —, removes what dead
 //! iceoryx2 nodes left behind before each start, and on Ctrl-C/SIGTERM stops every child
 //! (SIGTERM, then SIGKILL after 3 s). It also runs this PC's Zenoh router, which its services
-//! join as clients and other PCs' routers connect to (`docs/deploy.md`).
+//! join as clients and other PCs' routers connect to (`docs/deploy.md`), as a child process
+//! supervised like the services (`stereoscope service router`): a router that crashes or
+//! hangs is restarted and the services' sessions rejoin it, and the launcher itself — which
+//! holds no router — stays up (`docs/reliability.md`).
 //!
 //! Children die with the launcher (PR_SET_PDEATHSIG), so nothing is left running if it is
 //! killed outright.
+
+pub mod progress;
 
 use std::io::{BufRead, BufReader};
 use std::process::{Child, Command, Stdio};
 use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
+use stereoscope_proto::messages::{Detail, Health, Message};
 use stereoscope_rig::{RigError, security};
 use stereoscope_service::Context;
 use stereoscope_transport::net::{ZenohMode, ZenohSpec};
 use stereoscope_transport::{Shutdown, iox, net};
+use zenoh::Wait;
 
 /// One service to run.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -53,6 +60,17 @@ pub struct LaunchConfig {
 
 /// A running service silent this long (no health report) is killed and restarted.
 pub const WATCHDOG: Duration = Duration::from_secs(3);
+
+/// After this PC's router (re)started, a service that reported before it and has not been
+/// heard since for this long did not rejoin it: it is restarted.
+pub const REJOIN: Duration = Duration::from_secs(10);
+
+/// How long the launcher waits for its router to take connections before starting the
+/// services.
+pub const ROUTER_START: Duration = Duration::from_secs(10);
+
+/// The router's name among the launcher's children (and in health reports).
+pub const ROUTER_SERVICE: &str = "router";
 
 /// The delay before a failed service's first restart.
 pub const FIRST_RESTART_DELAY: Duration = Duration::from_millis(500);
@@ -114,6 +132,15 @@ pub enum LaunchError {
         priority: u32,
         source: std::io::Error,
     },
+
+    /// This PC's router (a child of the launcher) ended before it took connections.
+    #[error(
+        "launcher: this PC's Zenoh router exited as it started ({status}); its own lines above say why"
+    )]
+    RouterExited { status: String },
+    /// This PC's router did not take connections in time.
+    #[error("launcher: this PC's Zenoh router took no connection within {waited:?}: {why}")]
+    RouterNotUp { waited: Duration, why: String },
 
     /// A service refused its configuration: no restart would mend it, so the rig stopped.
     #[error(
@@ -226,6 +253,8 @@ struct Running {
     restarts: u32,
     /// Exited successfully: done, not restarted.
     finished: bool,
+    /// Killed this many times in a row for making no progress while its inputs flowed.
+    stuck_kills: u32,
 }
 
 fn pipe_lines(
@@ -393,9 +422,29 @@ pub fn run_router(ctx: &Context, shutdown: &Shutdown) -> Result<(), LaunchError>
             host: ctx.host.clone(),
         });
     };
-    let _session = net::open(&router)?;
+    let session = net::open(&router)?;
     tracing::info!("zenoh router listening on {:?}", router.listen);
-    while !shutdown.sleep(Duration::from_millis(200)) {}
+    // Alive and reporting like a service, so `status`, the viewer and the launcher's watchdog
+    // see it: what it listens on, and the routers of other PCs it is linked to.
+    let mut health = stereoscope_transport::health::HealthReporter::new(
+        &session,
+        &ctx.rig.name,
+        &ctx.host,
+        ROUTER_SERVICE,
+    )?;
+    let mut counters = stereoscope_transport::Counters::default();
+    counters.set(Detail::Listen, router.listen.join(" "));
+    loop {
+        if health.due() {
+            let linked = session.info().routers_zid().wait().count();
+            counters.set(Detail::Routers, linked);
+            health.report(&counters);
+        }
+        if shutdown.sleep(Duration::from_millis(200)) {
+            break;
+        }
+    }
+    health.report(&counters);
     Ok(())
 }
 
@@ -439,19 +488,12 @@ pub fn run(cfg: LaunchConfig, shutdown: Shutdown) -> Result<u32, LaunchError> {
     let _lock = lock_host(&ctx.iox_prefix, &ctx.host)?;
     // This run is one session: a restarted fusion continues its numbering.
     let session = stereoscope_proto::messages::now_ns().to_string();
-    // The router first, so the services' clients find it.
+    // The router first, so the services' clients find it: a child process like the
+    // services, so that its failure is not the launcher's.
     let (router, service_zenoh) = match router_specs(ctx).map_err(|e| e.in_file(&ctx.rig_path))? {
         Some((r, s)) if cfg.router => (Some(r), s),
         Some((_, s)) => (None, s),
         None => (None, ctx.zenoh.clone()),
-    };
-    let _router = match &router {
-        Some(r) => {
-            let s = net::open(r)?;
-            tracing::info!("zenoh router listening on {:?}", r.listen);
-            Some(s)
-        }
-        None => None,
     };
     let specs = services_here(ctx, &service_zenoh);
     if specs.is_empty() {
@@ -469,7 +511,17 @@ pub fn run(cfg: LaunchConfig, shutdown: Shutdown) -> Result<u32, LaunchError> {
         ),
     }
     let mut running: Vec<Running> = Vec::new();
-    for spec in specs {
+    let router_spec = router.as_ref().map(|_| {
+        let mut args = vec![ROUTER_SERVICE.to_string()];
+        args.extend(ctx.to_args(&service_zenoh));
+        ServiceSpec {
+            name: ROUTER_SERVICE.into(),
+            args,
+            frame_path: false,
+        }
+    });
+    for spec in router_spec.into_iter().chain(specs) {
+        let is_router = spec.name == ROUTER_SERVICE && router.is_some() && running.is_empty();
         let last_error_line = Arc::new(Mutex::new(String::new()));
         let (child, stderr_copier) =
             spawn(&cfg, &spec, &session, &last_error_line).map_err(|source| {
@@ -479,6 +531,10 @@ pub fn run(cfg: LaunchConfig, shutdown: Shutdown) -> Result<u32, LaunchError> {
                 }
             })?;
         tracing::info!("started {} (pid {})", spec.name, child.id());
+        let mut child = child;
+        if is_router {
+            wait_for_router(&mut child, &service_zenoh, &shutdown)?;
+        }
         running.push(Running {
             spec,
             child: Some(child),
@@ -489,24 +545,44 @@ pub fn run(cfg: LaunchConfig, shutdown: Shutdown) -> Result<u32, LaunchError> {
             restart_at: None,
             restarts: 0,
             finished: false,
+            stuck_kills: 0,
         });
     }
     // The watchdog: each service's newest health report (they come every second from the
-    // service's own loop, so none means the loop is stuck or the process stopped). Heard on
-    // this PC's router; a launcher without one (`--no-router`) runs without the watchdog.
+    // service's own loop, so none means the loop is stuck or the process stopped). Heard
+    // through this PC's router, as one of its clients (the session rejoins a restarted
+    // router); a launcher without one (`--no-router`) runs without the watchdog.
     let reports: Arc<Mutex<std::collections::HashMap<String, Instant>>> = Arc::default();
-    let _watch = match &_router {
-        Some(router) => {
+    // Every host's reports, for what flows (`progress`): a service whose inputs flow and
+    // which handles none of them for `stall` is restarted like a silent one.
+    let progress: Arc<Mutex<progress::Progress>> = Arc::default();
+    let stall = progress::stall_bound(slowest_fps(&ctx.rig));
+    let watch_session = match &router {
+        Some(_) => Some(net::open(&service_zenoh)?),
+        None => None,
+    };
+    let _watch = match &watch_session {
+        Some(session) => {
             let reports = reports.clone();
-            let prefix = format!("stereoscope/{}/health/{}/", ctx.rig.name, ctx.host);
+            let progress = progress.clone();
+            let all = format!("stereoscope/{}/health/", ctx.rig.name);
+            let here = format!("{all}{}/", ctx.host);
             Some(net::subscribe(
-                router,
-                &format!("{prefix}**"),
-                move |key, _| {
-                    if let Some(service) = key.strip_prefix(&prefix)
+                session,
+                &format!("{all}**"),
+                move |key, bytes| {
+                    let now = Instant::now();
+                    if let Some(service) = key.strip_prefix(&here)
                         && let Ok(mut r) = reports.lock()
                     {
-                        r.insert(service.to_string(), Instant::now());
+                        r.insert(service.to_string(), now);
+                    }
+                    // A report that does not decode is no one's progress.
+                    if let Ok(h) = Health::from_json(bytes)
+                        && key == format!("{all}{}/{}", h.host, h.service)
+                        && let Ok(mut p) = progress.lock()
+                    {
+                        p.report(&h.host, &h.service, h.processed, h.started_ns, now);
                     }
                 },
             )?)
@@ -524,7 +600,10 @@ pub fn run(cfg: LaunchConfig, shutdown: Shutdown) -> Result<u32, LaunchError> {
         .is_some_and(|f| f.replay_sets.is_some());
     let mut sources_ended: Option<Instant> = None;
     while !shutdown.requested() && refused.is_none() {
-        watchdog(&mut running, &reports);
+        watchdog(&mut running, &reports, router.is_some());
+        if let Ok(p) = progress.lock() {
+            restart_stuck(&mut running, &p, &ctx.host, stall);
+        }
         for r in running.iter_mut() {
             if let Some(c) = &mut r.child
                 && let Ok(Some(status)) = c.try_wait()
@@ -624,7 +703,14 @@ pub fn run(cfg: LaunchConfig, shutdown: Shutdown) -> Result<u32, LaunchError> {
         shutdown.sleep(Duration::from_millis(50));
     }
     tracing::info!("stopping {} services", running.len());
-    terminate(&mut running);
+    // The router last: the services' last reports and poses still reach their consumers.
+    let (mut routers, mut services): (Vec<Running>, Vec<Running>) = running
+        .into_iter()
+        .partition(|r| r.spec.name == ROUTER_SERVICE && router.is_some());
+    terminate(&mut services);
+    drop(_watch);
+    drop(watch_session);
+    terminate(&mut routers);
     // Nothing of the run stays behind in /dev/shm (unless another process still uses the
     // prefix: then it is left alone).
     if let Err(e) = iox::release_prefix(&ctx.iox_prefix) {
@@ -640,7 +726,25 @@ pub fn run(cfg: LaunchConfig, shutdown: Shutdown) -> Result<u32, LaunchError> {
 /// for [`WATCHDOG`]: stopped (SIGSTOP), or stuck in a step. The restart follows as for any
 /// service that died. (One that never reported — still starting, or not a Stereoscope
 /// service — is left to itself.)
-fn watchdog(running: &mut [Running], reports: &Mutex<std::collections::HashMap<String, Instant>>) {
+///
+/// With the router a child of the launcher (`supervised_router`), reports reach the launcher
+/// through it: while it is down nothing is judged; after it (re)started, a service is judged
+/// by its reports since then, and one that reported before the restart and is not heard for
+/// [`REJOIN`] after it did not rejoin the router, and is restarted too.
+fn watchdog(
+    running: &mut [Running],
+    reports: &Mutex<std::collections::HashMap<String, Instant>>,
+    supervised_router: bool,
+) {
+    let router_since = if supervised_router {
+        match running.iter().find(|r| r.spec.name == ROUTER_SERVICE) {
+            Some(r) if r.child.is_some() => Some(r.started),
+            // Down, or waiting for its restart: no report can arrive.
+            _ => return,
+        }
+    } else {
+        None
+    };
     let Ok(reports) = reports.lock() else {
         return;
     };
@@ -655,13 +759,98 @@ fn watchdog(running: &mut [Running], reports: &Mutex<std::collections::HashMap<S
         else {
             continue;
         };
-        if last.elapsed() > WATCHDOG {
-            tracing::warn!(
-                "{}: no health report for {:.1} s; killing it to restart it",
-                r.spec.name,
-                last.elapsed().as_secs_f64()
-            );
+        let silent = match router_since {
+            // Heard since the router's start: the usual bound.
+            Some(since) if last <= since && r.started <= since => {
+                (since.elapsed() > REJOIN).then(|| {
+                    format!(
+                        "not heard since the router restarted {:.1} s ago (it did not rejoin it)",
+                        since.elapsed().as_secs_f64()
+                    )
+                })
+            }
+            _ => (last.elapsed() > WATCHDOG)
+                .then(|| format!("no health report for {:.1} s", last.elapsed().as_secs_f64())),
+        };
+        if let Some(why) = silent {
+            tracing::warn!("{}: {why}; killing it to restart it", r.spec.name);
             let _ = child.kill();
+        }
+    }
+}
+
+/// Kills a service that makes no progress while its inputs flow ([`progress`]) for `stall`
+/// — doubled after each such kill of it that did not bring its progress back, up to a
+/// minute, so that an input it cannot reach (a link's access rules) does not restart it
+/// every few seconds. The restart follows as for any service that died.
+fn restart_stuck(running: &mut [Running], p: &progress::Progress, host: &str, stall: Duration) {
+    let now = Instant::now();
+    for r in running.iter_mut() {
+        let Some(child) = &mut r.child else {
+            continue;
+        };
+        if r.stuck_kills > 0 && p.progressed_since(host, &r.spec.name, r.started) {
+            r.stuck_kills = 0;
+        }
+        let bound = (stall * 2u32.saturating_pow(r.stuck_kills.min(5)))
+            .min(Duration::from_secs(60))
+            .max(stall);
+        if let Some(input) = p.stuck(host, &r.spec.name, r.started, now, bound) {
+            tracing::warn!(
+                "{}: no progress for {:.1} s while {input} flows; killing it to restart it",
+                r.spec.name,
+                bound.as_secs_f64()
+            );
+            // Reaped here (a killed process goes at once), so the next check does not count
+            // it again; the loop below sees its status and restarts it.
+            let _ = child.kill();
+            let _ = child.wait();
+            r.stuck_kills += 1;
+        }
+    }
+}
+
+/// The frame rate of the rig's slowest camera whose source states one.
+fn slowest_fps(rig: &stereoscope_rig::Rig) -> Option<f64> {
+    use stereoscope_rig::schema::SourceSpec;
+    rig.spec
+        .cameras
+        .iter()
+        .filter_map(|c| match c.source.as_ref()? {
+            SourceSpec::Synthetic { fps, .. } | SourceSpec::Images { fps, .. } => Some(*fps),
+            SourceSpec::V4l { fps, .. } | SourceSpec::Genicam { fps, .. } => *fps,
+            SourceSpec::Y4m { .. } => None,
+        })
+        .min_by(f64::total_cmp)
+}
+
+/// Waits until this PC's router (`child`, just started) takes connections at the services'
+/// endpoint, for at most [`ROUTER_START`].
+fn wait_for_router(
+    child: &mut Child,
+    services: &ZenohSpec,
+    shutdown: &Shutdown,
+) -> Result<(), LaunchError> {
+    let end = Instant::now() + ROUTER_START;
+    loop {
+        if let Ok(Some(status)) = child.try_wait() {
+            return Err(LaunchError::RouterExited {
+                status: status.to_string(),
+            });
+        }
+        let why = net::why_unreachable(services);
+        match why {
+            None => return Ok(()),
+            Some(_) if shutdown.requested() => return Ok(()),
+            Some(why) if Instant::now() >= end => {
+                let _ = child.kill();
+                let _ = child.wait();
+                return Err(LaunchError::RouterNotUp {
+                    waited: ROUTER_START,
+                    why,
+                });
+            }
+            Some(_) => std::thread::sleep(Duration::from_millis(50)),
         }
     }
 }
@@ -719,6 +908,68 @@ mod tests {
             }
         };
         drop(again);
+    }
+
+    /// A running child standing for service `name` (a real process: `sleep`).
+    fn sleeping(name: &str, started: Instant) -> Running {
+        Running {
+            spec: ServiceSpec {
+                name: name.into(),
+                args: Vec::new(),
+                frame_path: false,
+            },
+            child: Some(Command::new("sleep").arg("30").spawn().unwrap()),
+            last_error_line: Arc::default(),
+            stderr_copier: None,
+            started,
+            backoff: FIRST_RESTART_DELAY,
+            restart_at: None,
+            restarts: 0,
+            finished: false,
+            stuck_kills: 0,
+        }
+    }
+
+    fn still_running(r: &mut Running) -> bool {
+        r.child.as_mut().unwrap().try_wait().unwrap().is_none()
+    }
+
+    /// Fusion reporting no progress while a worker's count goes up is killed once the bound
+    /// passed, then given twice the bound after its restart; the worker itself, progressing,
+    /// is left alone; progress after the restart resets the bound.
+    #[test]
+    fn a_service_without_progress_while_its_inputs_flow_is_killed() {
+        let s = Duration::from_secs(1);
+        let stall = Duration::from_secs(3);
+        let t0 = Instant::now() - s * 20;
+        let mut p = progress::Progress::default();
+        for i in 0..=20u32 {
+            let at = t0 + s * i;
+            p.report("pc", "moments/cam0", 100 * (u64::from(i) + 1), 1, at);
+            p.report("pc", "fusion", 40, 2, at);
+        }
+        let mut running = vec![sleeping("moments/cam0", t0), sleeping("fusion", t0)];
+        restart_stuck(&mut running, &p, "pc", stall);
+        let status = running[1].child.as_mut().unwrap().wait().unwrap();
+        assert!(!status.success(), "fusion was not killed: {status}");
+        assert_eq!(running[1].stuck_kills, 1);
+        assert!(still_running(&mut running[0]));
+        // Restarted 4 s ago and still without progress: under twice the bound, left alone.
+        let mut again = sleeping("fusion", Instant::now() - s * 4);
+        again.stuck_kills = 1;
+        let mut running = vec![again];
+        restart_stuck(&mut running, &p, "pc", stall);
+        assert!(still_running(&mut running[0]));
+        assert_eq!(running[0].stuck_kills, 1);
+        // It progresses after its restart: the count of kills starts again.
+        p.report("pc", "fusion", 1, 3, Instant::now());
+        restart_stuck(&mut running, &p, "pc", stall);
+        assert_eq!(running[0].stuck_kills, 0);
+        for r in &mut running {
+            let c = r.child.as_mut().unwrap();
+            let _ = c.kill();
+            let _ = c.wait();
+        }
     }
 
     const DEMO_RIG: &str = include_str!("../../../deploy/rigs/demo.toml");

@@ -1,0 +1,235 @@
+//! Progress, not pulses: a service whose inputs flow and which handles none of them is stuck,
+//! although it still reports its health every second (a session that lost its subscriptions
+//! at a router, a loop waiting on something that never comes). The launcher restarts such a
+//! service; the health reports it hears from every host tell it what flows.
+//!
+//! A service's *progress* is its reported `processed` count going up; an input *flows* when
+//! its count went up in two reports since the service's own last progress, the last within
+//! [`FLOWING`] (a capture that read one frame and waits for its start time does not flow).
+//! What feeds what:
+//! `capture/<cam>` → `moments/<cam>` → `fusion` (any worker of the rig) → `vrfeed` (fusion).
+//! A serial output is left out (it handles nothing while its cable is out, which a restart
+//! does not mend: its `port` detail says so), and so are the recorder and the viewer (they
+//! count what their own clients ask for).
+
+use std::collections::HashMap;
+use std::time::{Duration, Instant};
+
+/// Reports come every second: a service is judged only after this many seconds without
+/// progress, whatever the rig's rates.
+pub const STALL_FLOOR: Duration = Duration::from_secs(3);
+
+/// A service is stuck when it made no progress for this many frame periods of the rig's
+/// slowest camera (at least [`STALL_FLOOR`]).
+pub const STALL_FRAMES: f64 = 30.0;
+
+/// An input flows when it progressed within this long (two report periods).
+pub const FLOWING: Duration = Duration::from_millis(2500);
+
+/// The bound for a rig whose slowest camera runs at `slowest_fps` (none known: the floor).
+pub fn stall_bound(slowest_fps: Option<f64>) -> Duration {
+    let frames = slowest_fps
+        .filter(|f| f.is_finite() && *f > 0.0)
+        .map_or(Duration::ZERO, |f| {
+            Duration::from_secs_f64((STALL_FRAMES / f).min(600.0))
+        });
+    frames.max(STALL_FLOOR)
+}
+
+/// What one service (`host/service`) last reported.
+#[derive(Debug, Clone, Copy)]
+struct Seen {
+    processed: u64,
+    /// When `processed` last went up (or was first heard above zero).
+    progressed: Option<Instant>,
+    /// The report before that which showed progress: an input flows only when two reports
+    /// showed it (one frame read, then a wait, is not a flow).
+    progressed_before: Option<Instant>,
+    /// The service's start time as it reports it (a restart starts its count again).
+    started_ns: u64,
+}
+
+/// Every service's progress, from the health reports of every host.
+#[derive(Debug, Default)]
+pub struct Progress {
+    seen: HashMap<(String, String), Seen>,
+}
+
+impl Progress {
+    /// Takes a health report of `service` on `host` heard at `at`.
+    pub fn report(
+        &mut self,
+        host: &str,
+        service: &str,
+        processed: u64,
+        started_ns: u64,
+        at: Instant,
+    ) {
+        let key = (host.to_string(), service.to_string());
+        let fresh = Seen {
+            processed: 0,
+            progressed: None,
+            progressed_before: None,
+            started_ns,
+        };
+        let s = self.seen.entry(key).or_insert(fresh);
+        if s.started_ns != started_ns {
+            // Another run of the service: its count starts again.
+            *s = fresh;
+        }
+        if processed > s.processed {
+            s.progressed_before = s.progressed;
+            s.progressed = Some(at);
+        }
+        s.processed = processed;
+    }
+
+    /// Whether some service on `host` (any host: `None`) matching `input` flows at `now`:
+    /// it progressed within [`FLOWING`] of `now`, and in an earlier report after `since`.
+    fn flows(
+        &self,
+        host: Option<&str>,
+        since: Instant,
+        now: Instant,
+        input: impl Fn(&str) -> bool,
+    ) -> Option<String> {
+        self.seen
+            .iter()
+            .filter(|((h, name), _)| host.is_none_or(|host| host == h) && input(name))
+            .find(|(_, s)| {
+                s.progressed
+                    .is_some_and(|t| now.duration_since(t) < FLOWING)
+                    && s.progressed_before.is_some_and(|t| t > since)
+            })
+            .map(|((host, name), _)| format!("{name} on {host}"))
+    }
+
+    /// Whether `service` on `host` progressed after `started`.
+    pub fn progressed_since(&self, host: &str, service: &str, started: Instant) -> bool {
+        self.seen
+            .get(&(host.to_string(), service.to_string()))
+            .and_then(|s| s.progressed)
+            .is_some_and(|t| t > started)
+    }
+
+    /// Whether `service` on `host`, running since `started`, is stuck at `now`: an input of it
+    /// flows and it made no progress for `bound` (counted from its start when it never
+    /// progressed). `Some` names the input that flows.
+    pub fn stuck(
+        &self,
+        host: &str,
+        service: &str,
+        started: Instant,
+        now: Instant,
+        bound: Duration,
+    ) -> Option<String> {
+        let own = self.seen.get(&(host.to_string(), service.to_string()));
+        let last = own
+            .and_then(|s| s.progressed)
+            .map_or(started, |t| t.max(started));
+        if now.duration_since(last) <= bound {
+            return None;
+        }
+        // A worker's capture runs beside it; fusion's workers and the VR feed's fusion may
+        // be on any PC of the rig.
+        match service.split_once('/') {
+            Some(("moments", cam)) => self.flows(Some(host), last, now, |n| {
+                n.strip_prefix("capture/") == Some(cam)
+            }),
+            None if service == "fusion" => {
+                self.flows(None, last, now, |n| n.starts_with("moments/"))
+            }
+            None if service == "vrfeed" => self.flows(None, last, now, |n| n == "fusion"),
+            _ => None,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const S: Duration = Duration::from_secs(1);
+
+    #[test]
+    fn the_bound_follows_the_slowest_camera_above_a_floor() {
+        assert_eq!(stall_bound(None), STALL_FLOOR);
+        assert_eq!(stall_bound(Some(120.0)), STALL_FLOOR);
+        assert_eq!(stall_bound(Some(5.0)), Duration::from_secs(6));
+        assert_eq!(stall_bound(Some(f64::NAN)), STALL_FLOOR);
+        assert_eq!(stall_bound(Some(0.0)), STALL_FLOOR);
+        assert_eq!(stall_bound(Some(1e-9)), Duration::from_secs(600));
+    }
+
+    /// Fusion stuck while a worker's count goes up is named; fusion whose count goes up, or
+    /// whose workers' counts stand (nothing to do), is not; nor is one just started.
+    #[test]
+    fn a_service_is_stuck_only_while_its_inputs_flow() {
+        let t0 = Instant::now();
+        let bound = Duration::from_secs(3);
+        let mut p = Progress::default();
+        let started = t0;
+        for i in 0..10u64 {
+            let at = t0 + S * i as u32;
+            p.report("pc1", "moments/cam0", 100 * (i + 1), 7, at);
+            // Fusion handled sets for 2 s, then nothing.
+            p.report("pc2", "fusion", 30 * (i.min(2) + 1), 9, at);
+        }
+        let now = t0 + S * 9;
+        let why = p.stuck("pc2", "fusion", started, now, bound);
+        assert_eq!(why.as_deref(), Some("moments/cam0 on pc1"));
+        // Before the bound passed: not yet.
+        assert_eq!(p.stuck("pc2", "fusion", started, t0 + S * 4, bound), None);
+        // Just restarted: judged from its start.
+        assert_eq!(p.stuck("pc2", "fusion", now - S, now, bound), None);
+        // The workers stand still too: nothing flows, nothing is stuck.
+        let mut q = Progress::default();
+        for i in 0..10u64 {
+            let at = t0 + S * i as u32;
+            q.report("pc1", "moments/cam0", 100, 7, at);
+            q.report("pc2", "fusion", 30, 9, at);
+        }
+        assert_eq!(q.stuck("pc2", "fusion", started, now, bound), None);
+        // A worker follows only its own camera's capture.
+        let mut w = Progress::default();
+        for i in 0..10u64 {
+            let at = t0 + S * i as u32;
+            w.report("pc1", "capture/cam1", 100 * (i + 1), 1, at);
+            w.report("pc1", "moments/cam0", 5, 2, at);
+        }
+        assert_eq!(w.stuck("pc1", "moments/cam0", started, now, bound), None);
+        w.report("pc1", "capture/cam0", 10, 3, now - S * 2);
+        w.report("pc1", "capture/cam0", 20, 3, now - S);
+        assert!(
+            w.stuck("pc1", "moments/cam0", started, now, bound)
+                .is_some()
+        );
+        // A capture that read one frame and then waited (a replay paced to start later)
+        // does not flow: its worker is not judged stuck.
+        let mut r = Progress::default();
+        r.report("pc1", "capture/cam0", 1, 1, now - S * 2);
+        r.report("pc1", "capture/cam0", 1, 1, now - S);
+        assert_eq!(r.stuck("pc1", "moments/cam0", started, now, bound), None);
+        // Another PC's capture of the same name is not this worker's input.
+        let mut o = Progress::default();
+        for i in 0..10u64 {
+            o.report("pc9", "capture/cam0", 100 * (i + 1), 1, t0 + S * i as u32);
+        }
+        assert_eq!(o.stuck("pc1", "moments/cam0", started, now, bound), None);
+        // Outputs other than the VR feed are not judged.
+        assert_eq!(w.stuck("pc1", "serial/ttyUSB0", started, now, bound), None);
+    }
+
+    /// A restarted service (a new start time) starts its count again: its first report after
+    /// the restart is progress when above zero, not a fall from the old count.
+    #[test]
+    fn a_restart_starts_the_count_again() {
+        let t0 = Instant::now();
+        let mut p = Progress::default();
+        p.report("pc", "fusion", 5000, 1, t0);
+        p.report("pc", "fusion", 12, 2, t0 + S);
+        let seen = p.seen[&("pc".to_string(), "fusion".to_string())];
+        assert_eq!(seen.progressed, Some(t0 + S));
+        assert_eq!(seen.processed, 12);
+    }
+}
