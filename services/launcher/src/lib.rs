@@ -522,6 +522,9 @@ pub fn run(cfg: LaunchConfig, shutdown: Shutdown) -> Result<u32, LaunchError> {
     });
     for spec in router_spec.into_iter().chain(specs) {
         let is_router = spec.name == ROUTER_SERVICE && router.is_some() && running.is_empty();
+        if is_router {
+            wait_for_port_free(&service_zenoh, &shutdown);
+        }
         let last_error_line = Arc::new(Mutex::new(String::new()));
         let (child, stderr_copier) =
             spawn(&cfg, &spec, &session, &last_error_line).map_err(|source| {
@@ -822,6 +825,19 @@ fn slowest_fps(rig: &stereoscope_rig::Rig) -> Option<f64> {
             SourceSpec::Y4m { .. } => None,
         })
         .min_by(f64::total_cmp)
+}
+
+/// Waits, for at most [`ROUTER_START`], until nothing takes connections at the services'
+/// endpoint of this PC's router: the router of a launcher of this host that was just killed
+/// may still be stopping (its children get SIGTERM), and a new router would find its port
+/// taken, or the new services would join the old router as it goes.
+fn wait_for_port_free(services: &ZenohSpec, shutdown: &Shutdown) {
+    let end = Instant::now() + ROUTER_START;
+    while net::why_unreachable(services).is_none() && Instant::now() < end {
+        if shutdown.sleep(Duration::from_millis(50)) {
+            return;
+        }
+    }
 }
 
 /// Waits until this PC's router (`child`, just started) takes connections at the services'
