@@ -132,10 +132,13 @@ pub fn scene_rig(
 /// it record `seconds` more, stops it, and returns the session folder it recorded.
 pub fn record(rig_path: &std::path::Path, seconds: f64) -> std::path::PathBuf {
     let dir = rig_path.parent().unwrap();
+    // The launcher's lines, kept beside the recording: its restarts are said below.
+    let log_path = dir.join("launcher.log");
+    let log = std::fs::File::create(&log_path).unwrap();
     let mut run = Command::new(BIN)
         .args(["run", rig_path.to_str().unwrap()])
         .stdout(Stdio::null())
-        .stderr(Stdio::null())
+        .stderr(log)
         .spawn()
         .unwrap();
     let session = || {
@@ -175,6 +178,15 @@ pub fn record(rig_path: &std::path::Path, seconds: f64) -> std::path::PathBuf {
         stop(&mut run, libc::SIGKILL);
     }
     let _ = run.wait();
+    // A service killed or restarted while the chain recorded is named in the test's output
+    // (shown when a bound of the test fails).
+    let log = std::fs::read_to_string(&log_path).unwrap_or_default();
+    for line in log
+        .lines()
+        .filter(|l| l.contains("restarting in") || l.contains("killing it"))
+    {
+        eprintln!("while recording: {line}");
+    }
     found.expect("the recorder wrote no observations within a minute of `stereoscope run`")
 }
 
