@@ -1815,6 +1815,54 @@ fn check_c3d_export(session: &std::path::Path, out: &std::path::Path) -> usize {
         }
         assert_eq!(new, count, "{reader}: {said}");
     }
+    // The same markers as text on one clock (`--format markers-csv`): each cell as the C3D
+    // readers see the filled file, flagged filled exactly where the plain file had nothing.
+    let o = run_with_limit(
+        &[
+            "export",
+            session.to_str().unwrap(),
+            "--format",
+            "markers-csv",
+            "--fill-gaps",
+            "10",
+        ],
+        Duration::from_secs(120),
+    );
+    assert!(o.status.success(), "{}", stderr(&o));
+    let text = String::from_utf8_lossy(&o.stdout);
+    let mut lines = text.lines();
+    let header: Vec<&str> = lines.next().unwrap().split(',').collect();
+    assert_eq!(header.len(), 2 + 4 * labels.len(), "{header:?}");
+    let (plain, filled) = (
+        found[0]["frames"].as_array().unwrap(),
+        again[0]["frames"].as_array().unwrap(),
+    );
+    let mut flagged = 0;
+    let mut rows = 0;
+    for (k, line) in lines.enumerate() {
+        let cells: Vec<&str> = line.split(',').collect();
+        assert_eq!(cells[0], k.to_string());
+        for (i, label) in labels.iter().enumerate() {
+            assert_eq!(header[2 + 4 * i], format!("{label}_x_mm"));
+            let c = &cells[2 + 4 * i..6 + 4 * i];
+            let want = &filled[k][i];
+            if want.is_null() {
+                assert_eq!(c, ["", "", "", ""], "{label} frame {k}");
+                continue;
+            }
+            for (axis, cell) in c[..3].iter().enumerate() {
+                let got: f64 = cell.parse().unwrap();
+                let w = want[axis].as_f64().unwrap();
+                assert!((got - w).abs() < 0.002, "{label} frame {k}: {got} vs {w}");
+            }
+            let new = plain[k][i].is_null();
+            assert_eq!(c[3], if new { "1" } else { "0" }, "{label} frame {k}");
+            flagged += usize::from(new);
+        }
+        rows += 1;
+    }
+    assert_eq!(rows, filled.len());
+    assert_eq!(flagged, count);
     count
 }
 

@@ -23,6 +23,45 @@ pub fn export_csv(session: &Session) -> String {
     s
 }
 
+/// The session's markers as a table on one clock, a row per frame of the C3D export's frame
+/// rate: `frame,time_s`, then per marker (the C3D labels: `obj<id>`, `<body>:m<k>`, …)
+/// `<label>_x_mm,<label>_y_mm,<label>_z_mm,<label>_filled`; a missing sample is three empty
+/// cells and an empty flag, a measured one flag 0, one filled in a gap (`fill_gaps_frames`,
+/// as [`export_c3d`] fills them) flag 1 — never filled silently. `time_s` is from the first
+/// frame.
+pub fn export_markers_csv(
+    session: &Session,
+    fill_gaps_frames: Option<usize>,
+) -> Result<String, ReplayError> {
+    let e = export_c3d(session, fill_gaps_frames)?;
+    let filled: std::collections::HashSet<(usize, usize)> =
+        e.filled.iter().map(|&(c, f, _)| (c, f)).collect();
+    let mut s = String::from("frame,time_s");
+    for l in &e.trial.labels {
+        // Labels are object ids and the rig's body names (checked there: no commas).
+        s.push_str(&format!(",{l}_x_mm,{l}_y_mm,{l}_z_mm,{l}_filled"));
+    }
+    s.push('\n');
+    let rate = f64::from(e.trial.frame_rate_hz);
+    for (f, row) in e.trial.frames.iter().enumerate() {
+        s.push_str(&format!("{f},{:.6}", f as f64 / rate));
+        for (c, point) in row.iter().enumerate() {
+            match point {
+                Some(p) => s.push_str(&format!(
+                    ",{:.3},{:.3},{:.3},{}",
+                    p.xyz_mm[0],
+                    p.xyz_mm[1],
+                    p.xyz_mm[2],
+                    u8::from(filled.contains(&(c, f)))
+                )),
+                None => s.push_str(",,,,"),
+            }
+        }
+        s.push('\n');
+    }
+    Ok(s)
+}
+
 /// How far the heading marker of an object sits from it, along its heading (mm).
 pub const HEADING_MARKER_MM: f64 = 100.0;
 
@@ -404,6 +443,39 @@ mod tests {
         assert!(
             measured.cameras != 0 && measured.residual_mm >= 1,
             "{measured:?}"
+        );
+        // The same as a table on one clock: the filled samples flagged 1, the measured 0,
+        // the gap left open empty; unfilled without the option.
+        let csv = export_markers_csv(&session, Some(10)).unwrap();
+        let rows: Vec<Vec<&str>> = csv.lines().map(|l| l.split(',').collect()).collect();
+        assert_eq!(
+            rows[0][..6],
+            [
+                "frame",
+                "time_s",
+                "obj1_x_mm",
+                "obj1_y_mm",
+                "obj1_z_mm",
+                "obj1_filled"
+            ]
+        );
+        assert_eq!(rows.len(), 1 + e.trial.frames.len());
+        assert!(rows.iter().all(|r| r.len() == rows[0].len()));
+        assert_eq!(rows[1 + 5][5], "0");
+        assert_eq!(rows[1 + 12][5], "1");
+        let x: f64 = rows[1 + 12][2].parse().unwrap();
+        assert!((x - 12.0 / 120.0 * 1000.0).abs() < 0.01, "{x}");
+        assert_eq!(rows[1 + 25][2..6], ["", "", "", ""]);
+        let m0_flag = 2 + 4 * m0 + 3;
+        assert_eq!(rows[1 + 17][m0_flag], "1");
+        let plain = export_markers_csv(&session, None).unwrap();
+        let plain_rows: Vec<Vec<&str>> = plain.lines().map(|l| l.split(',').collect()).collect();
+        assert_eq!(plain_rows[1 + 12][2..6], ["", "", "", ""]);
+        assert!(
+            plain_rows
+                .iter()
+                .skip(1)
+                .all(|r| r.iter().skip(5).step_by(4).all(|c| *c != "1"))
         );
     }
 

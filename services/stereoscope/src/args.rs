@@ -599,17 +599,19 @@ pub struct ExportArgs {
     /// The session folder.
     pub session: PathBuf,
     /// csv (one row per object per pose frame), bodies-csv (one row per rigid body per pose
-    /// frame) or c3d (markers per object and per body, for biomechanics and animation tools;
+    /// frame), markers-csv (one row per frame on one clock, x/y/z and a filled flag per
+    /// marker) or c3d (markers per object and per body, for biomechanics and animation tools;
     /// docs/recording.md).
-    #[arg(long, value_parser = ["csv", "bodies-csv", "c3d"])]
+    #[arg(long, value_parser = ["csv", "bodies-csv", "markers-csv", "c3d"])]
     pub format: String,
     /// Output file (standard output if absent; required for c3d). Written whole or not at
     /// all.
     #[arg(long)]
     pub out: Option<PathBuf>,
-    /// c3d only: fill each marker's gaps of at most this many frames between two sightings
-    /// (a body's marker from its other markers, a loose one on a spline); filled samples have
-    /// a zero residual and no camera bits (docs/recording.md).
+    /// c3d and markers-csv: fill each marker's gaps of at most this many frames between two
+    /// sightings (a body's marker from its other markers, a loose one on a spline); filled
+    /// samples have a zero residual and no camera bits in C3D, `filled` 1 in markers-csv
+    /// (docs/recording.md).
     #[arg(long, value_parser = clap::value_parser!(u32).range(1..=1000))]
     pub fill_gaps: Option<u32>,
 }

@@ -400,18 +400,20 @@ fn losses(
     health.values().flat_map(|h| h.losses()).collect()
 }
 
-/// `stereoscope export --format csv|bodies-csv|c3d`.
+/// `stereoscope export --format csv|bodies-csv|markers-csv|c3d`.
 pub fn export(
     session: PathBuf,
     format: &str,
     out: Option<PathBuf>,
     fill_gaps: Option<usize>,
 ) -> anyhow::Result<usize> {
-    if !["csv", "bodies-csv", "c3d"].contains(&format) {
-        anyhow::bail!("--format {format}: csv, bodies-csv or c3d");
+    if !["csv", "bodies-csv", "markers-csv", "c3d"].contains(&format) {
+        anyhow::bail!("--format {format}: csv, bodies-csv, markers-csv or c3d");
     }
-    if fill_gaps.is_some() && format != "c3d" {
-        anyhow::bail!("--fill-gaps: only --format c3d fills gaps (its frames are on one clock)");
+    if fill_gaps.is_some() && !["c3d", "markers-csv"].contains(&format) {
+        anyhow::bail!(
+            "--fill-gaps: only --format c3d and markers-csv fill gaps (their frames are on one clock)"
+        );
     }
     if format == "c3d" && out.is_none() {
         anyhow::bail!("--format c3d needs --out FILE (it is binary)");
@@ -454,6 +456,10 @@ pub fn export(
             None => summary,
         };
         (bytes, Some(summary))
+    } else if format == "markers-csv" {
+        let csv = stereoscope_recorder::export::export_markers_csv(&s, fill_gaps)
+            .with_context(|| session.display().to_string())?;
+        (csv.into_bytes(), None)
     } else if format == "bodies-csv" {
         (
             stereoscope_recorder::export::export_bodies_csv(&s).into_bytes(),
