@@ -14,18 +14,23 @@
 //! killed outright.
 
 pub mod progress;
+mod router;
+mod watch;
+
+pub use router::{DEFAULT_ROUTER, router_cli, router_specs, run_router};
+use router::{wait_for_port_free, wait_for_router};
+use watch::{restart_stuck, slowest_fps, watchdog};
 
 use std::io::{BufRead, BufReader};
 use std::process::{Child, Command, Stdio};
 use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
-use stereoscope_proto::messages::{Detail, Health, Message};
-use stereoscope_rig::{RigError, security};
+use stereoscope_proto::messages::{Health, Message};
+use stereoscope_rig::RigError;
 use stereoscope_service::Context;
-use stereoscope_transport::net::{ZenohMode, ZenohSpec};
+use stereoscope_transport::net::ZenohSpec;
 use stereoscope_transport::{Shutdown, iox, net};
-use zenoh::Wait;
 
 /// One service to run.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -377,102 +382,6 @@ fn terminate(children: &mut [Running]) {
     }
 }
 
-/// Where a PC's router listens when the rig file names no `[[host]]`: loopback only.
-pub const DEFAULT_ROUTER: &str = "tcp/127.0.0.1:7447";
-
-/// The Zenoh spec of this host's router, and that of its services (clients of it). A rig with
-/// no `[[host]]` runs on one PC with its router on [`DEFAULT_ROUTER`]; with TLS the router
-/// also listens on loopback for its services and enforces the rig's access control
-/// (`stereoscope_rig::security`).
-pub fn router_specs(ctx: &Context) -> Result<Option<(ZenohSpec, ZenohSpec)>, RigError> {
-    if ctx.rig.spec.hosts.is_empty() {
-        return Ok(Some((
-            ZenohSpec {
-                mode: ZenohMode::Router,
-                connect: Vec::new(),
-                listen: vec![DEFAULT_ROUTER.to_string()],
-                tls: None,
-                access_control: None,
-            },
-            ZenohSpec::client_of(DEFAULT_ROUTER),
-        )));
-    }
-    let base = ctx.rig.base_dir.as_deref();
-    let Some(router) = stereoscope_service::router::router_spec(&ctx.rig.spec, &ctx.host, base)?
-    else {
-        return Ok(None);
-    };
-    let local = ctx
-        .rig
-        .spec
-        .hosts
-        .iter()
-        .find(|h| h.name == ctx.host)
-        .and_then(security::service_endpoint);
-    Ok(local.map(|l| (router, ZenohSpec::client_of(&l))))
-}
-
-/// Runs only this host's Zenoh router (`stereoscope service router`) until shutdown: for a
-/// PC that runs no service but should relay (a consumer PC), or to keep the router out of a
-/// process that measures it (`stereoscope demo`).
-pub fn run_router(ctx: &Context, shutdown: &Shutdown) -> Result<(), LaunchError> {
-    let Some((router, _)) = router_specs(ctx).map_err(|e| e.in_file(&ctx.rig_path))? else {
-        return Err(LaunchError::NothingHere {
-            rig: ctx.rig_path.clone(),
-            host: ctx.host.clone(),
-        });
-    };
-    let session = net::open(&router)?;
-    tracing::info!("zenoh router listening on {:?}", router.listen);
-    // Alive and reporting like a service, so `status`, the viewer and the launcher's watchdog
-    // see it: what it listens on, and the routers of other PCs it is linked to.
-    let mut health = stereoscope_transport::health::HealthReporter::new(
-        &session,
-        &ctx.rig.name,
-        &ctx.host,
-        ROUTER_SERVICE,
-    )?;
-    let mut counters = stereoscope_transport::Counters::default();
-    counters.set(Detail::Listen, router.listen.join(" "));
-    loop {
-        if health.due() {
-            let linked = session.info().routers_zid().wait().count();
-            counters.set(Detail::Routers, linked);
-            health.report(&counters);
-        }
-        if shutdown.sleep(Duration::from_millis(200)) {
-            break;
-        }
-    }
-    health.report(&counters);
-    Ok(())
-}
-
-/// The router's command line (`stereoscope service router`).
-pub mod router_cli {
-    use stereoscope_service::{CommonArgs, ServiceArgs};
-    use stereoscope_transport::Shutdown;
-
-    #[derive(clap::Args, Debug, Clone)]
-    pub struct Args {
-        #[command(flatten)]
-        pub common: CommonArgs,
-    }
-
-    impl ServiceArgs for Args {
-        const NAME: &'static str = "router";
-        const ABOUT: &'static str =
-            "Run this host's Zenoh router (with the rig's TLS and access control)";
-
-        /// Runs the router until SIGINT/SIGTERM.
-        fn run(self, shutdown: Shutdown) -> anyhow::Result<String> {
-            let ctx = self.common.resolve()?;
-            super::run_router(&ctx, &shutdown)?;
-            Ok(format!("host {}", ctx.host))
-        }
-    }
-}
-
 /// Runs this host's services until shutdown. Returns how many restarts happened.
 pub fn run(cfg: LaunchConfig, shutdown: Shutdown) -> Result<u32, LaunchError> {
     let ctx = &cfg.ctx;
@@ -725,152 +634,6 @@ pub fn run(cfg: LaunchConfig, shutdown: Shutdown) -> Result<u32, LaunchError> {
     }
 }
 
-/// Kills (SIGKILL) a service that reported its health since it started and then fell silent
-/// for [`WATCHDOG`]: stopped (SIGSTOP), or stuck in a step. The restart follows as for any
-/// service that died. (One that never reported — still starting, or not a Stereoscope
-/// service — is left to itself.)
-///
-/// With the router a child of the launcher (`supervised_router`), reports reach the launcher
-/// through it: while it is down nothing is judged; after it (re)started, a service is judged
-/// by its reports since then, and one that reported before the restart and is not heard for
-/// [`REJOIN`] after it did not rejoin the router, and is restarted too.
-fn watchdog(
-    running: &mut [Running],
-    reports: &Mutex<std::collections::HashMap<String, Instant>>,
-    supervised_router: bool,
-) {
-    let router_since = if supervised_router {
-        match running.iter().find(|r| r.spec.name == ROUTER_SERVICE) {
-            Some(r) if r.child.is_some() => Some(r.started),
-            // Down, or waiting for its restart: no report can arrive.
-            _ => return,
-        }
-    } else {
-        None
-    };
-    let Ok(reports) = reports.lock() else {
-        return;
-    };
-    for r in running.iter_mut() {
-        let Some(child) = &mut r.child else {
-            continue;
-        };
-        let Some(last) = reports
-            .get(&r.spec.name)
-            .copied()
-            .filter(|t| *t > r.started)
-        else {
-            continue;
-        };
-        let silent = match router_since {
-            // Heard since the router's start: the usual bound.
-            Some(since) if last <= since && r.started <= since => {
-                (since.elapsed() > REJOIN).then(|| {
-                    format!(
-                        "not heard since the router restarted {:.1} s ago (it did not rejoin it)",
-                        since.elapsed().as_secs_f64()
-                    )
-                })
-            }
-            _ => (last.elapsed() > WATCHDOG)
-                .then(|| format!("no health report for {:.1} s", last.elapsed().as_secs_f64())),
-        };
-        if let Some(why) = silent {
-            tracing::warn!("{}: {why}; killing it to restart it", r.spec.name);
-            let _ = child.kill();
-        }
-    }
-}
-
-/// Kills a service that makes no progress while its inputs flow ([`progress`]) for `stall`
-/// — doubled after each such kill of it that did not bring its progress back, up to a
-/// minute, so that an input it cannot reach (a link's access rules) does not restart it
-/// every few seconds. The restart follows as for any service that died.
-fn restart_stuck(running: &mut [Running], p: &progress::Progress, host: &str, stall: Duration) {
-    let now = Instant::now();
-    for r in running.iter_mut() {
-        let Some(child) = &mut r.child else {
-            continue;
-        };
-        if r.stuck_kills > 0 && p.progressed_since(host, &r.spec.name, r.started) {
-            r.stuck_kills = 0;
-        }
-        let bound = (stall * 2u32.saturating_pow(r.stuck_kills.min(5)))
-            .min(Duration::from_secs(60))
-            .max(stall);
-        if let Some(input) = p.stuck(host, &r.spec.name, r.started, now, bound) {
-            tracing::warn!(
-                "{}: no progress for {:.1} s while {input} flows; killing it to restart it",
-                r.spec.name,
-                bound.as_secs_f64()
-            );
-            // Reaped here (a killed process goes at once), so the next check does not count
-            // it again; the loop below sees its status and restarts it.
-            let _ = child.kill();
-            let _ = child.wait();
-            r.stuck_kills += 1;
-        }
-    }
-}
-
-/// The frame rate of the rig's slowest camera whose source states one.
-fn slowest_fps(rig: &stereoscope_rig::Rig) -> Option<f64> {
-    use stereoscope_rig::schema::SourceSpec;
-    rig.spec
-        .cameras
-        .iter()
-        .filter_map(|c| match c.source.as_ref()? {
-            SourceSpec::Synthetic { fps, .. } | SourceSpec::Images { fps, .. } => Some(*fps),
-            SourceSpec::V4l { fps, .. } | SourceSpec::Genicam { fps, .. } => *fps,
-            SourceSpec::Y4m { .. } => None,
-        })
-        .min_by(f64::total_cmp)
-}
-
-/// Waits, for at most [`ROUTER_START`], until nothing takes connections at the services'
-/// endpoint of this PC's router: the router of a launcher of this host that was just killed
-/// may still be stopping (its children get SIGTERM), and a new router would find its port
-/// taken, or the new services would join the old router as it goes.
-fn wait_for_port_free(services: &ZenohSpec, shutdown: &Shutdown) {
-    let end = Instant::now() + ROUTER_START;
-    while net::why_unreachable(services).is_none() && Instant::now() < end {
-        if shutdown.sleep(Duration::from_millis(50)) {
-            return;
-        }
-    }
-}
-
-/// Waits until this PC's router (`child`, just started) takes connections at the services'
-/// endpoint, for at most [`ROUTER_START`].
-fn wait_for_router(
-    child: &mut Child,
-    services: &ZenohSpec,
-    shutdown: &Shutdown,
-) -> Result<(), LaunchError> {
-    let end = Instant::now() + ROUTER_START;
-    loop {
-        if let Ok(Some(status)) = child.try_wait() {
-            return Err(LaunchError::RouterExited {
-                status: status.to_string(),
-            });
-        }
-        let why = net::why_unreachable(services);
-        match why {
-            None => return Ok(()),
-            Some(_) if shutdown.requested() => return Ok(()),
-            Some(why) if Instant::now() >= end => {
-                let _ = child.kill();
-                let _ = child.wait();
-                return Err(LaunchError::RouterNotUp {
-                    waited: ROUTER_START,
-                    why,
-                });
-            }
-            Some(_) => std::thread::sleep(Duration::from_millis(50)),
-        }
-    }
-}
-
 /// Holds `<temp>/stereoscope-launchers/<prefix><host>.lock` for as long as the returned file
 /// lives (the lock goes with the process, however it ends).
 fn lock_host(prefix: &str, host: &str) -> Result<std::fs::File, LaunchError> {
@@ -901,6 +664,7 @@ fn lock_host(prefix: &str, host: &str) -> Result<std::fs::File, LaunchError> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use stereoscope_transport::net::ZenohMode;
 
     #[test]
     fn a_second_launcher_for_the_same_host_and_prefix_is_refused() {
