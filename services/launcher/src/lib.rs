@@ -479,25 +479,30 @@ pub fn run(cfg: LaunchConfig, shutdown: Shutdown) -> Result<u32, LaunchError> {
             let progress = progress.clone();
             let all = format!("stereoscope/{}/health/", ctx.rig.name);
             let here = format!("{all}{}/", ctx.host);
-            Some(net::subscribe(
-                session,
-                &format!("{all}**"),
-                move |key, bytes| {
-                    let now = Instant::now();
-                    if let Some(service) = key.strip_prefix(&here)
-                        && let Ok(mut r) = reports.lock()
-                    {
-                        r.insert(service.to_string(), now);
-                    }
-                    // A report that does not decode is no one's progress.
-                    if let Ok(h) = Health::from_json(bytes)
-                        && key == format!("{all}{}/{}", h.host, h.service)
-                        && let Ok(mut p) = progress.lock()
-                    {
-                        p.report(&h.host, &h.service, h.processed, h.started_ns, now);
-                    }
-                },
-            )?)
+            // Other PCs' reports only where a service here takes their output (fusion: every
+            // worker; the VR feed: fusion): a capture PC's launcher draws no other PC's health
+            // across the network, toward a PC whose link may be cut.
+            let elsewhere = services_inputs_elsewhere(&running);
+            let key = if elsewhere {
+                format!("{all}**")
+            } else {
+                format!("{here}**")
+            };
+            Some(net::subscribe(session, &key, move |key, bytes| {
+                let now = Instant::now();
+                if let Some(service) = key.strip_prefix(&here)
+                    && let Ok(mut r) = reports.lock()
+                {
+                    r.insert(service.to_string(), now);
+                }
+                // A report that does not decode is no one's progress.
+                if let Ok(h) = Health::from_json(bytes)
+                    && key == format!("{all}{}/{}", h.host, h.service)
+                    && let Ok(mut p) = progress.lock()
+                {
+                    p.report(&h.host, &h.service, h.processed, h.started_ns, now);
+                }
+            })?)
         }
         None => None,
     };
@@ -632,6 +637,14 @@ pub fn run(cfg: LaunchConfig, shutdown: Shutdown) -> Result<u32, LaunchError> {
         Some(e) => Err(e),
         None => Ok(restarts),
     }
+}
+
+/// Whether a service among `running` takes its input from other PCs' services (fusion, the
+/// VR feed), so that the launcher follows their progress too.
+fn services_inputs_elsewhere(running: &[Running]) -> bool {
+    running
+        .iter()
+        .any(|r| r.spec.name == "fusion" || r.spec.name == "vrfeed")
 }
 
 /// Holds `<temp>/stereoscope-launchers/<prefix><host>.lock` for as long as the returned file
