@@ -6,6 +6,9 @@
 //! A service's *progress* is its reported `processed` count going up; an input *flows* when
 //! its count went up in two reports since the service's own last progress, the last within
 //! [`FLOWING`] (a capture that read one frame and waits for its start time does not flow).
+//! The bound runs from the later of the service's last progress and the start of its input's
+//! current flow: an input that paused (a camera unplugged for seconds) and flows again gives
+//! its consumer the whole bound to take it up.
 //! What feeds what:
 //! `capture/<cam>` → `moments/<cam>` → `fusion` (any worker of the rig) → `vrfeed` (fusion).
 //! A serial output is left out (it handles nothing while its cable is out, which a restart
@@ -45,6 +48,9 @@ struct Seen {
     /// The report before that which showed progress: an input flows only when two reports
     /// showed it (one frame read, then a wait, is not a flow).
     progressed_before: Option<Instant>,
+    /// The first report of the current run of progress: the first after a pause longer than
+    /// [`FLOWING`] (or the first ever).
+    flowing_since: Option<Instant>,
     /// The service's start time as it reports it (a restart starts its count again).
     started_ns: u64,
 }
@@ -70,6 +76,7 @@ impl Progress {
             processed: 0,
             progressed: None,
             progressed_before: None,
+            flowing_since: None,
             started_ns,
         };
         let s = self.seen.entry(key).or_insert(fresh);
@@ -78,19 +85,27 @@ impl Progress {
             *s = fresh;
         }
         if processed > s.processed {
+            if s.progressed
+                .is_none_or(|t| at.saturating_duration_since(t) > FLOWING)
+            {
+                s.flowing_since = Some(at);
+            }
             s.progressed_before = s.progressed;
             s.progressed = Some(at);
         }
         s.processed = processed;
     }
 
-    /// Whether some service on `host` (any host: `None`) matching `input` flows at `now`:
-    /// it progressed within [`FLOWING`] of `now`, and in an earlier report after `since`.
+    /// Some service on `host` (any host: `None`) matching `input` that flows at `now` and has
+    /// flowed for longer than `bound` without the consumer's progress: it progressed within
+    /// [`FLOWING`] of `now` and in an earlier report after `since`, and its current flow began
+    /// more than `bound` before `now`. Names it.
     fn flows(
         &self,
         host: Option<&str>,
         since: Instant,
         now: Instant,
+        bound: Duration,
         input: impl Fn(&str) -> bool,
     ) -> Option<String> {
         self.seen
@@ -100,6 +115,8 @@ impl Progress {
                 s.progressed
                     .is_some_and(|t| now.duration_since(t) < FLOWING)
                     && s.progressed_before.is_some_and(|t| t > since)
+                    && s.flowing_since
+                        .is_some_and(|t| now.saturating_duration_since(t) > bound)
             })
             .map(|((host, name), _)| format!("{name} on {host}"))
     }
@@ -133,13 +150,13 @@ impl Progress {
         // A worker's capture runs beside it; fusion's workers and the VR feed's fusion may
         // be on any PC of the rig.
         match service.split_once('/') {
-            Some(("moments", cam)) => self.flows(Some(host), last, now, |n| {
+            Some(("moments", cam)) => self.flows(Some(host), last, now, bound, |n| {
                 n.strip_prefix("capture/") == Some(cam)
             }),
             None if service == "fusion" => {
-                self.flows(None, last, now, |n| n.starts_with("moments/"))
+                self.flows(None, last, now, bound, |n| n.starts_with("moments/"))
             }
-            None if service == "vrfeed" => self.flows(None, last, now, |n| n == "fusion"),
+            None if service == "vrfeed" => self.flows(None, last, now, bound, |n| n == "fusion"),
             _ => None,
         }
     }
@@ -198,8 +215,9 @@ mod tests {
             w.report("pc1", "moments/cam0", 5, 2, at);
         }
         assert_eq!(w.stuck("pc1", "moments/cam0", started, now, bound), None);
-        w.report("pc1", "capture/cam0", 10, 3, now - S * 2);
-        w.report("pc1", "capture/cam0", 20, 3, now - S);
+        for k in 1..=4u32 {
+            w.report("pc1", "capture/cam0", 10 * u64::from(k), 3, now - S * (5 - k));
+        }
         assert!(
             w.stuck("pc1", "moments/cam0", started, now, bound)
                 .is_some()
@@ -231,5 +249,38 @@ mod tests {
         let seen = p.seen[&("pc".to_string(), "fusion".to_string())];
         assert_eq!(seen.progressed, Some(t0 + S));
         assert_eq!(seen.processed, 12);
+    }
+
+    /// A camera unplugged for 3 s and back (found by the GigE Vision system test: its worker
+    /// was killed the moment the capture counted again): the worker's bound runs from the
+    /// capture's new flow, not from the worker's last progress before the pause.
+    #[test]
+    fn an_input_that_paused_gives_its_consumer_the_whole_bound_again() {
+        let t0 = Instant::now();
+        let bound = Duration::from_secs(3);
+        let mut p = Progress::default();
+        for i in 0..=5u64 {
+            let at = t0 + S * i as u32;
+            p.report("pc", "capture/cam0", 100 * (i + 1), 1, at);
+            p.report("pc", "moments/cam0", 100 * (i + 1), 2, at);
+        }
+        // The camera is away from 5 s to 9 s; the capture counts again at 9 and 10 s.
+        for (i, n) in [(6u32, 600u64), (7, 600), (8, 600), (9, 650), (10, 700)] {
+            p.report("pc", "capture/cam0", n, 1, t0 + S * i);
+            p.report("pc", "moments/cam0", 600, 2, t0 + S * i);
+        }
+        let now = t0 + S * 10;
+        assert_eq!(p.stuck("pc", "moments/cam0", t0, now, bound), None);
+        // The worker still handles nothing while the capture has flowed for longer than the
+        // bound: stuck.
+        for (i, n) in [(11u32, 750u64), (12, 800), (13, 850)] {
+            p.report("pc", "capture/cam0", n, 1, t0 + S * i);
+            p.report("pc", "moments/cam0", 600, 2, t0 + S * i);
+        }
+        assert_eq!(
+            p.stuck("pc", "moments/cam0", t0, t0 + S * 13, bound)
+                .as_deref(),
+            Some("capture/cam0 on pc")
+        );
     }
 }
