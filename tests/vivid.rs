@@ -408,6 +408,16 @@ fn boot(
         .collect()
 }
 
+/// A guest shell line that waits (bounded, 60 s of guest time) until run `name`'s grab has
+/// saved its `frame`th frame, then runs `then`: a fault injected while the camera streams,
+/// however slowly the emulated guest starts the grab on a loaded machine.
+fn after_frame(name: &str, frame: u32, then: &str) -> String {
+    format!(
+        "n=0; while [ ! -e /tmp/{name}/cam0-{frame:04}.pgm ] && [ $n -lt 1200 ]; do sleep 0.05; \
+         n=$((n+1)); done; {then}"
+    )
+}
+
 /// The frames' (camera frame number, ms after the first) from grab's lines.
 fn frames(out: &str) -> Vec<(u64, f64)> {
     out.lines()
@@ -422,8 +432,10 @@ fn frames(out: &str) -> Vec<(u64, f64)> {
 /// The camera's stamps, not the reader's: between two frames, as many periods as their
 /// frame numbers are apart. vivid stamps a frame when its thread fills it, which in the
 /// emulated guest is late by up to 19 ms in the stream's first three frames (measured:
-/// intervals of 52 ms there, the driver skipping a frame number) and by up to 3 ms after;
-/// the bound below is 8 ms from the fourth frame on, and the numbers must rise.
+/// intervals of 52 ms there, the driver skipping a frame number) and after them by up to 3 ms
+/// on an idle machine, 8.8 ms while the whole test suite loads both cores; the bound below is
+/// 12 ms from the fourth frame on — a third of a period at 30 fps, where a reader's own stamps
+/// after a stall would be a period off — and the numbers must rise.
 fn stamps_follow_frame_numbers(f: &[(u64, f64)], fps: f64, out: &str) {
     for w in f.windows(2) {
         assert!(
@@ -435,7 +447,7 @@ fn stamps_follow_frame_numbers(f: &[(u64, f64)], fps: f64, out: &str) {
         let periods = (w[1].0 - w[0].0) as f64;
         let ms = w[1].1 - w[0].1;
         assert!(
-            (ms - periods * 1000.0 / fps).abs() < 8.0,
+            (ms - periods * 1000.0 / fps).abs() < 12.0,
             "frames {} and {}: {ms} ms apart: {out}",
             w[0].0,
             w[1].0
@@ -536,13 +548,17 @@ fn vivid_frames_stamps_and_controls() {
                 "stall",
                 square_at_30("GREY"),
                 "--count 40 --every 0",
-                "sleep 0.5; killall -STOP stereoscope; sleep 0.5; killall -CONT stereoscope",
+                &after_frame(
+                    "stall",
+                    5,
+                    "killall -STOP stereoscope; sleep 1.5; killall -CONT stereoscope",
+                ),
             ),
             (
                 "unplug",
                 square_at_30("GREY"),
                 "--count 60 --every 0",
-                "sleep 1; /bin/v4l2-button /dev/video0 disconnect",
+                &after_frame("unplug", 20, "/bin/v4l2-button /dev/video0 disconnect"),
             ),
             (
                 "loop",
@@ -645,18 +661,23 @@ fn vivid_frames_stamps_and_controls() {
         "{y16}"
     );
 
-    // A consumer that stops reading for half a second (the grab stopped by a signal): the
-    // driver fills the four buffers and drops the frames after them; the frames read after
-    // carry the driver's stamps, as many periods apart as their numbers across the gap — not
-    // the burst of their late reading.
+    // A consumer that stops reading for 1.5 s (the grab stopped by a signal once it has saved
+    // five frames): the driver fills the four buffers queued and drops the frames after them,
+    // so the frames read after carry the driver's stamps, as many periods apart as their
+    // numbers across the stall — not the burst of their late reading. In the emulated guest
+    // vivid's own thread skips frame numbers when it runs late (intervals of 3–7 periods
+    // while the grab reads, on a loaded machine), so the frames filled during the stall are
+    // not consecutive and the stall shows as stamps: some six intervals in a row (the four
+    // buffers and the frames in hand on either side) span more than 1.2 s, where the reading
+    // alone spans about 0.4 s.
     let (stall, code) = out("stall");
     assert_eq!(code, 0, "{stall}");
     let f = frames(&stall);
     assert_eq!(f.len(), 40, "{stall}");
-    let widest = f.windows(2).map(|w| w[1].0 - w[0].0).max().unwrap_or(0);
+    let widest_ms = f.windows(7).map(|w| w[6].1 - w[0].1).fold(0.0f64, f64::max);
     assert!(
-        widest >= 8,
-        "no frames dropped while the reader stood still: {stall}"
+        widest_ms > 1200.0,
+        "no six intervals span the reader's 1.5 s stall ({widest_ms} ms at most): {stall}"
     );
     stamps_follow_frame_numbers(&f, 30.0, &stall);
 
@@ -677,7 +698,7 @@ fn vivid_frames_stamps_and_controls() {
     );
     assert!(looped.matches(", 3 blobs)").count() >= 2, "{looped}");
 
-    // Unplugged while streaming (vivid's Disconnect pressed by another process a second in):
+    // Unplugged while streaming (vivid's Disconnect pressed by another process once 20 frames are saved):
     // the reads say the camera is gone and it is being opened again, the device comes back
     // once nothing holds it, and the same grab reads on to its 60 frames, their numbers going
     // on from the last before the loss by the frame periods it was away.
