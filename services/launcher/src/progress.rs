@@ -216,7 +216,13 @@ mod tests {
         }
         assert_eq!(w.stuck("pc1", "moments/cam0", started, now, bound), None);
         for k in 1..=4u32 {
-            w.report("pc1", "capture/cam0", 10 * u64::from(k), 3, now - S * (5 - k));
+            w.report(
+                "pc1",
+                "capture/cam0",
+                10 * u64::from(k),
+                3,
+                now - S * (5 - k),
+            );
         }
         assert!(
             w.stuck("pc1", "moments/cam0", started, now, bound)
