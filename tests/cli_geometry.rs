@@ -746,6 +746,7 @@ fn still_markers_jsonl_scaled(truth: &[Camera], markers: &[Point3<f64>], scale: 
             cameras: vec!["cam0".into(), "cam1".into()],
             poses,
             bodies: Vec::new(),
+            models: Vec::new(),
         };
         out.push_str(&serde_json::to_string(&f).unwrap());
         out.push('\n');

@@ -1913,6 +1913,7 @@ fn a_long_session_exports_to_c3d_with_every_frame() {
                 }]
             },
             bodies: Vec::new(),
+            models: Vec::new(),
         };
         poses.push_str(std::str::from_utf8(&f.to_json()).unwrap());
         poses.push('\n');
@@ -2498,7 +2499,13 @@ fn files_without_times_run_in_step_by_frame_index() {
     let mut truth: Vec<Vec<[f64; 3]>> = vec![Vec::new(); N as usize];
     for (i, cam) in rig.cameras.iter().enumerate() {
         let mut src = stereoscope_sources::synthetic::SyntheticSource::new(
-            &rig.spec, cam.camera, i, fps, None, None,
+            &rig.spec,
+            &rig.models,
+            cam.camera,
+            i,
+            fps,
+            None,
+            None,
         )
         .unwrap();
         use stereoscope_sources::FrameSource as _;

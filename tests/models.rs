@@ -62,3 +62,50 @@ fn the_arms_links_are_where_yourdfpy_puts_them() {
     println!("worst element of any link's transform, yourdfpy − ours: {worst:e}");
     assert!(worst < 1e-12, "{worst}");
 }
+
+/// The robot-arm demo rig through the real services (four synthetic 640 × 480 cameras, moment
+/// workers, fusion fitting the arm from its URDF): the fitted joint angles and the tool's
+/// position against the renderer's truth. Bounds guard against regressions; the figures are
+/// in docs/models.md (`cargo run --release -p stereoscope -- demo --rig
+/// deploy/rigs/robot-arm.toml --seconds 30`).
+#[test]
+fn the_robot_arm_demo_measures_its_joints_through_the_services() {
+    let o = common::run_with_limit(
+        &[
+            "demo",
+            "--rig",
+            common::repo_root()
+                .join("deploy/rigs/robot-arm.toml")
+                .to_str()
+                .unwrap(),
+            "--seconds",
+            "8",
+            "--json",
+        ],
+        std::time::Duration::from_secs(120),
+    );
+    let out = String::from_utf8_lossy(&o.stdout);
+    assert!(o.status.success(), "{out}\n{}", common::stderr(&o));
+    let line = out.lines().rev().find(|l| l.starts_with('{')).unwrap();
+    let s: serde_json::Value = serde_json::from_str(line).unwrap();
+    let arm = &s["models"][0];
+    assert_eq!(arm["name"], "arm", "{line}");
+    let frames = arm["frames"].as_f64().unwrap();
+    let valid = arm["valid"].as_f64().unwrap();
+    let whole = arm["whole"].as_f64().unwrap();
+    assert!(
+        frames >= 150.0 && valid >= 0.7 * frames && whole >= 0.2 * frames,
+        "{line}"
+    );
+    for (k, j) in arm["joints"].as_array().unwrap().iter().enumerate() {
+        let Some(rms) = j["rms"].as_f64() else {
+            // The tool's flange is fixed.
+            assert_eq!(j["name"], "tool_flange", "{line}");
+            continue;
+        };
+        let bound = if k < 3 { 0.3 } else { 1.0 };
+        assert!(rms < bound, "joint {}: {rms}° RMS\n{line}", j["name"]);
+    }
+    let tool = arm["tool_rms_m"].as_f64().unwrap();
+    assert!(tool < 0.001, "tool {tool} m RMS\n{line}");
+}

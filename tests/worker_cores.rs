@@ -22,9 +22,16 @@ fn the_cores_change_no_observation_of_the_wand_with_frames_skipped() {
     let text = chain::scene_rig("chain", &ceiling(), 60.0, &dir, 7000, chain::WAND_SCENE);
     let rig = stereoscope_rig::Rig::from_toml(&text).unwrap();
     for cam in 0..rig.cameras.len() {
-        let mut src =
-            SyntheticSource::new(&rig.spec, rig.cameras[cam].camera, cam, 60.0, None, None)
-                .unwrap();
+        let mut src = SyntheticSource::new(
+            &rig.spec,
+            &rig.models,
+            rig.cameras[cam].camera,
+            cam,
+            60.0,
+            None,
+            None,
+        )
+        .unwrap();
         let settings = rig.worker_settings(cam).unwrap();
         assert!(settings.tracker.core_scan);
         let mut cored = Worker::new(settings.clone(), "chain", "cam").unwrap();

@@ -93,6 +93,15 @@ pub mod zenoh {
         format!("stereoscope/{rig}/bodies/*")
     }
 
+    /// One kinematic model's joints and links (a `ModelUpdate`): `stereoscope/<rig>/models/<name>`.
+    pub fn model(rig: &str, name: &str) -> String {
+        format!("stereoscope/{rig}/models/{name}")
+    }
+
+    pub fn all_models(rig: &str) -> String {
+        format!("stereoscope/{rig}/models/*")
+    }
+
     pub fn truth(rig: &str, camera: &str) -> String {
         format!("stereoscope/{rig}/truth/{camera}")
     }

@@ -59,6 +59,8 @@ pub struct DemoConfig {
     pub program: Vec<String>,
     /// Rig text to run instead of the built-in one (it must have synthetic cameras).
     pub rig_text: Option<String>,
+    /// The folder the rig text came from: a model's relative `urdf` path starts there.
+    pub rig_dir: Option<std::path::PathBuf>,
     /// Print the live table.
     pub live: bool,
     /// Where to write the rig file the services read.
@@ -76,6 +78,23 @@ pub struct TargetStats {
     pub position_rms_m: f64,
     pub heading_rms_deg: Option<f64>,
     pub id_switches: u32,
+}
+
+/// Error statistics of one kinematic model: its joints against the scene's truth (degrees;
+/// millimetres for a slide) in the frames the fit called valid, and its last link's origin
+/// (the tool) in the world.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct ModelStats {
+    pub name: String,
+    /// Pose frames scored (the model's truth known), and those with a valid fit.
+    pub frames: u64,
+    pub valid: u64,
+    /// Valid frames with every joint determined: the tool's frames.
+    pub whole: u64,
+    /// Each joint's name and RMS error over the frames it was determined in; `None` for a
+    /// fixed joint.
+    pub joints_rms: Vec<(String, Option<f64>)>,
+    pub tool_rms_m: f64,
 }
 
 /// Error statistics of one rigid body.
@@ -113,6 +132,8 @@ pub struct DemoSummary {
     pub ghosts: Vec<GhostExample>,
     pub targets: Vec<TargetStats>,
     pub bodies: Vec<BodyStats>,
+    /// Kinematic models scored against the scene's joint truth (`docs/models.md`).
+    pub models: Vec<ModelStats>,
     /// The VR feed's frame published → sent to its clients, from its last health report,
     /// microseconds (`None` without a VR feed).
     pub vr_latency_p50_us: Option<f64>,
@@ -157,9 +178,35 @@ impl DemoSummary {
                 )
             })
             .collect();
+        let models: Vec<String> = self
+            .models
+            .iter()
+            .map(|m| {
+                let joints: Vec<String> = m
+                    .joints_rms
+                    .iter()
+                    .map(|(n, r)| {
+                        format!(
+                            "{{\"name\":{},\"rms\":{}}}",
+                            serde_json::to_string(n).unwrap_or_default(),
+                            r.map_or("null".to_string(), |r| json_number(r, 4))
+                        )
+                    })
+                    .collect();
+                format!(
+                    "{{\"name\":{},\"frames\":{},\"valid\":{},\"whole\":{},\"joints\":[{}],\"tool_rms_m\":{}}}",
+                    serde_json::to_string(&m.name).unwrap_or_default(),
+                    m.frames,
+                    m.valid,
+                    m.whole,
+                    joints.join(","),
+                    json_number(m.tool_rms_m, 6)
+                )
+            })
+            .collect();
         let opt = |v: Option<f64>| v.map_or("null".to_string(), |v| json_number(v, 1));
         format!(
-            "{{\"seconds\":{:.3},\"pose_frames\":{},\"poses_per_s\":{:.2},\"latency_p50_ms\":{},\"latency_p99_ms\":{},\"exposure_latency_p50_ms\":{},\"position_rms_m\":{},\"heading_rms_deg\":{},\"complete_frames\":{},\"ghost_poses\":{},\"ghosts\":{},\"restarts\":{},\"targets\":[{}],\"bodies\":[{}],\"vr_latency_p50_us\":{},\"vr_latency_p99_us\":{},\"servers\":{},\"losses\":{}}}",
+            "{{\"seconds\":{:.3},\"pose_frames\":{},\"poses_per_s\":{:.2},\"latency_p50_ms\":{},\"latency_p99_ms\":{},\"exposure_latency_p50_ms\":{},\"position_rms_m\":{},\"heading_rms_deg\":{},\"complete_frames\":{},\"ghost_poses\":{},\"ghosts\":{},\"restarts\":{},\"targets\":[{}],\"bodies\":[{}],\"models\":[{}],\"vr_latency_p50_us\":{},\"vr_latency_p99_us\":{},\"servers\":{},\"losses\":{}}}",
             self.seconds,
             self.pose_frames,
             self.poses_per_s,
@@ -176,6 +223,7 @@ impl DemoSummary {
             self.restarts,
             targets.join(","),
             bodies.join(","),
+            models.join(","),
             opt(self.vr_latency_p50_us),
             opt(self.vr_latency_p99_us),
             serde_json::to_string(&self.servers).unwrap_or_else(|_| "[]".into()),
@@ -207,6 +255,94 @@ pub struct GhostExample {
 
 /// `(target, matched object id, error m)`.
 type Scored = (u32, Option<u32>, f64);
+
+/// What the watcher scores against besides the truth messages.
+struct Truths {
+    layouts: Layouts,
+    models: ModelTruth,
+}
+
+/// The scene's truth for the rig's kinematic models: how each moves, and the truth camera's
+/// frame rate and loop (a looped camera's frame `k` shows the scene at `k / fps`).
+struct ModelTruth {
+    motions: Vec<stereoscope_rig::models::ModelMotion>,
+    fps: f64,
+    loop_frames: Option<u32>,
+}
+
+#[derive(Default)]
+struct ModelAcc {
+    frames: u64,
+    valid: u64,
+    /// Valid frames with every joint determined (the tool scored).
+    whole: u64,
+    joint_sq: Vec<f64>,
+    joint_n: Vec<u64>,
+    tool_sq: f64,
+}
+
+/// Scores each fitted model of `p` against its truth at `t`'s frame.
+fn score_models(p: &PoseFrame, t: &Truth, mt: &ModelTruth, acc: &mut BTreeMap<String, ModelAcc>) {
+    use stereoscope_kinematics::JointValue;
+    if mt.fps <= 0.0 {
+        return;
+    }
+    // A live synthetic camera renders the scene at its frame's nominal time (seconds since the
+    // epoch); a looped one plays its first frames, frame k at k / fps.
+    let t_s = match mt.loop_frames.filter(|n| *n > 0) {
+        Some(n) => (t.sequence % u64::from(n)) as f64 / mt.fps,
+        None => t.timestamp_ns as f64 * 1e-9,
+    };
+    for m in &mt.motions {
+        let model = &m.model;
+        let a = acc.entry(model.name.clone()).or_default();
+        a.frames += 1;
+        let Some(fit) = p.models.iter().find(|f| f.name == model.name && f.valid) else {
+            continue;
+        };
+        a.valid += 1;
+        a.joint_sq.resize(model.joints.len(), 0.0);
+        a.joint_n.resize(model.joints.len(), 0);
+        let truth = model.swing_values(&m.swings, t_s);
+        for (j, (tv, js)) in truth.iter().zip(&fit.joints).enumerate() {
+            if !js.determined {
+                continue;
+            }
+            let v = &js.values;
+            let e = match (tv, v.as_slice()) {
+                (JointValue::Angle(x), [y]) => Some((y - x).to_degrees()),
+                (JointValue::Offset(x), [y]) => Some((y - x) * 1e3),
+                (JointValue::Angles([x0, x1]), [y0, y1]) => {
+                    Some(((y0 - x0).powi(2) + (y1 - x1).powi(2)).sqrt().to_degrees())
+                }
+                (JointValue::Rotation(q), [x, y, z, w]) => {
+                    let f = nalgebra::UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(
+                        *w, *x, *y, *z,
+                    ));
+                    Some(f.angle_to(q).to_degrees())
+                }
+                _ => None,
+            };
+            if let Some(e) = e {
+                a.joint_sq[j] += e * e;
+                a.joint_n[j] += 1;
+            }
+        }
+        // The tool's place is measured only when every joint is.
+        if !fit.joints.iter().all(|j| j.determined) {
+            continue;
+        }
+        a.whole += 1;
+        let mut poses = Vec::new();
+        model.forward(&m.world_from_root, &truth, &mut poses);
+        if let (Some(tool), Some(last)) = (poses.last(), fit.links.last()) {
+            let d: f64 = (0..3)
+                .map(|i| (last.position_m[i] - tool.translation.vector[i]).powi(2))
+                .sum();
+            a.tool_sq += d;
+        }
+    }
+}
 
 #[derive(Default)]
 struct BodyAcc {
@@ -240,7 +376,37 @@ fn json_number(v: f64, decimals: usize) -> String {
 pub fn run(cfg: DemoConfig, shutdown: Shutdown) -> Result<DemoSummary, DemoError> {
     let port = net::free_loopback_port().map_err(DemoError::NoPort)?;
     let prefix = format!("stsc_demo{}_", std::process::id());
-    let base = cfg.rig_text.clone().unwrap_or_else(|| DEMO_RIG.to_string());
+    let mut base = cfg.rig_text.clone().unwrap_or_else(|| DEMO_RIG.to_string());
+    // The services read the rig from the work folder: a model's URDF is named by its full path.
+    if let Some(dir) = &cfg.rig_dir {
+        let mut file = stereoscope_rig::RigFile::from_toml(&base).map_err(|e| {
+            DemoError::Rig(stereoscope_rig::RigError {
+                kind: stereoscope_rig::RigErrorKind::Syntax,
+                file: None,
+                key: String::new(),
+                message: e.to_string(),
+            })
+        })?;
+        let mut moved = false;
+        for m in &mut file.models {
+            if let Some(u) = &mut m.urdf
+                && std::path::Path::new(u.as_str()).is_relative()
+            {
+                *u = dir.join(&*u).display().to_string();
+                moved = true;
+            }
+        }
+        if moved {
+            base = file.to_toml().map_err(|e| {
+                DemoError::Rig(stereoscope_rig::RigError {
+                    kind: stereoscope_rig::RigErrorKind::Value,
+                    file: None,
+                    key: "model".into(),
+                    message: e.to_string(),
+                })
+            })?;
+        }
+    }
     let mut text = format!(
         "{base}\n[[host]]\nname = \"demo\"\nzenoh_listen = [\"tcp/127.0.0.1:{port}\"]\niceoryx2_prefix = \"{prefix}\"\n"
     );
@@ -305,9 +471,22 @@ pub fn run(cfg: DemoConfig, shutdown: Shutdown) -> Result<DemoSummary, DemoError
         };
         std::thread::spawn(move || stereoscope_launcher::run(lc, stop))
     };
-    let layouts = Layouts::of_rig(&rig.spec);
+    let truth_fps = rig.spec.cameras.first().and_then(|c| match c.source {
+        Some(stereoscope_rig::schema::SourceSpec::Synthetic {
+            fps, loop_frames, ..
+        }) => Some((fps, loop_frames)),
+        _ => None,
+    });
+    let truth = Truths {
+        layouts: Layouts::of(&rig),
+        models: ModelTruth {
+            motions: stereoscope_rig::models::model_motions(&rig.spec, &rig.models),
+            fps: truth_fps.map_or(0.0, |f| f.0),
+            loop_frames: truth_fps.and_then(|f| f.1),
+        },
+    };
     let result = watch(
-        &cfg, &shutdown, &client, &rig.name, &first_cam, &prefix, &layouts,
+        &cfg, &shutdown, &client, &rig.name, &first_cam, &prefix, &truth,
     );
     launch_stop.request();
     let restarts = match launcher.join() {
@@ -328,8 +507,9 @@ fn watch(
     rig: &str,
     truth_cam: &str,
     iox_prefix: &str,
-    layouts: &Layouts,
+    truth: &Truths,
 ) -> Result<DemoSummary, DemoError> {
+    let layouts = &truth.layouts;
     // The router starts in the launcher thread: give it a moment, then connect.
     let mut session = None;
     let deadline = Instant::now() + Duration::from_secs(10);
@@ -384,6 +564,7 @@ fn watch(
     let mut complete = 0u64;
     let mut acc: BTreeMap<u32, Acc> = BTreeMap::new();
     let mut body_acc: BTreeMap<String, BodyAcc> = BTreeMap::new();
+    let mut model_acc: BTreeMap<String, ModelAcc> = BTreeMap::new();
     let mut last_print = Instant::now();
     let mut latest: Option<(PoseFrame, Vec<Scored>, Vec<BodyError>)> = None;
     let mut ghosts = 0u64;
@@ -428,6 +609,7 @@ fn watch(
                 Some(t) => {
                     let scored = score(p, t, &mut acc);
                     let body_errors = score_bodies(p, t, &mut body_acc);
+                    score_models(p, t, &truth.models, &mut model_acc);
                     let found = layouts.ghosts(&p.poses, &t.targets);
                     ghosts += found.len() as u64;
                     for g in found {
@@ -561,6 +743,46 @@ fn watch(
         ghost_poses: ghosts,
         ghosts: ghost_examples,
         targets,
+        models: model_acc
+            .into_iter()
+            .map(|(name, a)| {
+                let joints = truth
+                    .models
+                    .motions
+                    .iter()
+                    .find(|m| m.model.name == name)
+                    .map(|m| {
+                        m.model
+                            .joints
+                            .iter()
+                            .map(|j| j.name.clone())
+                            .collect::<Vec<_>>()
+                    })
+                    .unwrap_or_default();
+                ModelStats {
+                    joints_rms: joints
+                        .into_iter()
+                        .enumerate()
+                        .map(|(j, n)| {
+                            let (sq, k) = (
+                                a.joint_sq.get(j).copied().unwrap_or(0.0),
+                                a.joint_n.get(j).copied().unwrap_or(0),
+                            );
+                            (n, (k > 0).then(|| (sq / k as f64).sqrt()))
+                        })
+                        .collect(),
+                    tool_rms_m: if a.whole > 0 {
+                        (a.tool_sq / a.whole as f64).sqrt()
+                    } else {
+                        f64::NAN
+                    },
+                    whole: a.whole,
+                    name,
+                    frames: a.frames,
+                    valid: a.valid,
+                }
+            })
+            .collect(),
         bodies: body_acc
             .into_iter()
             .map(|(name, a)| BodyStats {
@@ -627,6 +849,10 @@ fn score_bodies(p: &PoseFrame, t: &Truth, acc: &mut BTreeMap<String, BodyAcc>) -
         let (Some(name), Some(q)) = (&tt.body, tt.orientation_xyzw) else {
             continue;
         };
+        // A model's link (`<model>/<link>`) is scored with its model (`score_models`).
+        if name.contains('/') {
+            continue;
+        }
         let a = acc.entry(name.clone()).or_default();
         match p.bodies.iter().find(|b| &b.name == name && !b.held) {
             Some(b) => {

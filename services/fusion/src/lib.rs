@@ -17,7 +17,8 @@ use std::time::Duration;
 use stereoscope_pipeline::pairing::{self, Pairer};
 use stereoscope_pipeline::{Fusion, FusionSettings};
 use stereoscope_proto::messages::{
-    BodyUpdate, Detail, Message, Observation, PoseFrame, PoseUpdate, SCHEMA_VERSION, now_ns,
+    BodyUpdate, Detail, Message, ModelUpdate, Observation, PoseFrame, PoseUpdate, SCHEMA_VERSION,
+    now_ns,
 };
 use stereoscope_proto::names::{iox as iox_names, zenoh as keys};
 use stereoscope_service::Context;
@@ -69,6 +70,7 @@ pub struct FusionService {
     poses: Outlet<PoseFrame>,
     per_object: KeyedPublisher,
     per_body: KeyedPublisher,
+    per_model: KeyedPublisher,
     pairer: Pairer,
     fusion: Fusion,
     sequence: u64,
@@ -131,6 +133,7 @@ impl FusionService {
         let poses = node.outlet(&iox_names::poses(&rig), &[], &keys::poses(&rig))?;
         let per_object = KeyedPublisher::new(&node.session, &keys::all_poses(&rig))?;
         let per_body = KeyedPublisher::new(&node.session, &keys::all_bodies(&rig))?;
+        let per_model = KeyedPublisher::new(&node.session, &keys::all_models(&rig))?;
         tracing::info!(
             local = local.len(),
             remote = n - local.len(),
@@ -187,6 +190,7 @@ impl FusionService {
             poses,
             per_object,
             per_body,
+            per_model,
             pairer,
             fusion,
             sequence,
@@ -246,6 +250,7 @@ impl FusionService {
             .map(|(_, o)| o.blobs.iter().filter(|b| b.merged).count() as u64)
             .sum::<u64>();
         let (fused, bodies) = self.fusion.fuse(set, timestamp_ns);
+        let models = self.fusion.take_models();
         let published_ns = now_ns();
         let frame = PoseFrame {
             schema: SCHEMA_VERSION,
@@ -257,12 +262,14 @@ impl FusionService {
             cameras,
             poses: fused,
             bodies,
+            models,
         };
         let counters = &mut self.node.counters;
         self.poses.publish(&frame, counters);
         // Per-object and per-body updates are made only while someone subscribes to them.
         let objects_wanted = !frame.poses.is_empty() && self.per_object.matching();
         let bodies_wanted = !frame.bodies.is_empty() && self.per_body.matching();
+        let models_wanted = !frame.models.is_empty() && self.per_model.matching();
         for p in frame.poses.iter().filter(|_| objects_wanted) {
             let u = PoseUpdate {
                 schema: SCHEMA_VERSION,
@@ -291,6 +298,21 @@ impl FusionService {
             counters.note(
                 self.per_body
                     .put_bytes(&keys::body(&rig.name, &b.name), u.to_json()),
+            );
+        }
+        for m in frame.models.iter().filter(|_| models_wanted) {
+            let u = ModelUpdate {
+                schema: SCHEMA_VERSION,
+                rig: rig.name.clone(),
+                sequence: self.sequence,
+                timestamp_ns,
+                frame_published_ns,
+                published_ns,
+                model: m.clone(),
+            };
+            counters.note(
+                self.per_model
+                    .put_bytes(&keys::model(&rig.name, &m.name), u.to_json()),
             );
         }
         self.sequence += 1;

@@ -293,6 +293,7 @@ pub fn refuse_with(
                         let timestamp_ns = set.iter().map(|(_, o)| o.timestamp_ns).min();
                         let timestamp_ns = timestamp_ns.unwrap_or(*t_ns);
                         let (poses, bodies) = fusion.fuse(set, timestamp_ns);
+                        let models = fusion.take_models();
                         let sequence = seq + 1 + k as u64;
                         out.reformed.push(sequence);
                         frame(PoseFrame {
@@ -314,6 +315,7 @@ pub fn refuse_with(
                                 .collect(),
                             poses,
                             bodies,
+                            models,
                             ..pf.clone()
                         });
                     }
@@ -353,11 +355,13 @@ pub fn refuse_with(
         }
         set.sort_by_key(|(c, _)| *c);
         let (poses, found) = fusion.fuse(&set, pf.timestamp_ns);
+        let models = fusion.take_models();
         last = Some((pf.sequence, pf.timestamp_ns, set));
         out.frames += 1;
         frame(PoseFrame {
             poses: poses.clone(),
             bodies: found.clone(),
+            models,
             ..pf.clone()
         });
         let body_difference = (found != pf.bodies).then(|| {
@@ -641,6 +645,7 @@ pub(crate) mod tests {
                 })
                 .collect(),
             bodies: Vec::new(),
+            models: Vec::new(),
         }
     }
 

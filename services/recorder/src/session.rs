@@ -262,6 +262,7 @@ mod tests {
                 body: None,
             }],
             bodies: Vec::new(),
+            models: Vec::new(),
         }
     }
 

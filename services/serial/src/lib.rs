@@ -362,6 +362,7 @@ mod tests {
             cameras: vec![],
             poses,
             bodies: Vec::new(),
+            models: Vec::new(),
         }
     }
 

@@ -222,8 +222,16 @@ fn worker_fps(
     } else {
         (None, PixelFormat::Gray8, 1)
     };
-    let mut src =
-        SyntheticSource::new(&rig.spec, rig.cameras[0].camera, 0, 120.0, None, bit_depth).unwrap();
+    let mut src = SyntheticSource::new(
+        &rig.spec,
+        &rig.models,
+        rig.cameras[0].camera,
+        0,
+        120.0,
+        None,
+        bit_depth,
+    )
+    .unwrap();
     let n = 120u64;
     let mut frames = Vec::new();
     for k in 0..n {
@@ -615,6 +623,7 @@ fn live_table(quick: bool, json_out: Option<String>, mut json: Vec<String>) {
                 "service".into(),
             ],
             rig_text: Some(rig_at(640, 480, 120.0, Some(240), true)),
+            rig_dir: None,
             live: false,
             work_dir: work_dir.clone(),
             view: None,

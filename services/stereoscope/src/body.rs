@@ -251,6 +251,7 @@ mod tests {
                 })
                 .collect(),
             bodies: vec![],
+            models: Vec::new(),
         }
     }
 

@@ -106,6 +106,22 @@ pub fn summary_text(s: &DemoSummary) -> String {
             ));
         }
     }
+    for m in &s.models {
+        let joints: Vec<String> = m
+            .joints_rms
+            .iter()
+            .filter_map(|(n, r)| r.map(|r| format!("{n} {r:.3}")))
+            .collect();
+        out.push_str(&format!(
+            "  model {}: {} of {} frames valid, {} with every joint determined; joint RMS (degrees; mm for a slide): {}; tool RMS {:.2} mm\n",
+            m.name,
+            m.valid,
+            m.frames,
+            m.whole,
+            joints.join(", "),
+            m.tool_rms_m * 1000.0
+        ));
+    }
     let listening: Vec<&str> = s
         .servers
         .iter()
@@ -173,6 +189,10 @@ pub fn demo(
             seconds,
             program: program?,
             rig_text,
+            rig_dir: rig.as_ref().map(|p| {
+                let dir = p.parent().unwrap_or(std::path::Path::new("."));
+                std::path::absolute(dir).unwrap_or_else(|_| dir.to_path_buf())
+            }),
             live,
             work_dir: work_dir.clone(),
             view,

@@ -143,6 +143,7 @@ pub fn run(
             .map(|(i, _)| rig.cameras[*i].id.clone())
             .collect();
         let (poses, bodies) = fusion.fuse(&set, ts);
+        let models = fusion.take_models();
         let frame = PoseFrame {
             schema: SCHEMA_VERSION,
             rig: rig.name.clone(),
@@ -153,6 +154,7 @@ pub fn run(
             cameras,
             poses,
             bodies,
+            models,
         };
         frames += 1;
         if !frame.poses.is_empty() || !frame.bodies.is_empty() {

@@ -445,6 +445,7 @@ mod tests {
             frame_published_ns: 0,
             published_ns: 0,
             bodies: Vec::new(),
+            models: Vec::new(),
         }
     }
 

@@ -15,7 +15,9 @@
 //! Which degrees of freedom the markers determine comes from the fit's own normal matrix: a
 //! direction in parameter space along which the markers do not move (a near-zero eigenvalue of
 //! the column-scaled `JᵀJ`) leaves the joints it involves undetermined, and they are flagged,
-//! never reported as measured.
+//! never reported as measured. A joint must also move some link that shows three markers or
+//! more: one or two markers beyond a joint can fix it to first order and still allow other,
+//! discrete solutions.
 
 use crate::model::{Base, JointKind, JointValue, Model};
 use nalgebra::{DMatrix, DVector, Isometry3, Matrix3, Point3, UnitQuaternion, Vector3};
@@ -69,7 +71,9 @@ pub struct ChainFit {
     pub rms_m: f64,
     pub markers_used: usize,
     pub iterations: usize,
-    /// Enough markers, a determined base, and the RMS within [`FitOptions::max_rms_m`].
+    /// Enough markers, a determined base, and the RMS — over all markers, and over each link's
+    /// — within [`FitOptions::max_rms_m`] (one link's markers far off its fit is a wrong
+    /// marker, however well the rest fit).
     pub valid: bool,
 }
 
@@ -499,7 +503,19 @@ pub fn fit_chain(
         }
     }
     let base_determined = determined[..base_cols].iter().all(|d| *d) && rows > 0;
-    let joints = model
+    // A joint moved only by one or two markers may be determined to first order yet have
+    // several discrete solutions (a marker on a circle about each of two axes): it counts as
+    // determined only when some link it moves shows three markers or more.
+    let mut seen_on = vec![0usize; model.links.len()];
+    for (m, o) in model.markers.iter().zip(observed) {
+        if o.is_some() {
+            seen_on[m.link] += 1;
+        }
+    }
+    let moves_a_cluster: Vec<bool> = (0..model.joints.len())
+        .map(|j| (0..model.links.len()).any(|l| seen_on[l] >= 3 && model.path(l).contains(&j)))
+        .collect();
+    let joints: Vec<JointFit> = model
         .joints
         .iter()
         .enumerate()
@@ -514,6 +530,7 @@ pub fn fit_chain(
                 .collect();
             JointFit {
                 determined: base_determined
+                    && (joint.kind.dof() == 0 || moves_a_cluster[j])
                     && determined[c..c + joint.kind.dof()].iter().all(|d| *d),
                 at_limit: at_limit(&joint.kind, state.values[j]),
                 residual_m: (!resid.is_empty())
@@ -527,7 +544,12 @@ pub fn fit_chain(
         f64::INFINITY
     };
     Ok(ChainFit {
-        valid: visible >= 3 && base_determined && rms_m <= opts.max_rms_m,
+        valid: visible >= 3
+            && base_determined
+            && rms_m <= opts.max_rms_m
+            && joints
+                .iter()
+                .all(|j: &JointFit| j.residual_m.is_none_or(|r| r <= opts.max_rms_m)),
         state,
         world_from_link: poses,
         joints,

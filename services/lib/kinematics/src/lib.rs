@@ -19,7 +19,7 @@ pub mod urdf;
 pub use fit::{ChainFit, ChainState, FitError, FitOptions, JointFit, fit_chain, initial_state};
 pub use model::{
     Base, Joint, JointKind, JointSpec, JointValue, Limits, Link, Marker, MarkerSpec, Model,
-    ModelError,
+    ModelError, Swing,
 };
 pub use urdf::{UrdfError, model_from_urdf};
 

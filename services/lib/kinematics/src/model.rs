@@ -523,3 +523,52 @@ impl Model {
 pub fn rpy(roll: f64, pitch: f64, yaw: f64) -> UnitQuaternion<f64> {
     UnitQuaternion::from_euler_angles(roll, pitch, yaw)
 }
+
+/// One degree of freedom's scripted motion: `centre + amplitude · sin(2π · hz · t + phase)`
+/// (radians for angles, metres for slides; a ball joint's three degrees of freedom are the
+/// components of its rotation vector).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Swing {
+    pub centre: f64,
+    pub amplitude: f64,
+    pub hz: f64,
+    pub phase_rad: f64,
+}
+
+impl Model {
+    /// Degrees of freedom of all joints, in tree order.
+    pub fn dof(&self) -> usize {
+        self.joints.iter().map(|j| j.kind.dof()).sum()
+    }
+
+    /// Every joint's value at `t_s` from one swing per degree of freedom in tree order (missing
+    /// ones at zero), within each joint's limits: the synthetic scenes' truth.
+    pub fn swing_values(&self, swings: &[Swing], t_s: f64) -> Vec<JointValue> {
+        let mut k = 0;
+        let mut next = || {
+            let v = swings.get(k).map_or(0.0, |s| {
+                s.centre + s.amplitude * (std::f64::consts::TAU * s.hz * t_s + s.phase_rad).sin()
+            });
+            k += 1;
+            v
+        };
+        let clamp = |l: &Option<Limits>, v: f64| l.map_or(v, |l| l.clamp(v));
+        self.joints
+            .iter()
+            .map(|j| match &j.kind {
+                JointKind::Fixed => JointValue::Fixed,
+                JointKind::Revolute { limits, .. } => JointValue::Angle(clamp(limits, next())),
+                JointKind::Prismatic { limits, .. } => JointValue::Offset(clamp(limits, next())),
+                JointKind::Universal { limits, .. } => {
+                    let a = clamp(&limits[0], next());
+                    let b = clamp(&limits[1], next());
+                    JointValue::Angles([a, b])
+                }
+                JointKind::Spherical => {
+                    let v = Vector3::new(next(), next(), next());
+                    JointValue::Rotation(UnitQuaternion::from_scaled_axis(v))
+                }
+            })
+            .collect()
+    }
+}

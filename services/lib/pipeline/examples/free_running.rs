@@ -43,7 +43,16 @@ fn rms(text: &str, fps: f64, offset_s: f64, interpolate: bool, frames: u64) -> f
     let rig = Rig::from_toml(text).unwrap();
     let mut sources: Vec<SyntheticSource> = (0..2)
         .map(|i| {
-            SyntheticSource::new(&rig.spec, rig.cameras[i].camera, i, fps, None, None).unwrap()
+            SyntheticSource::new(
+                &rig.spec,
+                &rig.models,
+                rig.cameras[i].camera,
+                i,
+                fps,
+                None,
+                None,
+            )
+            .unwrap()
         })
         .collect();
     let mut workers: Vec<Worker> = (0..2)

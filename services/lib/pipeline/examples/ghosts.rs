@@ -117,7 +117,18 @@ fn main() {
     let file = &rig.spec;
     let n = rig.cameras.len();
     let mut sources: Vec<SyntheticSource> = (0..n)
-        .map(|i| SyntheticSource::new(file, rig.cameras[i].camera, i, 30.0, None, None).unwrap())
+        .map(|i| {
+            SyntheticSource::new(
+                file,
+                &rig.models,
+                rig.cameras[i].camera,
+                i,
+                30.0,
+                None,
+                None,
+            )
+            .unwrap()
+        })
         .collect();
     let mut workers: Vec<Worker> = (0..n)
         .map(|i| {

@@ -238,6 +238,7 @@ mod tests {
             cameras: vec![],
             poses,
             bodies,
+            models: Vec::new(),
         };
         assert_eq!(PoseFrame::from_json(&frame.to_json()).unwrap(), frame);
         assert_eq!(PoseFrame::from_binary(&frame.to_binary()).unwrap(), frame);

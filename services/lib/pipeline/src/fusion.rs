@@ -7,9 +7,10 @@
 
 use crate::bodies::Bodies;
 use crate::fuser::{DEFAULT_CONFIRM_SETS, Fuser, FuserConfig};
+use crate::models::Models;
 use crate::pairing::PairingConfig;
 use stereoscope_geometry::correspond::CorrespondConfig;
-use stereoscope_proto::messages::{BodyPose, Observation, Pose};
+use stereoscope_proto::messages::{BodyPose, ModelPose, Observation, Pose};
 use stereoscope_rig::schema::{ObservationRoute, RigFile};
 use stereoscope_rig::{Rig, RigCamera};
 
@@ -78,6 +79,10 @@ impl FusionSettings {
 pub struct Fusion {
     pub fuser: Fuser,
     pub bodies: Bodies,
+    /// The rig's kinematic models, fitted to each set's markers after the bodies'.
+    pub models: Models,
+    /// The models of the set fused last ([`Fusion::take_models`]).
+    models_found: Vec<ModelPose>,
     /// Move each camera's blobs to the set's instant before triangulating (on by default;
     /// see [`Fusion::fuse`]).
     pub interpolate: bool,
@@ -157,6 +162,8 @@ impl Fusion {
         Fusion {
             fuser: Fuser::new(cameras, settings.fuser),
             bodies,
+            models: Models::default(),
+            models_found: Vec::new(),
             interpolate: true,
             last: vec![[None, None]; cameras.len()],
             dropped_poses: 0,
@@ -167,7 +174,9 @@ impl Fusion {
     pub fn of_rig(rig: &Rig) -> Fusion {
         let settings = FusionSettings::of_rig(&rig.spec);
         let bodies = Bodies::new(stereoscope_rig::body_defs(&rig.spec), settings.body_hold_ns);
-        Fusion::new(&rig.cameras, &settings, bodies)
+        let mut f = Fusion::new(&rig.cameras, &settings, bodies);
+        f.models = Models::new(rig.models.clone());
+        f
     }
 
     /// Fuses one set (`(rig camera index, observation)`, at `timestamp_ns`, its oldest
@@ -208,6 +217,7 @@ impl Fusion {
             .bodies
             .update_refined(&mut poses, timestamp_ns, self.fuser.sightings());
         self.fuser.expect_unseen(timestamp_ns, found.unseen);
+        self.models_found = self.models.update(&poses);
         // A pose frame carries at most MAX_POSES poses (receivers refuse more): the rest of an
         // overfull set is left out and counted.
         let max = stereoscope_proto::messages::limits::MAX_POSES;
@@ -216,6 +226,11 @@ impl Fusion {
             poses.truncate(max);
         }
         (poses, found.bodies)
+    }
+
+    /// The kinematic models fitted to the set fused last (`docs/models.md`), taken.
+    pub fn take_models(&mut self) -> Vec<ModelPose> {
+        std::mem::take(&mut self.models_found)
     }
 }
 

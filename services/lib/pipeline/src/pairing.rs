@@ -631,6 +631,7 @@ mod tests {
                 cameras: cameras.iter().map(|c| c.to_string()).collect(),
                 poses: vec![],
                 bodies: vec![],
+                models: Vec::new(),
             };
             String::from_utf8(f.to_json()).unwrap()
         };

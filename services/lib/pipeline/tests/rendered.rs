@@ -28,7 +28,18 @@ fn sweep(rig_text: &str, from_s: f64, frames: u64) -> (Errors, Vec<String>) {
     let file = &rig.spec;
     let n = rig.cameras.len();
     let mut sources: Vec<SyntheticSource> = (0..n)
-        .map(|i| SyntheticSource::new(file, rig.cameras[i].camera, i, 30.0, None, None).unwrap())
+        .map(|i| {
+            SyntheticSource::new(
+                file,
+                &rig.models,
+                rig.cameras[i].camera,
+                i,
+                30.0,
+                None,
+                None,
+            )
+            .unwrap()
+        })
         .collect();
     let mut workers: Vec<Worker> = (0..n)
         .map(|i| {
@@ -174,7 +185,16 @@ fn free_running_rms(offset_s: f64, interpolate: bool, frames: u64) -> f64 {
     let n = rig.cameras.len();
     let mut sources: Vec<SyntheticSource> = (0..n)
         .map(|i| {
-            SyntheticSource::new(&rig.spec, rig.cameras[i].camera, i, 30.0, None, None).unwrap()
+            SyntheticSource::new(
+                &rig.spec,
+                &rig.models,
+                rig.cameras[i].camera,
+                i,
+                30.0,
+                None,
+                None,
+            )
+            .unwrap()
         })
         .collect();
     let mut workers: Vec<Worker> = (0..n)

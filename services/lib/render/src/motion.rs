@@ -68,6 +68,15 @@ pub enum Motion {
         turn_period_s: f64,
         nod_deg: f64,
     },
+    /// One link of a kinematic model moved joint by joint: the root at `world_from_root`, each
+    /// degree of freedom on its swing (`stereoscope_kinematics::Model::swing_values`); the
+    /// target's pose is the link's.
+    Link {
+        model: std::sync::Arc<stereoscope_kinematics::Model>,
+        link: usize,
+        world_from_root: Isometry3<f64>,
+        swings: Vec<stereoscope_kinematics::Swing>,
+    },
     /// A random walk: every `step_s` seconds a Gaussian step of `step_m` standard deviation per
     /// axis, reflected back inside `extent_m` of `centre`; straight between steps, heading along
     /// the motion. Starts at `centre`.
@@ -131,6 +140,22 @@ fn wander_terms(seed: u64) -> [[(f64, f64, f64); 3]; 3] {
 impl Motion {
     pub fn at(&self, t_s: f64) -> State {
         match self {
+            Motion::Link {
+                model,
+                link,
+                world_from_root,
+                swings,
+            } => {
+                let values = model.swing_values(swings, t_s);
+                let mut poses = Vec::new();
+                model.forward(world_from_root, &values, &mut poses);
+                let p = poses.get(*link).copied().unwrap_or(*world_from_root);
+                State {
+                    position: Point3::from(p.translation.vector),
+                    heading_deg: 0.0,
+                    tilt: p.rotation,
+                }
+            }
             Motion::Static {
                 position,
                 heading_deg,

@@ -411,6 +411,7 @@ mod tests {
             recorder: None,
             insecure: false,
             bodies: Vec::new(),
+            models: Vec::new(),
             vr: None,
             viewer: None,
             realtime: None,

@@ -593,12 +593,16 @@ pub(crate) fn check(file: &RigFile, base: Option<&Path>, sources: bool) -> Resul
         }
     }
     if let Some(s) = &file.synthetic {
-        check_synthetic(s, &file.bodies)?;
+        check_synthetic(s, &file.bodies, &file.models)?;
     }
     Ok(())
 }
 
-fn check_synthetic(s: &SyntheticSpec, bodies: &[BodySpec]) -> Result<(), RigError> {
+fn check_synthetic(
+    s: &SyntheticSpec,
+    bodies: &[BodySpec],
+    models: &[crate::schema::ModelSpec],
+) -> Result<(), RigError> {
     for (k, v, hi) in [
         ("noise_sigma", s.noise_sigma, 1000.0),
         ("blur_sigma_px", s.blur_sigma_px, 100.0),
@@ -662,6 +666,24 @@ fn check_synthetic(s: &SyntheticSpec, bodies: &[BodySpec]) -> Result<(), RigErro
                 finite(&format!("{mkey}.centre"), centre)?;
                 finite(&format!("{mkey}.extent"), extent)?;
             }
+            MotionSpec::Joints {
+                base,
+                base_rpy_deg,
+                swing,
+            } => {
+                finite(&format!("{mkey}.base"), base)?;
+                finite(&format!("{mkey}.base_rpy_deg"), base_rpy_deg)?;
+                for (k, w) in swing.iter().enumerate() {
+                    finite(&format!("{mkey}.swing[{k}]"), w)?;
+                    in_range(&format!("{mkey}.swing[{k}]"), w[2], 0.0, 1000.0, "Hz")?;
+                }
+                if t.shape != TargetShape::Model {
+                    return Err(err(
+                        format!("{mkey}.kind"),
+                        "\"joints\" moves a target of shape \"model\" only",
+                    ));
+                }
+            }
             MotionSpec::Head {
                 centre,
                 radius,
@@ -705,6 +727,38 @@ fn check_synthetic(s: &SyntheticSpec, bodies: &[BodySpec]) -> Result<(), RigErro
                 return Err(err(
                     format!("{key}.grid"),
                     "only a target of shape \"dot_grid\" has a grid",
+                ));
+            }
+            (_, None) => {}
+        }
+        match (t.shape, &t.model) {
+            (TargetShape::Model, Some(name)) if !models.iter().any(|m| &m.name == name) => {
+                return Err(err(
+                    format!("{key}.model"),
+                    format!(
+                        "{name:?} is not a [[model]] of this rig (models: {:?})",
+                        models.iter().map(|m| &m.name).collect::<Vec<_>>()
+                    ),
+                ));
+            }
+            (TargetShape::Model, None) => {
+                return Err(err(
+                    format!("{key}.model"),
+                    "missing: a target of shape \"model\" names the [[model]] whose markers it carries",
+                ));
+            }
+            (TargetShape::Model, Some(_)) => {
+                if !matches!(t.motion, MotionSpec::Joints { .. }) {
+                    return Err(err(
+                        format!("{key}.motion"),
+                        "a target of shape \"model\" moves by { kind = \"joints\", base, swing }",
+                    ));
+                }
+            }
+            (_, Some(_)) => {
+                return Err(err(
+                    format!("{key}.model"),
+                    "only a target of shape \"model\" carries a model's markers",
                 ));
             }
             (_, None) => {}

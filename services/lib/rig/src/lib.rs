@@ -9,6 +9,7 @@
 pub mod cameras;
 mod check;
 pub mod error;
+pub mod models;
 pub mod moments;
 pub mod scenes;
 pub mod schema;
@@ -41,6 +42,8 @@ pub struct Rig {
     pub name: String,
     /// The cameras, in the file's order, in metres.
     pub cameras: Vec<RigCamera>,
+    /// The kinematic models (`[[model]]`), built and checked.
+    pub models: Vec<models::RigModel>,
 }
 
 impl Rig {
@@ -78,12 +81,14 @@ impl Rig {
     fn checked(spec: RigFile, base: Option<&Path>, sources: bool) -> Result<Rig, RigError> {
         check::check(&spec, base, sources)?;
         let cameras = cameras::build_cameras(&spec)?;
+        let models = models::build_models(&spec, base)?;
         let rig = Rig {
             path: None,
             base_dir: base.map(Path::to_path_buf),
             name: spec.name.clone(),
             spec,
             cameras,
+            models,
         };
         for i in 0..rig.cameras.len() {
             rig.worker_settings(i)?;

@@ -23,6 +23,27 @@ impl Layouts {
         )
     }
 
+    /// [`Layouts::of_rig`] and each kinematic model's links that carry markers, named
+    /// `<model>/<link>` as the synthetic cameras' truth names them.
+    pub fn of(rig: &crate::Rig) -> Self {
+        let mut l = Self::of_rig(&rig.spec);
+        for m in &rig.models {
+            let model = &m.model;
+            for (i, link) in model.links.iter().enumerate() {
+                let pts: Vec<Point3<f64>> = model
+                    .markers
+                    .iter()
+                    .filter(|k| k.link == i)
+                    .map(|k| k.in_link_m)
+                    .collect();
+                if !pts.is_empty() {
+                    l.0.push((format!("{}/{}", model.name, link.name), pts));
+                }
+            }
+        }
+        l
+    }
+
     /// Every body marker's world position in this truth: (body, marker index, position).
     pub fn markers<'a>(&'a self, targets: &'a [TargetTruth]) -> Vec<(&'a str, u32, Point3<f64>)> {
         let mut out = Vec::new();

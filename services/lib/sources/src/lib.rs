@@ -154,6 +154,7 @@ pub fn open_in_run(
         } => Box::new(
             synthetic::SyntheticSource::new(
                 &rig.spec,
+                &rig.models,
                 rig.cameras[index].camera,
                 index,
                 *fps,

@@ -11,8 +11,9 @@ use stereoscope_proto::messages::TargetTruth;
 use stereoscope_render::{
     Actor, Background, Light, Motion, RenderOptions, Scene, Shape, render_u8, render_u16, scene_at,
 };
+use stereoscope_rig::models::{ModelMotion, RigModel};
 use stereoscope_rig::schema::{
-    BodySpec, MotionSpec, RigFile, SyntheticLight, SyntheticSpec, TargetShape,
+    BodySpec, MotionSpec, RigFile, SyntheticLight, SyntheticSpec, SyntheticTarget, TargetShape,
 };
 
 pub struct SyntheticSource {
@@ -39,17 +40,73 @@ fn p3(v: [f64; 3], s: f64) -> Point3<f64> {
     Point3::new(v[0] * s, v[1] * s, v[2] * s)
 }
 
-/// The scene's actors (metres) from the rig file's `[synthetic]` section (file units).
-pub fn actors(spec: &SyntheticSpec, bodies: &[BodySpec], scale: f64) -> Vec<(Actor, bool)> {
+/// One actor of the scene, whether it has an axis, and the rigid body it carries.
+pub type SceneActor = (Actor, bool, Option<String>);
+
+/// A model target's actors: one per link that carries markers, its markers as spheres of
+/// `radius_m` in the link's frame, moved by the target's `joints` motion. Each carries the
+/// name `<model>/<link>` as its truth's body, so the truth gives the link's pose.
+fn model_actors(t: &SyntheticTarget, motion: &ModelMotion, scale: f64) -> Vec<SceneActor> {
+    let model = std::sync::Arc::new(motion.model.clone());
+    (0..model.links.len())
+        .filter_map(|l| {
+            let spheres: Vec<(Vector3<f64>, f64)> = model
+                .markers
+                .iter()
+                .filter(|m| m.link == l)
+                .map(|m| (m.in_link_m.coords, t.radius * scale))
+                .collect();
+            (!spheres.is_empty()).then(|| {
+                (
+                    Actor {
+                        shape: Shape::Markers { spheres },
+                        contrast: t.contrast.unwrap_or(180.0),
+                        motion: Motion::Link {
+                            model: model.clone(),
+                            link: l,
+                            world_from_root: motion.world_from_root,
+                            swings: motion.swings.clone(),
+                        },
+                    },
+                    true,
+                    Some(format!("{}/{}", model.name, model.links[l].name)),
+                )
+            })
+        })
+        .collect()
+}
+
+/// The scene's actors (metres) from the rig file's `[synthetic]` section (file units): one per
+/// target, and one per marked link of a model target.
+pub fn actors(
+    spec: &SyntheticSpec,
+    bodies: &[BodySpec],
+    motions: &[ModelMotion],
+    scale: f64,
+) -> Vec<SceneActor> {
     spec.targets
         .iter()
-        .map(|t| {
+        .enumerate()
+        .flat_map(|(i, t)| {
+            if t.shape == TargetShape::Model {
+                return motions
+                    .iter()
+                    .find(|m| m.target == i)
+                    .map(|m| model_actors(t, m, scale))
+                    .unwrap_or_default();
+            }
             let r = t.radius * scale;
             // (shape, has an axis); the first three are symmetric end to end.
             let (shape, has_axis) = match t.shape {
                 TargetShape::DoubleSphere => (Shape::DoubleSphere { radius_m: r }, true),
                 TargetShape::Disc => (Shape::Disc { radius_m: r }, false),
                 TargetShape::Sphere => (Shape::Sphere { radius_m: r }, false),
+                TargetShape::Model => (
+                    Shape::Markers {
+                        spheres: Vec::new(),
+                    },
+                    false,
+                ),
                 TargetShape::Rectangle => (
                     Shape::Rectangle {
                         half_x_m: r,
@@ -145,22 +202,34 @@ pub fn actors(spec: &SyntheticSpec, bodies: &[BodySpec], scale: f64) -> Vec<(Act
                     extent_m: Vector3::new(extent[0], extent[1], extent[2]) * scale,
                     seed: *seed ^ spec.seed,
                 },
+                // Only a model target moves by joints (the rig's check).
+                MotionSpec::Joints { base, .. } => Motion::Static {
+                    position: p3(*base, scale),
+                    heading_deg: 0.0,
+                },
             };
-            (
+            let body = (t.shape == TargetShape::Body)
+                .then(|| t.body.clone())
+                .flatten();
+            vec![(
                 Actor {
                     shape,
                     contrast: t.contrast.unwrap_or(180.0),
                     motion,
                 },
                 has_axis,
-            )
+                body,
+            )]
         })
         .collect()
 }
 
 impl SyntheticSource {
+    /// The synthetic camera `camera_index` of a rig whose `[synthetic]` scene is `file`'s and
+    /// whose kinematic models are `models` (the rig's, for targets of shape "model").
     pub fn new(
         file: &RigFile,
+        models: &[RigModel],
         camera: Camera,
         camera_index: usize,
         fps: f64,
@@ -170,8 +239,11 @@ impl SyntheticSource {
         let spec = file.synthetic.as_ref().ok_or(SourceError::NoScene)?;
         let render = stereoscope_rig::settings::SyntheticRender::of(spec);
         let scale = file.units.metres();
+        let motions = stereoscope_rig::models::model_motions(file, models);
+        let mut all = actors(spec, &file.bodies, &motions, scale);
+        let body: Vec<Option<String>> = all.iter_mut().map(|a| a.2.take()).collect();
         let (actors, has_axis): (Vec<Actor>, Vec<bool>) =
-            actors(spec, &file.bodies, scale).into_iter().unzip();
+            all.into_iter().map(|(a, h, _)| (a, h)).unzip();
         let base = Scene {
             background: Background {
                 level: render.background,
@@ -205,15 +277,7 @@ impl SyntheticSource {
             looped: None,
             last_truth: Vec::new(),
             has_axis,
-            body: spec
-                .targets
-                .iter()
-                .map(|t| {
-                    (t.shape == TargetShape::Body)
-                        .then(|| t.body.clone())
-                        .flatten()
-                })
-                .collect(),
+            body,
         };
         if let Some(n) = loop_frames {
             let (w, h) = s.size();
@@ -365,8 +429,16 @@ mod tests {
             + "\n[[synthetic.target]]\nshape = \"sphere\"\nradius = 2.0\n\
                motion = { kind = \"circle\", centre = [900.0, 0.0, 40.0], radius = 1.0, period_s = 8.0 }\n";
         let rig = stereoscope_rig::Rig::from_toml(&text).unwrap();
-        let mut src =
-            SyntheticSource::new(&rig.spec, rig.cameras[0].camera, 0, 30.0, None, None).unwrap();
+        let mut src = SyntheticSource::new(
+            &rig.spec,
+            &rig.models,
+            rig.cameras[0].camera,
+            0,
+            30.0,
+            None,
+            None,
+        )
+        .unwrap();
         let (w, h) = src.size();
         let mut buf = vec![0u8; (w * h) as usize];
         src.read(0, 1.0, &mut buf).unwrap();

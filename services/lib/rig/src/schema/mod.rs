@@ -9,6 +9,8 @@ use std::collections::BTreeMap;
 
 mod bodies;
 pub use bodies::*;
+mod models;
+pub use models::*;
 mod synthetic;
 pub use stereoscope_proto::serial::SerialMode;
 pub use synthetic::*;
@@ -218,6 +220,10 @@ pub struct RigFile {
     /// Rigid bodies of markers (`docs/bodies.md`): checked for ambiguity when the rig loads.
     #[serde(rename = "body", default, skip_serializing_if = "Vec::is_empty")]
     pub bodies: Vec<BodySpec>,
+    /// Kinematic models: robots and limbs as chains of links (`docs/models.md`), built and
+    /// checked when the rig loads.
+    #[serde(rename = "model", default, skip_serializing_if = "Vec::is_empty")]
+    pub models: Vec<ModelSpec>,
     /// The VR feed (`docs/vr.md`): VRPN, VirtualMotionTracker/VMC over OSC, opentrack.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub vr: Option<VrSpec>,

@@ -17,6 +17,9 @@ pub enum TargetShape {
     /// A flat rectangle facing up, `radius` half its length and half as wide as long (2:1; the
     /// thesis's helmet target), its length along the heading.
     Rectangle,
+    /// A kinematic model's markers: spheres of `radius` at every marker of the `[[model]]`
+    /// named by `model`, each on its link, the model moved by a `joints` motion.
+    Model,
     /// A calibration dot grid (what `stereoscope target dot-grid` prints): `grid`'s columns and
     /// rows of flat dots of `radius`, `grid.spacing` apart, the origin dot 1.5× larger, centred
     /// on the target's position in its xy plane (white dots on the dark background).
@@ -82,6 +85,9 @@ pub struct SyntheticTarget {
     /// For shape "body": the `[[body]]` whose markers this target carries.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub body: Option<String>,
+    /// For shape "model": the `[[model]]` whose markers this target carries.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub model: Option<String>,
     /// Brightness above the background, grey levels (default 180).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub contrast: Option<f64>,
@@ -118,6 +124,18 @@ pub enum MotionSpec {
         extent: [f64; 3],
         #[serde(default)]
         seed: u64,
+    },
+    /// A kinematic model moved joint by joint (shape "model" only): its root at `base` (file
+    /// unit) turned by `base_rpy_deg` (roll, pitch, yaw about the fixed x, y, z), and each
+    /// degree of freedom, in the model's tree order, on `[centre, amplitude, hz, phase_deg]`
+    /// (degrees for angles, the file unit for slides; missing ones at zero; joint limits
+    /// hold).
+    Joints {
+        base: [f64; 3],
+        #[serde(default)]
+        base_rpy_deg: [f64; 3],
+        #[serde(default)]
+        swing: Vec<[f64; 4]>,
     },
     /// A head: round a horizontal circle, turning through 360° every `turn_period_s`, nodding
     /// and tilting by up to `nod_deg`.
