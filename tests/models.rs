@@ -68,14 +68,15 @@ fn the_arms_links_are_where_yourdfpy_puts_them() {
 /// position against the renderer's truth. Bounds guard against regressions; the figures are
 /// in docs/models.md (`cargo run --release -p stereoscope -- demo --rig
 /// deploy/rigs/robot-arm.toml --seconds 30`).
-#[test]
-fn the_robot_arm_demo_measures_its_joints_through_the_services() {
+/// `stereoscope demo --rig deploy/rigs/<rig>.toml --seconds 8 --json`: the first model's
+/// summary (the whole summary line beside it, for messages).
+fn demo_model(rig: &str) -> (serde_json::Value, String) {
     let o = common::run_with_limit(
         &[
             "demo",
             "--rig",
             common::repo_root()
-                .join("deploy/rigs/robot-arm.toml")
+                .join(format!("deploy/rigs/{rig}.toml"))
                 .to_str()
                 .unwrap(),
             "--seconds",
@@ -86,9 +87,19 @@ fn the_robot_arm_demo_measures_its_joints_through_the_services() {
     );
     let out = String::from_utf8_lossy(&o.stdout);
     assert!(o.status.success(), "{out}\n{}", common::stderr(&o));
-    let line = out.lines().rev().find(|l| l.starts_with('{')).unwrap();
-    let s: serde_json::Value = serde_json::from_str(line).unwrap();
-    let arm = &s["models"][0];
+    let line = out
+        .lines()
+        .rev()
+        .find(|l| l.starts_with('{'))
+        .unwrap()
+        .to_string();
+    let s: serde_json::Value = serde_json::from_str(&line).unwrap();
+    (s["models"][0].clone(), line)
+}
+
+#[test]
+fn the_robot_arm_demo_measures_its_joints_through_the_services() {
+    let (arm, line) = demo_model("robot-arm");
     assert_eq!(arm["name"], "arm", "{line}");
     let frames = arm["frames"].as_f64().unwrap();
     let valid = arm["valid"].as_f64().unwrap();
@@ -108,4 +119,25 @@ fn the_robot_arm_demo_measures_its_joints_through_the_services() {
     }
     let tool = arm["tool_rms_m"].as_f64().unwrap();
     assert!(tool < 0.001, "tool {tool} m RMS\n{line}");
+}
+
+/// The leg (`deploy/rigs/leg.toml`: hip ball joint, knee hinge, ankle universal, defined in
+/// the rig) walking in place through the services: the knee within the 0.5° RMS, the
+/// hip's rotation and the ankle's two angles within 1°, the foot within 1 mm.
+#[test]
+fn the_leg_demo_measures_its_knee_through_the_services() {
+    let (leg, line) = demo_model("leg");
+    assert_eq!(leg["name"], "leg", "{line}");
+    let frames = leg["frames"].as_f64().unwrap();
+    assert!(
+        frames >= 150.0 && leg["whole"].as_f64().unwrap() >= 0.9 * frames,
+        "{line}"
+    );
+    for j in leg["joints"].as_array().unwrap() {
+        let rms = j["rms"].as_f64().unwrap();
+        let bound = if j["name"] == "knee" { 0.5 } else { 1.0 };
+        assert!(rms < bound, "joint {}: {rms}° RMS\n{line}", j["name"]);
+    }
+    let foot = leg["tool_rms_m"].as_f64().unwrap();
+    assert!(foot < 0.001, "foot {foot} m RMS\n{line}");
 }

@@ -18,7 +18,10 @@ import zenoh
 POSE_FIELDS = {"object_id", "position_m", "velocity_m_per_s", "heading_deg", "heading_directed",
                "method", "cameras", "residual_px", "out_of_range", "body"}
 FRAME_FIELDS = {"schema", "rig", "sequence", "timestamp_ns", "frame_published_ns",
-                "published_ns", "cameras", "poses", "bodies"}
+                "published_ns", "cameras", "poses", "bodies", "models"}
+MODEL_FIELDS = {"name", "valid", "rms_mm", "markers_seen", "markers", "joints", "links"}
+JOINT_FIELDS = {"name", "values", "determined", "at_limit", "residual_mm"}
+LINK_FIELDS = {"name", "position_m", "orientation_xyzw"}
 BODY_FIELDS = {"name", "position_m", "orientation_xyzw", "velocity_m_per_s",
                "angular_velocity_rad_per_s", "residual_mm", "markers_seen", "markers", "held",
                "roll_unobservable"}
@@ -55,6 +58,19 @@ def check_body(b):
     return [b["name"], b["position_m"], q, b["held"]]
 
 
+def check_model(m):
+    if set(m) != MODEL_FIELDS:
+        raise ValueError(f"model fields {sorted(m)}")
+    for j in m["joints"]:
+        if set(j) != JOINT_FIELDS or len(j["values"]) > 4:
+            raise ValueError(f"joint {j}")
+    for link in m["links"]:
+        q = link["orientation_xyzw"]
+        if set(link) != LINK_FIELDS or abs(math.sqrt(sum(v * v for v in q)) - 1.0) > 1e-3:
+            raise ValueError(f"link {link}")
+    return m["name"]
+
+
 def main():
     endpoint, rig, count, seconds = sys.argv[1], sys.argv[2], int(sys.argv[3]), float(sys.argv[4])
     conf = zenoh.Config.from_json5(json.dumps({
@@ -81,6 +97,8 @@ def main():
             m = json.loads(sample.payload.to_bytes())
             if set(m) != FRAME_FIELDS or m["schema"] != 1 or m["rig"] != rig:
                 raise ValueError(f"pose frame {m}")
+            for model in m["models"]:
+                check_model(model)
             print(json.dumps({"key": str(sample.key_expr), "sequence": m["sequence"],
                               "timestamp_ns": m["timestamp_ns"], "cameras": m["cameras"],
                               "poses": [check_pose(p) for p in m["poses"]],

@@ -2,7 +2,10 @@
 //! and as C3D with gaps filled on request — `stereoscope export` (docs/recording.md).
 
 use crate::replay::ReplayError;
-use crate::session::{BODIES_CSV_HEADER, POSES_CSV_HEADER, Session, body_csv_rows, csv_rows};
+use crate::session::{
+    BODIES_CSV_HEADER, MODELS_CSV_HEADER, POSES_CSV_HEADER, Session, body_csv_rows, csv_rows,
+    model_csv_rows,
+};
 use stereoscope_rig::Rig;
 
 /// The session's rigid bodies as CSV, one row per body per pose frame.
@@ -10,6 +13,15 @@ pub fn export_bodies_csv(session: &Session) -> String {
     let mut s = String::from(BODIES_CSV_HEADER);
     for f in &session.poses {
         s.push_str(&body_csv_rows(f));
+    }
+    s
+}
+
+/// The session's kinematic models as CSV, one row per joint per model per pose frame.
+pub fn export_models_csv(session: &Session) -> String {
+    let mut s = String::from(MODELS_CSV_HEADER);
+    for f in &session.poses {
+        s.push_str(&model_csv_rows(f));
     }
     s
 }

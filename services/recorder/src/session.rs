@@ -32,6 +32,44 @@ pub const POSES_CSV_HEADER: &str = "timestamp_ns,sequence,object_id,x_m,y_m,z_m,
 pub const BODIES_CSV_HEADER: &str =
     "timestamp_ns,sequence,body,x_m,y_m,z_m,qx,qy,qz,qw,residual_mm,markers_seen,markers,held\n";
 
+/// Header of the kinematic models' CSV (`stereoscope export --format models-csv`): one row per
+/// joint per model per pose frame; `v0`…`v3` the joint's values as the protocol gives them
+/// (an angle in radians, an offset in metres, two angles, or a rotation x, y, z, w), unused
+/// ones empty.
+pub const MODELS_CSV_HEADER: &str =
+    "timestamp_ns,sequence,model,valid,rms_mm,joint,v0,v1,v2,v3,determined,at_limit,residual_mm\n";
+
+/// CSV rows of one pose frame's models.
+pub fn model_csv_rows(f: &PoseFrame) -> String {
+    let mut out = String::new();
+    for m in &f.models {
+        for j in &m.joints {
+            let v: Vec<String> = (0..4)
+                .map(|k| {
+                    j.values
+                        .get(k)
+                        .map(|v| format!("{v:.9}"))
+                        .unwrap_or_default()
+                })
+                .collect();
+            out.push_str(&format!(
+                "{},{},{},{},{:.3},{},{},{},{},{}\n",
+                f.timestamp_ns,
+                f.sequence,
+                m.name,
+                m.valid,
+                m.rms_mm,
+                j.name,
+                v.join(","),
+                j.determined,
+                j.at_limit,
+                j.residual_mm.map(|r| format!("{r:.3}")).unwrap_or_default()
+            ));
+        }
+    }
+    out
+}
+
 /// CSV rows of one pose frame's bodies.
 pub fn body_csv_rows(f: &PoseFrame) -> String {
     let mut out = String::new();
@@ -239,6 +277,48 @@ impl Session {
 mod tests {
     use super::*;
     use stereoscope_proto::messages::{Pose, PoseMethod, SCHEMA_VERSION};
+
+    /// A model's joints, a row each: an angle in v0, a ball joint's rotation in v0–v3, an
+    /// unseen link's residual empty.
+    #[test]
+    fn a_models_joints_are_rows_of_the_models_csv() {
+        use stereoscope_proto::messages::{JointState, ModelPose};
+        let mut f = frame(3);
+        f.models = vec![ModelPose {
+            name: "leg".into(),
+            valid: true,
+            rms_mm: 0.25,
+            markers_seen: 12,
+            markers: 16,
+            joints: vec![
+                JointState {
+                    name: "hip".into(),
+                    values: vec![0.0, 0.1, 0.0, 0.995],
+                    determined: true,
+                    at_limit: false,
+                    residual_mm: Some(0.2),
+                },
+                JointState {
+                    name: "knee".into(),
+                    values: vec![0.5],
+                    determined: false,
+                    at_limit: true,
+                    residual_mm: None,
+                },
+            ],
+            links: Vec::new(),
+        }];
+        let rows = model_csv_rows(&f);
+        assert_eq!(
+            rows,
+            "1003,3,leg,true,0.250,hip,0.000000000,0.100000000,0.000000000,0.995000000,true,false,0.200\n\
+             1003,3,leg,true,0.250,knee,0.500000000,,,,false,true,\n"
+        );
+        assert_eq!(
+            MODELS_CSV_HEADER.split(',').count(),
+            rows.lines().next().unwrap().split(',').count()
+        );
+    }
 
     fn frame(seq: u64) -> PoseFrame {
         PoseFrame {

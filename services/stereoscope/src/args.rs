@@ -599,10 +599,11 @@ pub struct ExportArgs {
     /// The session folder.
     pub session: PathBuf,
     /// csv (one row per object per pose frame), bodies-csv (one row per rigid body per pose
-    /// frame), markers-csv (one row per frame on one clock, x/y/z and a filled flag per
+    /// frame), models-csv (one row per joint of each kinematic model per pose frame),
+    /// markers-csv (one row per frame on one clock, x/y/z and a filled flag per
     /// marker) or c3d (markers per object and per body, for biomechanics and animation tools;
     /// docs/recording.md).
-    #[arg(long, value_parser = ["csv", "bodies-csv", "markers-csv", "c3d"])]
+    #[arg(long, value_parser = ["csv", "bodies-csv", "models-csv", "markers-csv", "c3d"])]
     pub format: String,
     /// Output file (standard output if absent; required for c3d). Written whole or not at
     /// all.

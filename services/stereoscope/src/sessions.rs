@@ -400,15 +400,15 @@ fn losses(
     health.values().flat_map(|h| h.losses()).collect()
 }
 
-/// `stereoscope export --format csv|bodies-csv|markers-csv|c3d`.
+/// `stereoscope export --format csv|bodies-csv|models-csv|markers-csv|c3d`.
 pub fn export(
     session: PathBuf,
     format: &str,
     out: Option<PathBuf>,
     fill_gaps: Option<usize>,
 ) -> anyhow::Result<usize> {
-    if !["csv", "bodies-csv", "markers-csv", "c3d"].contains(&format) {
-        anyhow::bail!("--format {format}: csv, bodies-csv, markers-csv or c3d");
+    if !["csv", "bodies-csv", "models-csv", "markers-csv", "c3d"].contains(&format) {
+        anyhow::bail!("--format {format}: csv, bodies-csv, models-csv, markers-csv or c3d");
     }
     if fill_gaps.is_some() && !["c3d", "markers-csv"].contains(&format) {
         anyhow::bail!(
@@ -460,6 +460,11 @@ pub fn export(
         let csv = stereoscope_recorder::export::export_markers_csv(&s, fill_gaps)
             .with_context(|| session.display().to_string())?;
         (csv.into_bytes(), None)
+    } else if format == "models-csv" {
+        (
+            stereoscope_recorder::export::export_models_csv(&s).into_bytes(),
+            None,
+        )
     } else if format == "bodies-csv" {
         (
             stereoscope_recorder::export::export_bodies_csv(&s).into_bytes(),
