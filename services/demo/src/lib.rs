@@ -653,7 +653,7 @@ fn watch(
                 );
                 let _ = writeln!(
                     o,
-                    "  obj        x m      y m      z m   heading  method         err mm"
+                    "  obj        x m      y m      z m   heading  method         err mm  marker of"
                 );
                 for b in &p.bodies {
                     let err = body_errors
@@ -680,9 +680,15 @@ fn watch(
                         .find(|(_, id, _)| *id == Some(pose.object_id))
                         .map(|(_, _, e)| format!("{:6.1}", e * 1000.0))
                         .unwrap_or_else(|| "     -".into());
+                    // Which body's marker a pose is, by the body's own numbering.
+                    let of = pose
+                        .body
+                        .as_ref()
+                        .map(|b| format!("{} m{}", b.name, b.marker))
+                        .unwrap_or_else(|| "-".into());
                     let _ = writeln!(
                         o,
-                        "  {:>3}  {:>8.4} {:>8.4} {:>8.4}  {:>8}  {:<13} {err}",
+                        "  {:>3}  {:>8.4} {:>8.4} {:>8.4}  {:>8}  {:<13} {err}  {of}",
                         pose.object_id,
                         pose.position_m[0],
                         pose.position_m[1],
@@ -691,6 +697,31 @@ fn watch(
                             .map(|h| format!("{h:6.1}°"))
                             .unwrap_or("-".into()),
                         format!("{:?}", pose.method).to_lowercase(),
+                    );
+                }
+                for m in &p.models {
+                    let joints: Vec<String> = m
+                        .joints
+                        .iter()
+                        .filter(|j| j.values.len() == 1)
+                        .map(|j| {
+                            format!(
+                                "{} {:.2}{}",
+                                j.name,
+                                j.values[0].to_degrees(),
+                                if j.determined { "°" } else { "° (held)" }
+                            )
+                        })
+                        .collect();
+                    let _ = writeln!(
+                        o,
+                        "  model {:<8} {}/{} markers, residual {:.2} mm{}: {}",
+                        m.name,
+                        m.markers_seen,
+                        m.markers,
+                        m.rms_mm,
+                        if m.valid { "" } else { " (not valid)" },
+                        joints.join(", ")
                     );
                 }
             }
