@@ -35,6 +35,7 @@ TYPES = {
     "geometry_msgs::msg::dds_::PoseStamped_": "geometry_msgs/msg/PoseStamped",
     "geometry_msgs::msg::dds_::TwistStamped_": "geometry_msgs/msg/TwistStamped",
     "tf2_msgs::msg::dds_::TFMessage_": "tf2_msgs/msg/TFMessage",
+    "sensor_msgs::msg::dds_::JointState_": "sensor_msgs/msg/JointState",
 }
 
 

@@ -158,7 +158,13 @@ fn nominal_fps(spec: &stereoscope_rig::schema::RigFile) -> f64 {
 }
 
 /// The lab protocols of `settings`, not yet bound.
-fn labs(settings: &VrSettings, bodies: &[output::BodyDef], fps: f64, rig: &str) -> Vec<Lab> {
+fn labs(
+    settings: &VrSettings,
+    bodies: &[output::BodyDef],
+    model_names: &[String],
+    fps: f64,
+    rig: &str,
+) -> Vec<Lab> {
     let mut out = Vec::new();
     if let Some(n) = &settings.natnet {
         let cfg = natnet::NatNetConfig {
@@ -211,6 +217,7 @@ fn labs(settings: &VrSettings, bodies: &[output::BodyDef], fps: f64, rig: &str) 
     if let Some(r) = &settings.ros2 {
         let cfg = r.clone();
         let names: Vec<String> = bodies.iter().map(|b| b.name.clone()).collect();
+        let model_names = model_names.to_vec();
         out.push(Lab {
             name: "ROS 2",
             addr: r.router.clone(),
@@ -218,7 +225,7 @@ fn labs(settings: &VrSettings, bodies: &[output::BodyDef], fps: f64, rig: &str) 
             clients_key: None,
             up: "publishing",
             open: Box::new(move || {
-                ros2::Ros2Output::open(cfg.clone(), names.clone())
+                ros2::Ros2Output::open(cfg.clone(), names.clone(), model_names.clone())
                     .map(|s| Box::new(s) as Box<dyn output::Output + Send>)
             }),
             server: None,
@@ -373,9 +380,16 @@ impl VrFeedService {
         }
         // The lab protocols bind (ROS 2's session takes about half a second to open) before the
         // pose input exists, so no frame waits behind them.
+        let model_names: Vec<String> = ctx
+            .rig
+            .models
+            .iter()
+            .map(|m| m.model.name.clone())
+            .collect();
         let mut labs = labs(
             &settings,
             &body_defs(&ctx.rig.spec),
+            &model_names,
             nominal_fps(&ctx.rig.spec),
             &ctx.rig.name,
         );
@@ -602,6 +616,7 @@ impl VrFeedService {
                 received_ns: frame.frame_published_ns,
                 bodies: &out_bodies,
                 markers: &markers,
+                models: &frame.models,
             };
             for l in &mut self.labs {
                 if let Some(s) = l.server.as_mut() {

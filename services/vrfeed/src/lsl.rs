@@ -298,6 +298,7 @@ mod tests {
             received_ns: 0,
             bodies: &b,
             markers: &[],
+            models: &[],
         };
         let s = sample(&f, 2, &ConsumerFrame::identity());
         assert!(s[..7].iter().all(|v| v.is_nan()));

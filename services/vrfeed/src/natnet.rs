@@ -578,6 +578,7 @@ mod tests {
             received_ns: 1_700_000_000_251_000_000,
             bodies: &bodies,
             markers: &markers,
+            models: &[],
         };
         let frame = ConsumerFrame::y_up();
         let p = frame_of_data(&f, &body(), &frame, 1_700_000_000_252_000_000);

@@ -45,6 +45,8 @@ pub struct OutputFrame<'a> {
     pub received_ns: u64,
     pub bodies: &'a [OutputBody],
     pub markers: &'a [OutputMarker],
+    /// The kinematic models fitted in this frame (`docs/models.md`).
+    pub models: &'a [stereoscope_proto::messages::ModelPose],
 }
 
 /// What a module did since it was last asked: frames sent, peers dropped or refused (by

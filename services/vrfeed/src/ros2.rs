@@ -18,8 +18,10 @@
 //! *Topics.* Per body `<namespace>/<body>/pose` (`geometry_msgs/msg/PoseStamped`) and
 //! `<namespace>/<body>/twist` (`geometry_msgs/msg/TwistStamped`, linear and angular velocity in
 //! the same frame), and every body on `/tf` (`tf2_msgs/msg/TFMessage`, parent `frame_id`, child
-//! the body's name). `header.stamp` is the exposure; bodies held through an occlusion are not
-//! published (a ROS pose is a measurement).
+//! the body's name). Per kinematic model `<namespace>/<model>/joint_states`
+//! (`sensor_msgs/msg/JointState`: names and positions of its determined joints, velocity and
+//! effort empty). `header.stamp` is the exposure; bodies held through an occlusion and joints
+//! not determined are not published (a ROS pose is a measurement).
 
 use crate::output::{Counts, Output, OutputFrame};
 use nalgebra::{Point3, Vector3};
@@ -34,6 +36,11 @@ pub const POSE_STAMPED: (&str, &str) = (
 pub const TWIST_STAMPED: (&str, &str) = (
     "geometry_msgs::msg::dds_::TwistStamped_",
     "RIHS01_5f0fcd4f81d5d06ad9b4c4c63e3ea51b82d6ae4d0558f1d475229b1121db6f64",
+);
+/// `sensor_msgs/msg/JointState`, Jazzy (the hash as rosbags 0.11.9 computes it).
+pub const JOINT_STATE: (&str, &str) = (
+    "sensor_msgs::msg::dds_::JointState_",
+    "RIHS01_a13ee3a330e346c9d87b5aa18d24e11690752bd33a0350f11c5882bc9179260e",
 );
 pub const TF_MESSAGE: (&str, &str) = (
     "tf2_msgs::msg::dds_::TFMessage_",
@@ -120,6 +127,42 @@ pub fn twist_stamped(
 }
 
 /// `tf2_msgs/msg/TFMessage`: one `geometry_msgs/msg/TransformStamped` per (child, pose).
+/// `sensor_msgs/msg/JointState`: the header, then the joints' names and positions (radians,
+/// metres); velocity and effort empty (not measured).
+pub fn joint_state(stamp_ns: u64, frame_id: &str, joints: &[(String, f64)]) -> Vec<u8> {
+    let mut c = Cdr::new();
+    c.header(stamp_ns, frame_id);
+    c.u32(joints.len() as u32);
+    for (n, _) in joints {
+        c.string(n);
+    }
+    c.u32(joints.len() as u32);
+    for (_, v) in joints {
+        c.f64(*v);
+    }
+    c.u32(0);
+    c.u32(0);
+    c.finish()
+}
+
+/// A model's joints as `JointState` lists them: each determined hinge or slide by its name,
+/// a universal joint's two angles as `<joint>_0` and `<joint>_1`; ball joints (no URDF
+/// equivalent) and undetermined joints left out.
+pub fn joint_positions(m: &stereoscope_proto::messages::ModelPose) -> Vec<(String, f64)> {
+    let mut out = Vec::new();
+    for j in m.joints.iter().filter(|j| j.determined) {
+        match j.values.as_slice() {
+            [v] => out.push((j.name.clone(), *v)),
+            [a, b] => {
+                out.push((format!("{}_0", j.name), *a));
+                out.push((format!("{}_1", j.name), *b));
+            }
+            _ => {}
+        }
+    }
+    out
+}
+
 pub fn tf_message(stamp_ns: u64, frame_id: &str, transforms: &[(&str, RosPose)]) -> Vec<u8> {
     let mut c = Cdr::new();
     c.u32(transforms.len() as u32);
@@ -215,6 +258,8 @@ pub struct Ros2Output {
     names: Vec<String>,
     /// Per body: pose and twist topics.
     bodies: Vec<(Topic, Topic)>,
+    /// Per kinematic model: its name and `joint_states` topic.
+    models: Vec<(String, Topic)>,
     tf: Topic,
     counts: Counts,
     _node: zenoh::liveliness::LivelinessToken,
@@ -235,7 +280,11 @@ fn zerr(what: &str, e: impl std::fmt::Display) -> std::io::Error {
 impl Ros2Output {
     /// Opens the session (it connects in the background, retrying, so an absent router delays
     /// nothing) and declares the node and its publishers.
-    pub fn open(cfg: Ros2Settings, names: Vec<String>) -> std::io::Result<Ros2Output> {
+    pub fn open(
+        cfg: Ros2Settings,
+        names: Vec<String>,
+        model_names: Vec<String>,
+    ) -> std::io::Result<Ros2Output> {
         let mut z = zenoh::Config::default();
         let endpoints = serde_json_list(&[cfg.router.as_str()]);
         for (k, v) in [
@@ -297,11 +346,17 @@ impl Ros2Output {
                 topic(&format!("{ns}/{n}/twist"), TWIST_STAMPED)?,
             ));
         }
+        let mut models = Vec::new();
+        for n in model_names {
+            let t = topic(&format!("{ns}/{n}/joint_states"), JOINT_STATE)?;
+            models.push((n, t));
+        }
         let tf = topic("/tf", TF_MESSAGE)?;
         Ok(Ros2Output {
             cfg,
             names,
             bodies,
+            models,
             tf,
             counts: Counts::default(),
             _node: node,
@@ -353,6 +408,21 @@ impl Output for Ros2Output {
                 "twist",
             );
             transforms.push((o.index, pose));
+        }
+        // Each valid model's determined joints: a joint angle is a measurement, never a
+        // held guess.
+        for m in f.models.iter().filter(|m| m.valid) {
+            let Some((_, topic)) = self.models.iter_mut().find(|(n, _)| *n == m.name) else {
+                continue;
+            };
+            let joints = joint_positions(m);
+            if !joints.is_empty() {
+                topic.put(
+                    joint_state(f.exposure_ns, &self.cfg.frame_id, &joints),
+                    &mut self.counts,
+                    "joint_states",
+                );
+            }
         }
         if !transforms.is_empty() {
             let named: Vec<(&str, RosPose)> = transforms

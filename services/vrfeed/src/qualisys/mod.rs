@@ -327,6 +327,7 @@ impl QualisysServer {
             received_ns: l.received_ns,
             bodies: &l.bodies,
             markers: &l.markers,
+            models: &[],
         };
         Some(data_body(&f, &self.bodies, &self.cfg.frame, components))
     }
@@ -716,6 +717,7 @@ mod tests {
             received_ns: 0,
             bodies: &b,
             markers: &m,
+            models: &[],
         };
         let mm = ConsumerFrame {
             units_per_m: 1000.0,
@@ -854,6 +856,7 @@ mod tests {
                 received_ns: 0,
                 bodies: &b,
                 markers: &[],
+                models: &[],
             };
             s.send(&f);
             while let Ok(n) = good.read(&mut buf) {
@@ -875,6 +878,7 @@ mod tests {
                     received_ns: 0,
                     bodies: &b,
                     markers: &[],
+                    models: &[],
                 },
                 &bodies(),
                 &ConsumerFrame::identity(),
