@@ -145,7 +145,8 @@ fn the_leg_demo_measures_its_knee_through_the_services() {
 /// The leg's joints on ROS 2 as `sensor_msgs/msg/JointState`: the demo runs the leg rig with a
 /// ROS 2 feed into a Zenoh router that Zenoh's Python binding stands up (where `rmw_zenohd`
 /// would be); rosbags decodes every sample's CDR with ROS 2 Jazzy's types and checks its key's
-/// type hash, and the knee's angles lie in the scene's range (2–60°).
+/// type hash, and the knee's angles lie in the scene's range (2–60°); each link's pose comes on
+/// `/tf`.
 #[test]
 fn the_legs_joints_reach_ros2_as_joint_states() {
     let port = stereoscope_transport::net::free_loopback_port().unwrap();

@@ -161,7 +161,7 @@ fn nominal_fps(spec: &stereoscope_rig::schema::RigFile) -> f64 {
 fn labs(
     settings: &VrSettings,
     bodies: &[output::BodyDef],
-    model_names: &[String],
+    model_trees: &[ros2::ModelTree],
     fps: f64,
     rig: &str,
 ) -> Vec<Lab> {
@@ -217,7 +217,7 @@ fn labs(
     if let Some(r) = &settings.ros2 {
         let cfg = r.clone();
         let names: Vec<String> = bodies.iter().map(|b| b.name.clone()).collect();
-        let model_names = model_names.to_vec();
+        let model_trees = model_trees.to_vec();
         out.push(Lab {
             name: "ROS 2",
             addr: r.router.clone(),
@@ -225,7 +225,7 @@ fn labs(
             clients_key: None,
             up: "publishing",
             open: Box::new(move || {
-                ros2::Ros2Output::open(cfg.clone(), names.clone(), model_names.clone())
+                ros2::Ros2Output::open(cfg.clone(), names.clone(), model_trees.clone())
                     .map(|s| Box::new(s) as Box<dyn output::Output + Send>)
             }),
             server: None,
@@ -380,16 +380,16 @@ impl VrFeedService {
         }
         // The lab protocols bind (ROS 2's session takes about half a second to open) before the
         // pose input exists, so no frame waits behind them.
-        let model_names: Vec<String> = ctx
+        let model_trees: Vec<ros2::ModelTree> = ctx
             .rig
             .models
             .iter()
-            .map(|m| m.model.name.clone())
+            .map(|m| ros2::ModelTree::of(&m.model))
             .collect();
         let mut labs = labs(
             &settings,
             &body_defs(&ctx.rig.spec),
-            &model_names,
+            &model_trees,
             nominal_fps(&ctx.rig.spec),
             &ctx.rig.name,
         );

@@ -20,7 +20,8 @@
 //! the same frame), and every body on `/tf` (`tf2_msgs/msg/TFMessage`, parent `frame_id`, child
 //! the body's name). Per kinematic model `<namespace>/<model>/joint_states`
 //! (`sensor_msgs/msg/JointState`: names and positions of its determined joints, velocity and
-//! effort empty). `header.stamp` is the exposure; bodies held through an occlusion and joints
+//! effort empty), and on `/tf` each of its links whose joints from the root are all
+//! determined, child `<model>/<link>`. `header.stamp` is the exposure; bodies held through an occlusion and joints
 //! not determined are not published (a ROS pose is a measurement).
 
 use crate::output::{Counts, Output, OutputFrame};
@@ -145,6 +146,29 @@ pub fn joint_state(stamp_ns: u64, frame_id: &str, joints: &[(String, f64)]) -> V
     c.finish()
 }
 
+/// What the feed knows of a kinematic model's tree: its name, and for each link its name and
+/// the joints from the root to it (a link's pose is published on `/tf` only when every one of
+/// them is determined).
+#[derive(Debug, Clone, PartialEq)]
+pub struct ModelTree {
+    pub name: String,
+    pub links: Vec<(String, Vec<usize>)>,
+}
+
+impl ModelTree {
+    pub fn of(m: &stereoscope_kinematics::Model) -> ModelTree {
+        ModelTree {
+            name: m.name.clone(),
+            links: m
+                .links
+                .iter()
+                .enumerate()
+                .map(|(l, link)| (link.name.clone(), m.path(l).to_vec()))
+                .collect(),
+        }
+    }
+}
+
 /// A model's joints as `JointState` lists them: each determined hinge or slide by its name,
 /// a universal joint's two angles as `<joint>_0` and `<joint>_1`; ball joints (no URDF
 /// equivalent) and undetermined joints left out.
@@ -258,8 +282,8 @@ pub struct Ros2Output {
     names: Vec<String>,
     /// Per body: pose and twist topics.
     bodies: Vec<(Topic, Topic)>,
-    /// Per kinematic model: its name and `joint_states` topic.
-    models: Vec<(String, Topic)>,
+    /// Per kinematic model: its tree and `joint_states` topic.
+    models: Vec<(ModelTree, Topic)>,
     tf: Topic,
     counts: Counts,
     _node: zenoh::liveliness::LivelinessToken,
@@ -283,7 +307,7 @@ impl Ros2Output {
     pub fn open(
         cfg: Ros2Settings,
         names: Vec<String>,
-        model_names: Vec<String>,
+        model_trees: Vec<ModelTree>,
     ) -> std::io::Result<Ros2Output> {
         let mut z = zenoh::Config::default();
         let endpoints = serde_json_list(&[cfg.router.as_str()]);
@@ -347,9 +371,9 @@ impl Ros2Output {
             ));
         }
         let mut models = Vec::new();
-        for n in model_names {
-            let t = topic(&format!("{ns}/{n}/joint_states"), JOINT_STATE)?;
-            models.push((n, t));
+        for m in model_trees {
+            let t = topic(&format!("{ns}/{}/joint_states", m.name), JOINT_STATE)?;
+            models.push((m, t));
         }
         let tf = topic("/tf", TF_MESSAGE)?;
         Ok(Ros2Output {
@@ -411,10 +435,31 @@ impl Output for Ros2Output {
         }
         // Each valid model's determined joints: a joint angle is a measurement, never a
         // held guess.
+        let mut link_transforms: Vec<(String, RosPose)> = Vec::new();
         for m in f.models.iter().filter(|m| m.valid) {
-            let Some((_, topic)) = self.models.iter_mut().find(|(n, _)| *n == m.name) else {
+            let Some((tree, topic)) = self.models.iter_mut().find(|(t, _)| t.name == m.name) else {
                 continue;
             };
+            // Each link whose every joint from the root is determined, as `<model>/<link>`.
+            for ((name, path), pose) in tree.links.iter().zip(&m.links) {
+                if path
+                    .iter()
+                    .all(|j| m.joints.get(*j).is_some_and(|j| j.determined))
+                {
+                    let p = frame.position(&Point3::from(pose.position_m));
+                    let [x, y, z, w] = pose.orientation_xyzw;
+                    let q = frame.rotation(&nalgebra::UnitQuaternion::from_quaternion(
+                        nalgebra::Quaternion::new(w, x, y, z),
+                    ));
+                    link_transforms.push((
+                        format!("{}/{name}", m.name),
+                        RosPose {
+                            position: [p.x, p.y, p.z],
+                            quat_xyzw: [q.i, q.j, q.k, q.w],
+                        },
+                    ));
+                }
+            }
             let joints = joint_positions(m);
             if !joints.is_empty() {
                 topic.put(
@@ -424,10 +469,11 @@ impl Output for Ros2Output {
                 );
             }
         }
-        if !transforms.is_empty() {
+        if !transforms.is_empty() || !link_transforms.is_empty() {
             let named: Vec<(&str, RosPose)> = transforms
                 .iter()
                 .map(|(i, p)| (self.names[*i].as_str(), *p))
+                .chain(link_transforms.iter().map(|(n, p)| (n.as_str(), *p)))
                 .collect();
             let m = tf_message(f.exposure_ns, &self.cfg.frame_id, &named);
             self.tf.put(m, &mut self.counts, "tf");
