@@ -282,7 +282,8 @@ pub fn run(cfg: DemoConfig, shutdown: Shutdown) -> Result<DemoSummary, DemoError
     let port = net::free_loopback_port().map_err(DemoError::NoPort)?;
     let prefix = format!("stsc_demo{}_", std::process::id());
     let mut base = cfg.rig_text.clone().unwrap_or_else(|| DEMO_RIG.to_string());
-    // The services read the rig from the work folder: a model's URDF is named by its full path.
+    // The services read the rig from the work folder: a model's URDF and a recorder's folder
+    // are named by their full paths (both are relative to the rig file).
     if let Some(dir) = &cfg.rig_dir {
         let mut file = stereoscope_rig::RigFile::from_toml(&base).map_err(|e| {
             DemoError::Rig(stereoscope_rig::RigError {
@@ -300,6 +301,12 @@ pub fn run(cfg: DemoConfig, shutdown: Shutdown) -> Result<DemoSummary, DemoError
                 *u = dir.join(&*u).display().to_string();
                 moved = true;
             }
+        }
+        if let Some(r) = &mut file.recorder
+            && std::path::Path::new(&r.folder).is_relative()
+        {
+            r.folder = dir.join(&r.folder).display().to_string();
+            moved = true;
         }
         if moved {
             base = file.to_toml().map_err(|e| {

@@ -560,6 +560,50 @@ pub struct BodyDefineArgs {
     pub tls: stereoscope_service::context::TlsArgs,
 }
 
+/// `stereoscope model define`: its options.
+#[derive(clap::Args, Debug)]
+pub struct ModelDefineArgs {
+    /// The model's name (the rig's [[model]] of that name gets the markers with --write).
+    pub name: String,
+    /// The rig file.
+    #[arg(long)]
+    pub rig: PathBuf,
+    /// The recorded session of the range-of-motion take (every joint moved).
+    #[arg(long)]
+    pub session: PathBuf,
+    /// The skeleton's URDF (otherwise the rig's [[model]] of that name).
+    #[arg(long)]
+    pub urdf: Option<PathBuf>,
+    /// The recorded session of the model standing still at its zero pose (the same cameras,
+    /// the model in the same place).
+    #[arg(long)]
+    pub home: PathBuf,
+    /// Markers are on one link when their distance varies less than this (standard deviation,
+    /// rig file unit; default 1.5 mm).
+    #[arg(long)]
+    pub rigid_tolerance: Option<f64>,
+    /// Put the markers in the rig file (after checking the whole file loads).
+    #[arg(long)]
+    pub write: bool,
+    /// The report's figures as one JSON object on stdout instead of the table.
+    #[arg(long)]
+    pub json: bool,
+}
+
+impl ModelDefineArgs {
+    pub fn into_options(self) -> stereoscope::model::ModelDefineOptions {
+        stereoscope::model::ModelDefineOptions {
+            name: self.name,
+            rig: self.rig,
+            session: self.session,
+            urdf: self.urdf,
+            home: self.home,
+            rigid_tolerance: self.rigid_tolerance,
+            write: self.write,
+        }
+    }
+}
+
 /// `stereoscope replay`: its options.
 #[derive(clap::Args, Debug)]
 pub struct ReplayArgs {

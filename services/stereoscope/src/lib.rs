@@ -11,6 +11,7 @@ pub mod floor;
 pub mod grab;
 pub mod live;
 pub mod mask;
+pub mod model;
 pub mod process;
 pub mod progress;
 pub mod sessions;

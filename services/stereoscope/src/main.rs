@@ -58,6 +58,10 @@ enum Command {
     /// Rigid bodies: define one from the markers the running rig sees now.
     #[command(subcommand)]
     Body(BodyCommand),
+    /// Kinematic models: define one's markers and measure its links from a recorded
+    /// range-of-motion take.
+    #[command(subcommand)]
+    Model(ModelCommand),
     /// Save frames of one camera (for calibration) and a preview of what its moment worker
     /// finds in them, to aim the camera and set its exposure.
     Grab(args::GrabArgs),
@@ -82,6 +86,15 @@ enum BodyCommand {
     /// print the [[body]] table (origin at their centroid, the world's axes); --write appends
     /// it to the rig file.
     Define(args::BodyDefineArgs),
+}
+
+#[derive(Subcommand, Debug)]
+enum ModelCommand {
+    /// From a recorded take that moves every joint and one of the model standing at its zero
+    /// pose (--home): find which markers ride on which link, the joints' centres and axes, the
+    /// link lengths against the skeleton (--urdf, or the rig's [[model]] of that name), and
+    /// print the [[model]] table with the markers placed; --write puts it in the rig file.
+    Define(args::ModelDefineArgs),
 }
 
 #[derive(Subcommand, Debug)]
@@ -227,6 +240,24 @@ fn main() -> ExitCode {
                     ExitCode::from(stereoscope_service::exit::CONFIG_EXIT_STATUS)
                 }
                 r => stereoscope_service::exit::exit_code(r.map(|_| ())),
+            }
+        }
+        Command::Model(ModelCommand::Define(a)) => {
+            let json = a.json;
+            match stereoscope::model::define(&a.into_options()) {
+                Ok(d) => {
+                    if json {
+                        println!("{}", d.json);
+                    } else {
+                        eprint!("{}", d.report);
+                        print!("{}", d.table);
+                    }
+                    ExitCode::SUCCESS
+                }
+                Err(e) => {
+                    eprintln!("error: {e:#}");
+                    ExitCode::from(1)
+                }
             }
         }
         Command::Body(BodyCommand::Define(a)) => match stereoscope::body::define_live(

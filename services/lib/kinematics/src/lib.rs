@@ -11,11 +11,13 @@
 //!
 //! Pure: no I/O, no IPC. Units: metres and radians.
 
+pub mod define;
 pub mod fit;
 pub mod model;
 pub mod synthetic;
 pub mod urdf;
 
+pub use define::{DefineError, DefineOptions, Defined, Track, define_model};
 pub use fit::{ChainFit, ChainState, FitError, FitOptions, JointFit, fit_chain, initial_state};
 pub use model::{
     Base, Joint, JointKind, JointSpec, JointValue, Limits, Link, Marker, MarkerSpec, Model,
@@ -23,5 +25,7 @@ pub use model::{
 };
 pub use urdf::{UrdfError, model_from_urdf};
 
+#[cfg(test)]
+mod define_tests;
 #[cfg(test)]
 mod tests;

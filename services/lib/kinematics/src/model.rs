@@ -485,6 +485,21 @@ impl Model {
         self.joints.iter().position(|j| j.name == name)
     }
 
+    /// The joints as a file would describe them (links by name): to build the model again
+    /// with other markers.
+    pub fn joint_specs(&self) -> Vec<JointSpec> {
+        self.joints
+            .iter()
+            .map(|j| JointSpec {
+                name: j.name.clone(),
+                parent: self.links[j.parent].name.clone(),
+                child: self.links[j.child].name.clone(),
+                parent_from_joint: j.parent_from_joint,
+                kind: j.kind.clone(),
+            })
+            .collect()
+    }
+
     /// Every joint at no motion.
     pub fn zero(&self) -> Vec<JointValue> {
         self.joints
