@@ -119,8 +119,59 @@ pub fn define(opts: &ModelDefineOptions) -> anyhow::Result<ModelDefined> {
     };
     let tracks = tracks(frames);
     let home_tracks = self::tracks(home_frames);
-    let d = define_model(&skeleton, &tracks, &home_tracks, &define_opts).with_context(|| {
-        format!(
+    // The whole take first; where that does not fit, its first, last and middle two thirds,
+    // then halves (a stretch in which fewer ids passed between neighbouring markers), until one
+    // fits; else the definition that fits its stretch best.
+    let n = frames.len();
+    let mut tried: Vec<(usize, usize, Defined, Refit)> = Vec::new();
+    let mut first_error = None;
+    let stretches = [
+        (0, n),
+        (0, 2 * n / 3),
+        (n / 3, n),
+        (n / 6, 5 * n / 6),
+        (0, n / 2),
+        (n / 4, 3 * n / 4),
+        (n / 2, n),
+    ];
+    for (from, to) in stretches {
+        let stretch: Vec<Track> = tracks
+            .iter()
+            .map(|t| Track {
+                id: t.id,
+                points: t.points[from..to].to_vec(),
+            })
+            .collect();
+        match define_model(&skeleton, &stretch, &home_tracks, &define_opts) {
+            Ok(d) => {
+                let check = refit(&d, to - from);
+                let good = fits(&check, to - from);
+                tried.push((from, to, d, check));
+                if good {
+                    break;
+                }
+            }
+            Err(e) => {
+                first_error.get_or_insert(e);
+            }
+        }
+    }
+    let best = tried.into_iter().max_by(|a, b| {
+        let score = |x: &(usize, usize, Defined, Refit)| {
+            (
+                fits(&x.3, x.1 - x.0),
+                x.3.valid as f64 / (x.1 - x.0) as f64,
+                -x.3.median_m,
+            )
+        };
+        let (sa, sb) = (score(a), score(b));
+        sa.0.cmp(&sb.0)
+            .then(sa.1.total_cmp(&sb.1))
+            .then(sa.2.total_cmp(&sb.2))
+    });
+    let Some((from, to, d, check)) = best else {
+        let e = first_error.map_or_else(|| anyhow!("no definition"), anyhow::Error::from);
+        return Err(e.context(format!(
             "{} ({} frames, {} marker tracks), zero pose {} ({} frames): model {:?}",
             opts.session.display(),
             frames.len(),
@@ -128,15 +179,21 @@ pub fn define(opts: &ModelDefineOptions) -> anyhow::Result<ModelDefined> {
             opts.home.display(),
             home_frames.len(),
             opts.name,
-        )
-    })?;
-    let check = refit(&d, frames.len());
-    let report = report(&d, &check, frames.len(), home_frames.len(), scale);
-    let json = figures(&d, &check, frames.len());
+        )));
+    };
+    let frames = &frames[from..to];
+    let mut report = report(&d, &check, frames.len(), home_frames.len(), scale);
+    if (from, to) != (0, n) {
+        report = format!(
+            "the whole take did not define a model that fits it; frames {from}–{} did:\n{report}",
+            to - 1
+        );
+    }
+    let mut json = figures(&d, &check, frames.len());
+    json["from_frame"] = serde_json::json!(from);
     // A definition that does not fit its own take is not written: the markers or the links
     // were found wrong (ids passed between neighbouring markers can join two links).
-    let fits = check.valid * 10 >= frames.len() * 9 && check.median_m <= MAX_REFIT_MEDIAN_M;
-    if opts.write && !fits {
+    if opts.write && !fits(&check, frames.len()) {
         bail!(
             "{report}the defined model fits its own take in {} of {} frames (RMS median {:.2} mm): not written to {}; record the take again, slower or with more cameras",
             check.valid,
@@ -159,6 +216,12 @@ struct Refit {
     valid: usize,
     median_m: f64,
     p95_m: f64,
+}
+
+/// Fitted back in 90 % of its frames or more, with a median RMS within
+/// [`MAX_REFIT_MEDIAN_M`].
+fn fits(check: &Refit, frames: usize) -> bool {
+    check.valid * 10 >= frames * 9 && check.median_m <= MAX_REFIT_MEDIAN_M
 }
 
 fn refit(d: &Defined, frames: usize) -> Refit {
@@ -298,7 +361,7 @@ fn figures(d: &Defined, check: &Refit, frames: usize) -> serde_json::Value {
             "model_angle_deg": l.model_angle_rad.map(f64::to_degrees),
         })).collect::<Vec<_>>(),
         "refit": { "valid": check.valid, "median_rms_m": check.median_m, "p95_rms_m": check.p95_m },
-        "fits": check.valid * 10 >= frames * 9 && check.median_m <= MAX_REFIT_MEDIAN_M,
+        "fits": fits(check, frames),
         "left_out": d.left_out,
     })
 }
