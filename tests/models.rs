@@ -105,7 +105,7 @@ fn the_robot_arm_demo_measures_its_joints_through_the_services() {
     let valid = arm["valid"].as_f64().unwrap();
     let whole = arm["whole"].as_f64().unwrap();
     assert!(
-        frames >= 150.0 && valid >= 0.7 * frames && whole >= 0.2 * frames,
+        frames >= 150.0 && valid >= 0.7 * frames && whole >= 0.7 * frames,
         "{line}"
     );
     for (k, j) in arm["joints"].as_array().unwrap().iter().enumerate() {
