@@ -555,9 +555,39 @@ pub struct BodyDefineArgs {
     /// Append the table to the rig file (after checking the whole file loads).
     #[arg(long)]
     pub write: bool,
+    /// Only these objects' markers (their ids, as the live table and `status` show them).
+    #[arg(long, value_delimiter = ',')]
+    pub objects: Option<Vec<u32>>,
+    /// Only markers inside this box: MINX,MINY,MINZ,MAXX,MAXY,MAXZ (world, rig file unit).
+    #[arg(long, value_delimiter = ',', num_args = 6)]
+    pub inside: Option<Vec<f64>>,
+    /// The body's origin: "centroid", "marker:K" (the K-th marker taken, from 0, in object-id
+    /// order) or "point:X,Y,Z" (world, rig file unit).
+    #[arg(long, default_value = "centroid")]
+    pub origin: stereoscope::body::Origin,
+    /// The body's axes: "world" (the world's, now) or "markers:A,B,C" (x from marker A towards
+    /// B, y towards C in their plane).
+    #[arg(long, default_value = "world")]
+    pub axes: stereoscope::body::Axes,
     /// Certificates for a tls/ router (from another PC).
     #[command(flatten)]
     pub tls: stereoscope_service::context::TlsArgs,
+}
+
+impl BodyDefineArgs {
+    /// The markers and frame asked for.
+    pub fn choice(&self) -> stereoscope::body::DefineChoice {
+        stereoscope::body::DefineChoice {
+            objects: self.objects.clone(),
+            inside: self
+                .inside
+                .as_ref()
+                .and_then(|b| <[f64; 6]>::try_from(b.as_slice()).ok()),
+            origin: self.origin.clone(),
+            axes: self.axes.clone(),
+            tolerance: self.tolerance,
+        }
+    }
 }
 
 /// `stereoscope model define`: its options.

@@ -14,6 +14,90 @@ use stereoscope_rig::schema::{BodySpec, Units};
 /// Share of the frames a marker must be in to be taken.
 pub const MIN_SHARE: f64 = 0.9;
 
+/// Which markers make the body and how its frame is set (`docs/bodies.md`, "Defining a body
+/// from the cameras"). Coordinates in the rig file's unit, world frame.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct DefineChoice {
+    /// Only these objects (the ids the live table and `status` show).
+    pub objects: Option<Vec<u32>>,
+    /// Only markers inside this box (min x, y, z, max x, y, z).
+    pub inside: Option<[f64; 6]>,
+    pub origin: Origin,
+    pub axes: Axes,
+    /// Tolerance of a measured inter-marker distance, rig file unit (default 3 mm).
+    pub tolerance: Option<f64>,
+}
+
+/// Where the body's origin is.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub enum Origin {
+    /// The markers' centroid.
+    #[default]
+    Centroid,
+    /// The k-th marker taken (in object-id order).
+    Marker(usize),
+    /// A point in the world, rig file unit (a tip, a pivot measured by other means).
+    Point([f64; 3]),
+}
+
+/// How the body's axes lie.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub enum Axes {
+    /// The world's, at the moment of definition.
+    #[default]
+    World,
+    /// x from marker a towards marker b, y towards marker c within the plane of the three, z
+    /// their cross product (markers numbered as taken, in object-id order).
+    Markers([usize; 3]),
+}
+
+impl std::str::FromStr for Origin {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Origin, String> {
+        let bad = || {
+            format!("--origin {s:?}: \"centroid\", \"marker:K\" or \"point:X,Y,Z\" (rig file unit)")
+        };
+        if s == "centroid" {
+            return Ok(Origin::Centroid);
+        }
+        if let Some(k) = s.strip_prefix("marker:") {
+            return k.parse().map(Origin::Marker).map_err(|_| bad());
+        }
+        if let Some(p) = s.strip_prefix("point:") {
+            let v: Vec<f64> = p
+                .split(',')
+                .map(|x| x.trim().parse::<f64>())
+                .collect::<Result<_, _>>()
+                .map_err(|_| bad())?;
+            if v.len() == 3 && v.iter().all(|x| x.is_finite()) {
+                return Ok(Origin::Point([v[0], v[1], v[2]]));
+            }
+        }
+        Err(bad())
+    }
+}
+
+impl std::str::FromStr for Axes {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Axes, String> {
+        let bad = || format!("--axes {s:?}: \"world\" or \"markers:A,B,C\"");
+        if s == "world" {
+            return Ok(Axes::World);
+        }
+        let k: Vec<usize> = s
+            .strip_prefix("markers:")
+            .ok_or_else(bad)?
+            .split(',')
+            .map(|x| x.trim().parse::<usize>())
+            .collect::<Result<_, _>>()
+            .map_err(|_| bad())?;
+        match k[..] {
+            [a, b, c] if a != b && b != c && a != c => Ok(Axes::Markers([a, b, c])),
+            _ => Err(bad()),
+        }
+    }
+}
+
 /// Why no body could be defined.
 #[derive(Debug, thiserror::Error)]
 pub enum DefineError {
@@ -36,6 +120,16 @@ pub enum DefineError {
         object: u32,
         spread_mm: f64,
     },
+    #[error(
+        "{what} names marker {index}; the markers taken are numbered from 0, in the order of their objects {ids:?}"
+    )]
+    NoSuchMarker {
+        what: &'static str,
+        index: usize,
+        ids: Vec<u32>,
+    },
+    #[error("--axes markers {a}, {b}, {c} lie on one line: they give no plane")]
+    Collinear { a: usize, b: usize, c: usize },
     #[error("{0}")]
     Body(#[from] stereoscope_bodies::BodyError),
 }
@@ -47,16 +141,28 @@ pub fn define(
     name: &str,
     frames: &[PoseFrame],
     units: Units,
-    tolerance: Option<f64>,
     existing: &[BodyDef],
-) -> Result<(BodySpec, f64), DefineError> {
+    choice: &DefineChoice,
+) -> Result<(BodySpec, f64, Vec<u32>), DefineError> {
+    let scale = units.metres();
+    let tolerance = choice.tolerance;
     if frames.is_empty() {
         return Err(DefineError::NoFrames { seconds: 0.0 });
     }
     let mut seen: BTreeMap<u32, Vec<Point3<f64>>> = BTreeMap::new();
     for f in frames {
         for p in &f.poses {
-            if p.body.is_none() && p.method == PoseMethod::Triangulated {
+            let inside = choice.inside.is_none_or(|b| {
+                (0..3).all(|k| {
+                    let v = p.position_m[k] / scale;
+                    v >= b[k].min(b[k + 3]) && v <= b[k].max(b[k + 3])
+                })
+            });
+            let chosen = choice
+                .objects
+                .as_ref()
+                .is_none_or(|ids| ids.contains(&p.object_id));
+            if p.body.is_none() && p.method == PoseMethod::Triangulated && inside && chosen {
                 seen.entry(p.object_id)
                     .or_default()
                     .push(Point3::from(p.position_m));
@@ -94,13 +200,55 @@ pub fn define(
         wobble_sq += rms * rms * v.len() as f64;
         n += v.len();
     }
-    let centroid =
-        Point3::from(means.iter().map(|p| p.coords).sum::<Vector3<f64>>() / means.len() as f64);
-    let scale = units.metres();
+    let marker = |what: &'static str, index: usize| {
+        means
+            .get(index)
+            .copied()
+            .ok_or_else(|| DefineError::NoSuchMarker {
+                what,
+                index,
+                ids: kept.iter().map(|(id, _)| *id).collect(),
+            })
+    };
+    let origin = match &choice.origin {
+        Origin::Centroid => {
+            Point3::from(means.iter().map(|p| p.coords).sum::<Vector3<f64>>() / means.len() as f64)
+        }
+        Origin::Marker(k) => marker("--origin", *k)?,
+        Origin::Point(p) => Point3::new(p[0] * scale, p[1] * scale, p[2] * scale),
+    };
+    // The body's axes in the world: columns x, y, z.
+    let world_from_body = match &choice.axes {
+        Axes::World => nalgebra::Matrix3::identity(),
+        Axes::Markers([a, b, c]) => {
+            let (pa, pb, pc) = (
+                marker("--axes", *a)?,
+                marker("--axes", *b)?,
+                marker("--axes", *c)?,
+            );
+            let collinear = DefineError::Collinear {
+                a: *a,
+                b: *b,
+                c: *c,
+            };
+            let x = (pb - pa)
+                .try_normalize(1e-9)
+                .ok_or(DefineError::Collinear {
+                    a: *a,
+                    b: *b,
+                    c: *c,
+                })?;
+            let z = x.cross(&(pc - pa)).try_normalize(1e-6).ok_or(collinear)?;
+            nalgebra::Matrix3::from_columns(&[x, z.cross(&x), z])
+        }
+    };
     let tolerance_m = tolerance.map_or(0.003, |t| t * scale);
     let def = BodyDef {
         name: name.to_string(),
-        markers_m: means.iter().map(|p| Point3::from(p - centroid)).collect(),
+        markers_m: means
+            .iter()
+            .map(|p| Point3::from(world_from_body.transpose() * (p - origin)))
+            .collect(),
         tolerance_m,
     };
     let mut all = existing.to_vec();
@@ -128,7 +276,8 @@ pub fn define(
         smoothing: None,
         predict_ms: None,
     };
-    Ok((spec, (wobble_sq / n.max(1) as f64).sqrt()))
+    let ids = kept.iter().map(|(id, _)| *id).collect();
+    Ok((spec, (wobble_sq / n.max(1) as f64).sqrt(), ids))
 }
 
 /// The `[[body]]` table as TOML.
@@ -157,9 +306,9 @@ pub fn define_live(
     rig_path: &std::path::Path,
     connect: Option<String>,
     seconds: f64,
-    tolerance: Option<f64>,
     write: bool,
     tls: stereoscope_service::context::TlsArgs,
+    choice: &DefineChoice,
 ) -> anyhow::Result<String> {
     use anyhow::Context as _;
     let rig = stereoscope_rig::Rig::load(rig_path)?;
@@ -196,13 +345,16 @@ pub fn define_live(
             rig_path.display()
         );
     }
-    let (spec, wobble) = define(name, &frames, rig.spec.units, tolerance, &existing)?;
+    let (spec, wobble, ids) = define(name, &frames, rig.spec.units, &existing, choice)?;
     eprintln!(
         "{} markers from {} frames; each wobbled {:.2} mm RMS about its mean",
         spec.markers.len(),
         frames.len(),
         wobble * 1e3
     );
+    for (k, (id, m)) in ids.iter().zip(&spec.markers).enumerate() {
+        eprintln!("  marker {k}: object {id}, at {m:?} in the body");
+    }
     let text = to_toml(&spec);
     if write {
         let old = std::fs::read_to_string(rig_path)
@@ -283,7 +435,9 @@ mod tests {
             }
             frames.push(frame(&pts));
         }
-        let (spec, wobble) = define("tool", &frames, Units::Millimetres, None, &[]).unwrap();
+        let any = DefineChoice::default();
+        let (spec, wobble, ids) = define("tool", &frames, Units::Millimetres, &[], &any).unwrap();
+        assert_eq!(ids, vec![1, 2, 3, 4]);
         assert_eq!(spec.markers.len(), 4);
         assert!((wobble - 0.0004).abs() < 1e-9, "{wobble}");
         // Centroid (0.06, 0.0425, 0.02) m: marker 0 at (−60, −42.5, −20) mm.
@@ -307,12 +461,12 @@ mod tests {
                 .collect(),
             tolerance_m: 0.003,
         };
-        let e = define("tool", &frames, Units::Millimetres, None, &[first]).unwrap_err();
+        let e = define("tool", &frames, Units::Millimetres, &[first], &any).unwrap_err();
         assert!(e.to_string().contains("matches body"), "{e}");
         // Two markers only, or a marker that moves.
         let two: Vec<PoseFrame> = (0..10).map(|_| frame(&[(1, at), (2, [0.0; 3])])).collect();
         assert!(matches!(
-            define("x", &two, Units::Metres, None, &[]),
+            define("x", &two, Units::Metres, &[], &any),
             Err(DefineError::Count { found: 2, .. })
         ));
         let moving: Vec<PoseFrame> = (0..10)
@@ -325,8 +479,94 @@ mod tests {
             })
             .collect();
         assert!(matches!(
-            define("x", &moving, Units::Metres, None, &[]),
+            define("x", &moving, Units::Metres, &[], &any),
             Err(DefineError::Moved { object: 1, .. })
         ));
+    }
+
+    #[test]
+    fn markers_chosen_by_id_or_box_with_the_origin_and_axes_asked() {
+        // Two bodies in view, the second moving: choosing the first's markers by id or by a
+        // box defines it alone.
+        let frames: Vec<PoseFrame> = (0..20)
+            .map(|k| {
+                let drift = 0.01 * k as f64;
+                frame(&[
+                    (3, [1.0, 0.0, 0.5]),
+                    (5, [1.2, 0.0, 0.5]),
+                    (8, [1.0, 0.1, 0.5]),
+                    (11, [1.0, 0.0, 0.65]),
+                    (20, [-1.0 + drift, 0.0, 0.5]),
+                    (21, [-1.2 + drift, 0.0, 0.5]),
+                    (22, [-1.0 + drift, 0.2, 0.5]),
+                ])
+            })
+            .collect();
+        let all = define("a", &frames, Units::Metres, &[], &DefineChoice::default());
+        assert!(
+            matches!(all, Err(DefineError::Moved { object: 20, .. })),
+            "{all:?}"
+        );
+        let by_id = DefineChoice {
+            objects: Some(vec![3, 5, 8, 11]),
+            ..DefineChoice::default()
+        };
+        let (a, _, ids) = define("a", &frames, Units::Metres, &[], &by_id).unwrap();
+        assert_eq!(ids, vec![3, 5, 8, 11]);
+        let by_box = DefineChoice {
+            inside: Some([0.5, -0.5, 0.0, 1.5, 0.5, 1.0]),
+            ..DefineChoice::default()
+        };
+        let (b, _, _) = define("a", &frames, Units::Metres, &[], &by_box).unwrap();
+        assert_eq!(a, b);
+        // Origin at marker 0, x towards marker 1, y towards marker 2: the markers in the body
+        // frame are (0,0,0), (0.2,0,0), (0,0.1,0), (0,0,0.15).
+        let framed = DefineChoice {
+            origin: "marker:0".parse().unwrap(),
+            axes: "markers:0,1,2".parse().unwrap(),
+            ..by_id.clone()
+        };
+        let (f, _, _) = define("a", &frames, Units::Metres, &[], &framed).unwrap();
+        let want = [
+            [0.0, 0.0, 0.0],
+            [0.2, 0.0, 0.0],
+            [0.0, 0.1, 0.0],
+            [0.0, 0.0, 0.15],
+        ];
+        for (m, w) in f.markers.iter().zip(want) {
+            for k in 0..3 {
+                assert!((m[k] - w[k]).abs() < 1e-9, "{:?}", f.markers);
+            }
+        }
+        // A point as origin, in the file's unit.
+        let at_point = DefineChoice {
+            origin: "point:1000,0,500".parse().unwrap(),
+            ..by_id.clone()
+        };
+        let (p, _, _) = define("a", &frames, Units::Millimetres, &[], &at_point).unwrap();
+        assert!((p.markers[1][0] - 200.0).abs() < 1e-6, "{:?}", p.markers);
+        // Bad choices name what is wrong.
+        let e = define(
+            "a",
+            &frames,
+            Units::Metres,
+            &[],
+            &DefineChoice {
+                origin: Origin::Marker(7),
+                ..by_id.clone()
+            },
+        )
+        .unwrap_err();
+        assert!(
+            e.to_string().contains("marker 7") && e.to_string().contains("[3, 5, 8, 11]"),
+            "{e}"
+        );
+        assert!("markers:0,0,1".parse::<Axes>().is_err());
+        assert!(
+            "point:1,2"
+                .parse::<Origin>()
+                .unwrap_err()
+                .contains("point:X,Y,Z")
+        );
     }
 }

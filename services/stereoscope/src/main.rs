@@ -82,9 +82,10 @@ enum TargetCommand {
 
 #[derive(Subcommand, Debug)]
 enum BodyCommand {
-    /// Take the loose markers tracked now (3–8, held still), average them over --seconds and
-    /// print the [[body]] table (origin at their centroid, the world's axes); --write appends
-    /// it to the rig file.
+    /// Take the loose markers tracked now (3–8, held still; --objects or --inside to choose),
+    /// average them over --seconds and print the [[body]] table (origin and axes as --origin
+    /// and --axes ask: the centroid and the world's by default); --write appends it to the rig
+    /// file.
     Define(args::BodyDefineArgs),
 }
 
@@ -263,11 +264,11 @@ fn main() -> ExitCode {
         Command::Body(BodyCommand::Define(a)) => match stereoscope::body::define_live(
             &a.name,
             &a.rig,
-            a.connect,
+            a.connect.clone(),
             a.seconds,
-            a.tolerance,
             a.write,
-            a.tls,
+            a.tls.clone(),
+            &a.choice(),
         ) {
             Ok(text) => {
                 print!("{text}");
