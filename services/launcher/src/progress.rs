@@ -29,6 +29,13 @@ pub const STALL_FRAMES: f64 = 30.0;
 /// An input flows when it progressed within this long (two report periods).
 pub const FLOWING: Duration = Duration::from_millis(2500);
 
+/// Services report every second. A report of an input's progress is taken as news to its
+/// consumer only when it came a whole period after the consumer's last progress: reports of
+/// different services arrive out of phase, and the input's report just after the consumer's
+/// may count frames the consumer has already handled. An input whose reports showed no
+/// progress for longer than one and a half periods paused: its flow starts again.
+pub const REPORT_PERIOD: Duration = Duration::from_secs(1);
+
 /// The bound for a rig whose slowest camera runs at `slowest_fps` (none known: the floor).
 pub fn stall_bound(slowest_fps: Option<f64>) -> Duration {
     let frames = slowest_fps
@@ -49,7 +56,7 @@ struct Seen {
     /// showed it (one frame read, then a wait, is not a flow).
     progressed_before: Option<Instant>,
     /// The first report of the current run of progress: the first after a pause longer than
-    /// [`FLOWING`] (or the first ever).
+    /// one and a half report periods (or the first ever).
     flowing_since: Option<Instant>,
     /// The service's start time as it reports it (a restart starts its count again).
     started_ns: u64,
@@ -86,7 +93,7 @@ impl Progress {
         }
         if processed > s.processed {
             if s.progressed
-                .is_none_or(|t| at.saturating_duration_since(t) > FLOWING)
+                .is_none_or(|t| at.saturating_duration_since(t) > REPORT_PERIOD * 3 / 2)
             {
                 s.flowing_since = Some(at);
             }
@@ -114,7 +121,8 @@ impl Progress {
             .find(|(_, s)| {
                 s.progressed
                     .is_some_and(|t| now.duration_since(t) < FLOWING)
-                    && s.progressed_before.is_some_and(|t| t > since)
+                    && s.progressed_before
+                        .is_some_and(|t| t > since + REPORT_PERIOD)
                     && s.flowing_since
                         .is_some_and(|t| now.saturating_duration_since(t) > bound)
             })
@@ -285,6 +293,51 @@ mod tests {
         }
         assert_eq!(
             p.stuck("pc", "moments/cam0", t0, t0 + S * 13, bound)
+                .as_deref(),
+            Some("capture/cam0 on pc")
+        );
+    }
+
+    /// The race seen in the GenICam test under load: the worker reports at .29 s past each
+    /// second, the capture at .95; the camera goes at 34.25 s and is back at 36.3 s. The
+    /// capture's 34.95 report counts frames the worker handled before its 34.29 report, and
+    /// its 36.95 report the first frames after the gap: at 37.32 the worker is not stuck. It
+    /// is once the capture has flowed the whole bound again without it.
+    #[test]
+    fn an_input_report_out_of_phase_does_not_make_its_consumer_stuck() {
+        let t0 = Instant::now();
+        let ms = |v: u64| t0 + Duration::from_millis(v);
+        let bound = Duration::from_secs(3);
+        let mut p = Progress::default();
+        for k in 30..=33u64 {
+            p.report("pc", "moments/cam0", 20 * (k - 29), 2, ms(k * 1000 + 290));
+            p.report(
+                "pc",
+                "capture/cam0",
+                20 * (k - 29) + 13,
+                1,
+                ms(k * 1000 + 950),
+            );
+        }
+        p.report("pc", "moments/cam0", 105, 2, ms(34_290));
+        p.report("pc", "capture/cam0", 105, 1, ms(34_950));
+        p.report("pc", "moments/cam0", 105, 2, ms(35_290));
+        p.report("pc", "capture/cam0", 105, 1, ms(35_950));
+        p.report("pc", "moments/cam0", 105, 2, ms(36_290));
+        p.report("pc", "capture/cam0", 118, 1, ms(36_950));
+        assert_eq!(p.stuck("pc", "moments/cam0", t0, ms(37_320), bound), None);
+        for k in 37..=40u64 {
+            p.report("pc", "moments/cam0", 105, 2, ms(k * 1000 + 290));
+            p.report(
+                "pc",
+                "capture/cam0",
+                118 + 20 * (k - 36),
+                1,
+                ms(k * 1000 + 950),
+            );
+        }
+        assert_eq!(
+            p.stuck("pc", "moments/cam0", t0, ms(40_960), bound)
                 .as_deref(),
             Some("capture/cam0 on pc")
         );
