@@ -51,12 +51,19 @@ pub enum Axes {
     Markers([usize; 3]),
 }
 
+/// An `--origin` or `--axes` that does not parse, with the text given.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum ChoiceError {
+    #[error("--origin {0:?}: \"centroid\", \"marker:K\" or \"point:X,Y,Z\" (rig file unit)")]
+    Origin(String),
+    #[error("--axes {0:?}: \"world\" or \"markers:A,B,C\" (three different markers)")]
+    Axes(String),
+}
+
 impl std::str::FromStr for Origin {
-    type Err = String;
-    fn from_str(s: &str) -> Result<Origin, String> {
-        let bad = || {
-            format!("--origin {s:?}: \"centroid\", \"marker:K\" or \"point:X,Y,Z\" (rig file unit)")
-        };
+    type Err = ChoiceError;
+    fn from_str(s: &str) -> Result<Origin, ChoiceError> {
+        let bad = || ChoiceError::Origin(s.to_string());
         if s == "centroid" {
             return Ok(Origin::Centroid);
         }
@@ -78,9 +85,9 @@ impl std::str::FromStr for Origin {
 }
 
 impl std::str::FromStr for Axes {
-    type Err = String;
-    fn from_str(s: &str) -> Result<Axes, String> {
-        let bad = || format!("--axes {s:?}: \"world\" or \"markers:A,B,C\"");
+    type Err = ChoiceError;
+    fn from_str(s: &str) -> Result<Axes, ChoiceError> {
+        let bad = || ChoiceError::Axes(s.to_string());
         if s == "world" {
             return Ok(Axes::World);
         }
@@ -566,6 +573,7 @@ mod tests {
             "point:1,2"
                 .parse::<Origin>()
                 .unwrap_err()
+                .to_string()
                 .contains("point:X,Y,Z")
         );
     }
