@@ -402,6 +402,74 @@ fn a_killed_router_is_restarted_and_the_services_rejoin_it() {
     launcher.stop();
 }
 
+/// A router can lose a running service's liveliness token (docs/reliability.md): the launcher
+/// that hears a service's reports without its token asks it to declare it again, and a
+/// service asked does, at once and without a restart. Both ends are driven by a client the
+/// project did not write (Zenoh's Python binding): as a service that reports with no token,
+/// and as an asker.
+#[test]
+fn a_token_a_router_lost_is_asked_for_and_declared_again() {
+    let _serial = serial();
+    let python = common::python_clients(); // before the chain starts: pip may take a while
+    assert!(python.exists());
+    let dir = TempDir::new("tokens");
+    let (launcher, _watcher, path, port) = running_demo(&dir, 'k');
+    let endpoint = format!("tcp/127.0.0.1:{port}");
+    let zenoh_tokens = |args: &[&str]| {
+        let mut all = vec![args[0], endpoint.as_str(), "demo", "pc"];
+        all.extend_from_slice(&args[1..]);
+        python_client("zenoh_tokens.py", &all, Duration::from_secs(60))
+    };
+    let asked = zenoh_tokens(&["ghost", "ghost/x", "20"]);
+    let request = &asked[0];
+    assert_eq!(
+        (&request["host"], &request["service"], &request["asked_by"]),
+        (&"pc".into(), &"ghost/x".into(), &"pc".into()),
+        "{asked:?}"
+    );
+    let missing = request["missing_s"].as_f64().unwrap();
+    assert!((3.0..6.0).contains(&missing), "{asked:?}");
+    assert!(
+        launcher
+            .output()
+            .contains("pc/ghost/x: reporting, but this PC's router"),
+        "{}",
+        launcher.output()
+    );
+    // Fusion asked: its token goes and comes back (the first put is the history's).
+    let events = zenoh_tokens(&["renew", "fusion", "3"]);
+    let kinds: Vec<&str> = events.iter().filter_map(|e| e["kind"].as_str()).collect();
+    assert_eq!(kinds, ["put", "delete", "put"], "{events:?}");
+    let back = events[2]["t"].as_f64().unwrap();
+    assert!(back < 2.0, "the token back {back} s after the request");
+    eprintln!(
+        "fusion asked to renew its token: back after {:.0} ms",
+        back * 1e3
+    );
+    // Counted in its health; not restarted.
+    let end = Instant::now() + Duration::from_secs(30);
+    loop {
+        let out = run_with_limit(&["status", &path, "--json"], Duration::from_secs(30));
+        assert!(out.status.success(), "{}", stderr(&out));
+        let v: serde_json::Value =
+            serde_json::from_str(String::from_utf8_lossy(&out.stdout).trim()).unwrap();
+        let renewals = v["services"].as_array().and_then(|a| {
+            a.iter()
+                .find(|x| x["service"] == "fusion")
+                .map(|f| f["health"]["detail"]["token_renewals"].clone())
+        });
+        if renewals == Some("1".into()) {
+            break;
+        }
+        assert!(Instant::now() < end, "no renewal in fusion's health: {v}");
+        std::thread::sleep(Duration::from_millis(200));
+    }
+    let log = launcher.output();
+    assert!(!log.contains("restarted fusion"), "{log}");
+    let mut launcher = launcher;
+    launcher.stop();
+}
+
 #[test]
 fn bad_rig_files_are_named_and_nothing_starts() {
     let _serial = serial();

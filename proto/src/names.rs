@@ -139,6 +139,15 @@ pub mod zenoh {
     pub fn all_alive(rig: &str) -> String {
         format!("stereoscope/{rig}/alive/**")
     }
+
+    /// Requests that a service declare its liveliness token again (`TokenRenewal`).
+    pub fn renew(rig: &str, host: &str, service: &str) -> String {
+        format!("stereoscope/{rig}/renew/{host}/{service}")
+    }
+
+    pub fn all_renew(rig: &str) -> String {
+        format!("stereoscope/{rig}/renew/**")
+    }
 }
 
 /// Whether `name` may be used as a rig, host or camera name: it becomes a path segment of

@@ -64,6 +64,9 @@ pub enum Detail {
     /// router: the endpoints it listens on, and the routers of other PCs linked to it.
     Listen,
     Routers,
+    /// Any service: liveliness tokens declared anew when a launcher found one missing at its
+    /// router (`TokenRenewal`).
+    TokenRenewals,
 }
 
 impl Detail {
@@ -113,6 +116,7 @@ impl Detail {
             Detail::Url => "url",
             Detail::Listen => "listen",
             Detail::Routers => "routers",
+            Detail::TokenRenewals => "token_renewals",
         }
     }
 }

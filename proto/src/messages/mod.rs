@@ -11,9 +11,11 @@
 
 use serde::{Deserialize, Serialize};
 
+mod control;
 mod detail;
 mod models;
 mod view;
+pub use control::TokenRenewal;
 pub use detail::Detail;
 pub use models::{JointState, LinkPose, ModelPose, ModelUpdate};
 pub use view::{CameraCoverage, MAX_COVERAGE_CELLS, PREVIEW_HISTOGRAM_BINS, Preview, WandCoverage};
@@ -793,7 +795,8 @@ message!(
     ModelUpdate,
     Health,
     Preview,
-    WandCoverage;
+    WandCoverage,
+    TokenRenewal;
     without rig: Truth
 );
 

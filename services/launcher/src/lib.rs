@@ -15,6 +15,7 @@
 
 pub mod progress;
 mod router;
+pub mod tokens;
 mod watch;
 
 pub use router::{DEFAULT_ROUTER, router_cli, router_specs, run_router};
@@ -26,7 +27,6 @@ use std::process::{Child, Command, Stdio};
 use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
-use stereoscope_proto::messages::{Health, Message};
 use stereoscope_rig::RigError;
 use stereoscope_service::Context;
 use stereoscope_transport::net::ZenohSpec;
@@ -464,46 +464,14 @@ pub fn run(cfg: LaunchConfig, shutdown: Shutdown) -> Result<u32, LaunchError> {
     // service's own loop, so none means the loop is stuck or the process stopped). Heard
     // through this PC's router, as one of its clients (the session rejoins a restarted
     // router); a launcher without one (`--no-router`) runs without the watchdog.
-    let reports: Arc<Mutex<std::collections::HashMap<String, Instant>>> = Arc::default();
-    // Every host's reports, for what flows (`progress`): a service whose inputs flow and
-    // which handles none of them for `stall` is restarted like a silent one.
-    let progress: Arc<Mutex<progress::Progress>> = Arc::default();
     let stall = progress::stall_bound(slowest_fps(&ctx.rig));
-    let watch_session = match &router {
-        Some(_) => Some(net::open(&service_zenoh)?),
-        None => None,
-    };
-    let _watch = match &watch_session {
-        Some(session) => {
-            let reports = reports.clone();
-            let progress = progress.clone();
-            let all = format!("stereoscope/{}/health/", ctx.rig.name);
-            let here = format!("{all}{}/", ctx.host);
-            // Other PCs' reports only where a service here takes their output (fusion: every
-            // worker; the VR feed: fusion): a capture PC's launcher draws no other PC's health
-            // across the network, toward a PC whose link may be cut.
-            let elsewhere = services_inputs_elsewhere(&running);
-            let key = if elsewhere {
-                format!("{all}**")
-            } else {
-                format!("{here}**")
-            };
-            Some(net::subscribe(session, &key, move |key, bytes| {
-                let now = Instant::now();
-                if let Some(service) = key.strip_prefix(&here)
-                    && let Ok(mut r) = reports.lock()
-                {
-                    r.insert(service.to_string(), now);
-                }
-                // A report that does not decode is no one's progress.
-                if let Ok(h) = Health::from_json(bytes)
-                    && key == format!("{all}{}/{}", h.host, h.service)
-                    && let Ok(mut p) = progress.lock()
-                {
-                    p.report(&h.host, &h.service, h.processed, h.started_ns, now);
-                }
-            })?)
-        }
+    let watch = match &router {
+        Some(_) => Some(watch::Watch::start(
+            net::open(&service_zenoh)?,
+            &ctx.rig.name,
+            &ctx.host,
+            services_inputs_elsewhere(&running),
+        )?),
         None => None,
     };
     let mut restarts = 0;
@@ -517,9 +485,12 @@ pub fn run(cfg: LaunchConfig, shutdown: Shutdown) -> Result<u32, LaunchError> {
         .is_some_and(|f| f.replay_sets.is_some());
     let mut sources_ended: Option<Instant> = None;
     while !shutdown.requested() && refused.is_none() {
-        watchdog(&mut running, &reports, router.is_some());
-        if let Ok(p) = progress.lock() {
-            restart_stuck(&mut running, &p, &ctx.host, stall);
+        if let Some(w) = &watch {
+            watchdog(&mut running, &w.reports, true);
+            if let Ok(p) = w.progress.lock() {
+                restart_stuck(&mut running, &p, &ctx.host, stall);
+            }
+            w.renew_lost_tokens();
         }
         for r in running.iter_mut() {
             if let Some(c) = &mut r.child
@@ -625,8 +596,7 @@ pub fn run(cfg: LaunchConfig, shutdown: Shutdown) -> Result<u32, LaunchError> {
         .into_iter()
         .partition(|r| r.spec.name == ROUTER_SERVICE && router.is_some());
     terminate(&mut services);
-    drop(_watch);
-    drop(watch_session);
+    drop(watch);
     terminate(&mut routers);
     // Nothing of the run stays behind in /dev/shm (unless another process still uses the
     // prefix: then it is left alone).

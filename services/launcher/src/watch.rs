@@ -1,10 +1,141 @@
 //! The launcher's judgement of its running services: silent ones (no health report), ones
-//! that did not rejoin a restarted router, and ones that make no progress while their inputs
-//! flow (`progress`).
+//! that did not rejoin a restarted router, ones that make no progress while their inputs
+//! flow (`progress`), and ones whose liveliness token this PC's router lost (`tokens`).
 
-use crate::{REJOIN, ROUTER_SERVICE, Running, WATCHDOG, progress};
-use std::sync::Mutex;
+use crate::{LaunchError, REJOIN, ROUTER_SERVICE, Running, WATCHDOG, progress, tokens};
+use std::collections::HashMap;
+use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
+use stereoscope_proto::messages::{Health, Message, SCHEMA_VERSION, TokenRenewal};
+use stereoscope_proto::names::zenoh as keys;
+use stereoscope_transport::net;
+use zenoh::Wait;
+
+/// What the launcher hears through this PC's router, as one of its clients (the session
+/// rejoins a restarted router): its services' newest health reports (they come every second
+/// from each service's own loop, so none means the loop is stuck or the process stopped);
+/// every host's reports where a service here takes another PC's output (fusion: every
+/// worker; the VR feed: fusion), for what flows (`progress`) — a capture PC's launcher draws
+/// no other PC's health across the network, toward a PC whose link may be cut; and the
+/// liveliness tokens the router holds, beside the reports, for tokens it lost.
+pub(crate) struct Watch {
+    pub reports: Arc<Mutex<HashMap<String, Instant>>>,
+    pub progress: Arc<Mutex<progress::Progress>>,
+    tokens: Arc<Mutex<tokens::Tokens>>,
+    rig: String,
+    host: String,
+    _health: net::NetSubscriber,
+    _alive: net::NetSubscriber,
+    session: zenoh::Session,
+}
+
+impl Watch {
+    pub fn start(
+        session: zenoh::Session,
+        rig: &str,
+        host: &str,
+        elsewhere: bool,
+    ) -> Result<Watch, LaunchError> {
+        let reports: Arc<Mutex<HashMap<String, Instant>>> = Arc::default();
+        let progress: Arc<Mutex<progress::Progress>> = Arc::default();
+        let tokens: Arc<Mutex<tokens::Tokens>> = Arc::default();
+        let all = format!("stereoscope/{rig}/health/");
+        let here = format!("{all}{host}/");
+        let key = if elsewhere {
+            format!("{all}**")
+        } else {
+            format!("{here}**")
+        };
+        let health = {
+            let (reports, progress, tokens) = (reports.clone(), progress.clone(), tokens.clone());
+            net::subscribe(&session, &key, move |key, bytes| {
+                let now = Instant::now();
+                if let Some(service) = key.strip_prefix(&here)
+                    && let Ok(mut r) = reports.lock()
+                {
+                    r.insert(service.to_string(), now);
+                }
+                // A report that does not decode, or comes on another's key, is no one's.
+                let Ok(h) = Health::from_json(bytes) else {
+                    return;
+                };
+                let id = format!("{}/{}", h.host, h.service);
+                if key.strip_prefix(&all) != Some(id.as_str()) {
+                    return;
+                }
+                if let Ok(mut p) = progress.lock() {
+                    p.report(&h.host, &h.service, h.processed, h.started_ns, now);
+                }
+                if let Ok(mut t) = tokens.lock() {
+                    t.report(&id, now);
+                }
+            })?
+        };
+        let alive = {
+            let tokens = tokens.clone();
+            let prefix = format!("stereoscope/{rig}/alive/");
+            session
+                .liveliness()
+                .declare_subscriber(keys::all_alive(rig))
+                .history(true)
+                .callback(move |sample| {
+                    let Some(id) = sample.key_expr().as_str().strip_prefix(&prefix) else {
+                        return;
+                    };
+                    let present = sample.kind() == zenoh::sample::SampleKind::Put;
+                    if let Ok(mut t) = tokens.lock() {
+                        t.token(id, present);
+                    }
+                })
+                .wait()
+                .map_err(|e| {
+                    LaunchError::Transport(stereoscope_transport::TransportError::Zenoh {
+                        what: format!("liveliness subscriber {}", keys::all_alive(rig)),
+                        source: stereoscope_transport::ZenohCause(e),
+                    })
+                })?
+        };
+        Ok(Watch {
+            reports,
+            progress,
+            tokens,
+            rig: rig.to_string(),
+            host: host.to_string(),
+            _health: health,
+            _alive: alive,
+            session,
+        })
+    }
+
+    /// Asks each service whose token this PC's router lost to declare it again
+    /// ([`tokens::Tokens::due`]).
+    pub fn renew_lost_tokens(&self) {
+        let due = match self.tokens.lock() {
+            Ok(mut t) => t.due(Instant::now()),
+            Err(_) => return,
+        };
+        for ask in due {
+            let id = format!("{}/{}", ask.host, ask.service);
+            tracing::warn!(
+                "{id}: reporting, but this PC's router has held no liveliness token for it for \
+                 {:.1} s; asking it to declare it again",
+                ask.missing.as_secs_f64()
+            );
+            let request = TokenRenewal {
+                schema: SCHEMA_VERSION,
+                rig: self.rig.clone(),
+                host: ask.host.clone(),
+                service: ask.service.clone(),
+                asked_by: self.host.clone(),
+                missing_s: ask.missing.as_secs_f64(),
+            };
+            let key = keys::renew(&self.rig, &ask.host, &ask.service);
+            if let Err(e) = self.session.put(key, request.to_json()).wait() {
+                tracing::warn!("asking {id} to renew its token: {e}");
+            }
+        }
+    }
+}
 
 /// Kills (SIGKILL) a service that reported its health since it started and then fell silent
 /// for [`WATCHDOG`]: stopped (SIGSTOP), or stuck in a step. The restart follows as for any
@@ -17,7 +148,7 @@ use std::time::{Duration, Instant};
 /// [`REJOIN`] after it did not rejoin the router, and is restarted too.
 pub(crate) fn watchdog(
     running: &mut [Running],
-    reports: &Mutex<std::collections::HashMap<String, Instant>>,
+    reports: &Mutex<HashMap<String, Instant>>,
     supervised_router: bool,
 ) {
     let router_since = if supervised_router {

@@ -157,11 +157,17 @@ fn runs_on<'a>(file: &'a RigFile, host: &'a Option<String>) -> Option<&'a str> {
     }
 }
 
-/// The keys host `name`'s services publish on: its health and liveliness, its cameras'
-/// observations (and the renderer's truth), the poses if fusion runs there.
+/// The keys host `name`'s services publish on: its health and liveliness, its launcher's
+/// requests that another PC's service renew a token its router lost (any service's: a host
+/// certificate's holder can make tokens flap, no faster than `RENEW_AT_MOST_EVERY`), its
+/// cameras' observations (and the renderer's truth), the poses if fusion runs there.
 pub fn published_by(file: &RigFile, name: &str) -> Vec<String> {
     let rig = &file.name;
-    let mut out = vec![keys::health(rig, name, "**"), keys::alive(rig, name, "**")];
+    let mut out = vec![
+        keys::health(rig, name, "**"),
+        keys::alive(rig, name, "**"),
+        keys::all_renew(rig),
+    ];
     for c in &file.cameras {
         if runs_on(file, &c.host) == Some(name) {
             out.push(keys::observations(rig, &c.id));
@@ -321,6 +327,7 @@ mod tests {
         let n = &r.name;
         assert!(cap.contains(&format!("stereoscope/{n}/observations/cam0")));
         assert!(!cap.iter().any(|k| k.contains("pose")), "{cap:?}");
+        assert!(cap.contains(&format!("stereoscope/{n}/renew/**")));
         let fus = published_by(&r.spec, "fus");
         assert!(fus.contains(&format!("stereoscope/{n}/poses")));
         assert!(!fus.iter().any(|k| k.contains("observations")), "{fus:?}");

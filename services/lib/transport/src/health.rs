@@ -1,11 +1,15 @@
 //! A service's health: a liveliness token while it runs, and a `Health` report on Zenoh every
-//! second (`docs/protocol.md`, "Health").
+//! second (`docs/protocol.md`, "Health"); the token declared anew when a launcher asks
+//! (`TokenRenewal`: a router lost it while the service ran).
 
 use crate::TransportError;
-use crate::net::JsonPublisher;
+use crate::net::{JsonPublisher, NetSubscriber};
 use std::collections::BTreeMap;
+use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
-use stereoscope_proto::messages::{Detail, Health, SCHEMA_VERSION, limits, now_ns};
+use stereoscope_proto::messages::{
+    Detail, Health, Message, SCHEMA_VERSION, TokenRenewal, limits, now_ns,
+};
 use stereoscope_proto::names::zenoh as keys;
 use zenoh::Wait;
 
@@ -110,9 +114,19 @@ impl Counters {
     }
 }
 
+/// A service's token is declared anew at most this often, however often it is asked (a
+/// client with a host's certificate asking in a loop makes it flap no faster).
+pub const RENEW_AT_MOST_EVERY: Duration = Duration::from_secs(2);
+
 pub struct HealthReporter {
     publisher: JsonPublisher,
-    _token: zenoh::liveliness::LivelinessToken,
+    session: zenoh::Session,
+    token: Option<zenoh::liveliness::LivelinessToken>,
+    /// The newest renewal request not yet acted on.
+    asked: Arc<Mutex<Option<TokenRenewal>>>,
+    _renew: NetSubscriber,
+    renewed: u64,
+    last_renewal: Option<Instant>,
     rig: String,
     host: String,
     service: String,
@@ -137,17 +151,32 @@ impl HealthReporter {
         service: &str,
     ) -> Result<Self, TransportError> {
         let publisher = JsonPublisher::new(session, &keys::health(rig, host, service))?;
-        let token = session
-            .liveliness()
-            .declare_token(keys::alive(rig, host, service))
-            .wait()
-            .map_err(|e| TransportError::Zenoh {
-                what: format!("liveliness token for {service}"),
-                source: crate::ZenohCause(e),
-            })?;
+        let token = declare_token(session, rig, host, service)?;
+        let asked: Arc<Mutex<Option<TokenRenewal>>> = Arc::default();
+        let renew = {
+            let asked = asked.clone();
+            let (rig, host, service) = (rig.to_string(), host.to_string(), service.to_string());
+            crate::net::subscribe(session, &keys::renew(&rig, &host, &service), move |_, b| {
+                // Only a well-formed request for this very service is acted on.
+                match TokenRenewal::from_json(b) {
+                    Ok(r) if r.rig == rig && r.host == host && r.service == service => {
+                        if let Ok(mut a) = asked.lock() {
+                            *a = Some(r);
+                        }
+                    }
+                    Ok(_) => {}
+                    Err(e) => tracing::warn!("a token renewal request that does not decode: {e}"),
+                }
+            })?
+        };
         Ok(HealthReporter {
             publisher,
-            _token: token,
+            session: session.clone(),
+            token: Some(token),
+            asked,
+            _renew: renew,
+            renewed: 0,
+            last_renewal: None,
             rig: rig.into(),
             host: host.into(),
             service: service.into(),
@@ -171,8 +200,10 @@ impl HealthReporter {
         }
     }
 
-    /// Publishes a report now (a service's last, as it stops: its final counts).
+    /// Publishes a report now (a service's last, as it stops: its final counts), after
+    /// declaring the token anew if a launcher asked (at most every [`RENEW_AT_MOST_EVERY`]).
     pub fn report(&mut self, c: &Counters) {
+        self.renew_if_asked();
         let elapsed = self.last.elapsed().max(Duration::from_millis(1));
         let rate = (c.processed.saturating_sub(self.last_processed)) as f64 / elapsed.as_secs_f64();
         self.last = Instant::now();
@@ -190,12 +221,85 @@ impl HealthReporter {
             dropped: c.dropped,
             rejected: c.rejected,
             last_error: c.last_error.clone(),
-            detail: c.detail.clone(),
+            detail: self.with_renewals(&c.detail),
         };
         if let Err(e) = self.publisher.put(&h) {
             tracing::warn!("health report: {}", crate::error_chain(&e));
         }
     }
+
+    /// Token renewals so far.
+    pub fn renewals(&self) -> u64 {
+        self.renewed
+    }
+
+    fn with_renewals(&self, detail: &BTreeMap<String, String>) -> BTreeMap<String, String> {
+        let mut d = detail.clone();
+        if self.renewed > 0 {
+            d.insert(
+                Detail::TokenRenewals.key().to_string(),
+                self.renewed.to_string(),
+            );
+        }
+        d
+    }
+
+    /// Withdraws the token and declares it again when asked: every router between here and
+    /// the asker passes the new one on (Zenoh's routers pass a key's first token on, not a
+    /// second one beside it, so the old one goes first; watchers elsewhere see it go and
+    /// come back at once).
+    fn renew_if_asked(&mut self) {
+        if self
+            .last_renewal
+            .is_some_and(|t| t.elapsed() < RENEW_AT_MOST_EVERY)
+        {
+            return;
+        }
+        let Some(r) = self.asked.lock().ok().and_then(|mut a| a.take()) else {
+            return;
+        };
+        self.last_renewal = Some(Instant::now());
+        if let Some(old) = self.token.take()
+            && let Err(e) = old.undeclare().wait()
+        {
+            tracing::warn!("withdrawing the liveliness token: {e}");
+        }
+        match declare_token(&self.session, &self.rig, &self.host, &self.service) {
+            Ok(t) => {
+                self.token = Some(t);
+                self.renewed += 1;
+                tracing::warn!(
+                    "{}'s router had lost this service's liveliness token for {:.1} s; declared \
+                     it again",
+                    r.asked_by,
+                    r.missing_s
+                );
+            }
+            // Asked again by the launcher if it is still missing; tried at the next report.
+            Err(e) => {
+                tracing::warn!("{}", crate::error_chain(&e));
+                if let Ok(mut a) = self.asked.lock() {
+                    a.get_or_insert(r);
+                }
+            }
+        }
+    }
+}
+
+fn declare_token(
+    session: &zenoh::Session,
+    rig: &str,
+    host: &str,
+    service: &str,
+) -> Result<zenoh::liveliness::LivelinessToken, TransportError> {
+    session
+        .liveliness()
+        .declare_token(keys::alive(rig, host, service))
+        .wait()
+        .map_err(|e| TransportError::Zenoh {
+            what: format!("liveliness token for {service}"),
+            source: crate::ZenohCause(e),
+        })
 }
 
 #[cfg(test)]
@@ -232,5 +336,77 @@ mod tests {
             e.len()
         );
         assert_eq!(bounded("abc", 10), "abc");
+    }
+
+    /// Asked to renew, a service withdraws its token and declares it again (a watcher sees
+    /// it go and come back), once however often it is asked within
+    /// [`RENEW_AT_MOST_EVERY`]; a request for another service, or one that does not decode,
+    /// changes nothing.
+    #[test]
+    fn a_token_is_declared_again_when_asked_and_no_more_often_than_allowed() {
+        use zenoh::sample::SampleKind;
+        let session = crate::net::open(&crate::net::ZenohSpec::lone_peer()).unwrap();
+        let (tx, rx) = std::sync::mpsc::channel();
+        let tx = Mutex::new(tx);
+        let _watch = session
+            .liveliness()
+            .declare_subscriber(keys::alive("r", "pc", "capture/cam0"))
+            .history(true)
+            .callback(move |s| {
+                if let Ok(tx) = tx.lock() {
+                    let _ = tx.send(s.kind());
+                }
+            })
+            .wait()
+            .unwrap();
+        let mut h = HealthReporter::new(&session, "r", "pc", "capture/cam0").unwrap();
+        let c = Counters::default();
+        let next = || rx.recv_timeout(Duration::from_secs(5)).ok();
+        assert_eq!(next(), Some(SampleKind::Put));
+        let ask = |service: &str, body: Option<&[u8]>| {
+            let r = TokenRenewal {
+                schema: SCHEMA_VERSION,
+                rig: "r".into(),
+                host: "pc".into(),
+                service: service.into(),
+                asked_by: "fusion".into(),
+                missing_s: 3.5,
+            };
+            let bytes = body.map(<[u8]>::to_vec).unwrap_or_else(|| r.to_json());
+            session
+                .put(keys::renew("r", "pc", "capture/cam0"), bytes)
+                .wait()
+                .unwrap();
+        };
+        // Another service's request (on this key) and a malformed one: nothing happens.
+        ask("capture/cam1", None);
+        ask("capture/cam0", Some(b"{\"schema\": 1}"));
+        std::thread::sleep(Duration::from_millis(300));
+        h.report(&c);
+        assert_eq!(h.renewals(), 0);
+        assert_eq!(rx.recv_timeout(Duration::from_millis(300)).ok(), None);
+        // Asked: the token goes and comes back at the next report.
+        ask("capture/cam0", None);
+        let end = Instant::now() + Duration::from_secs(5);
+        while h.renewals() == 0 && Instant::now() < end {
+            std::thread::sleep(Duration::from_millis(20));
+            h.report(&c);
+        }
+        assert_eq!(h.renewals(), 1);
+        assert_eq!(next(), Some(SampleKind::Delete));
+        assert_eq!(next(), Some(SampleKind::Put));
+        // Asked again at once: not before RENEW_AT_MOST_EVERY has passed since.
+        ask("capture/cam0", None);
+        std::thread::sleep(Duration::from_millis(300));
+        h.report(&c);
+        assert_eq!(h.renewals(), 1);
+        let end = Instant::now() + RENEW_AT_MOST_EVERY + Duration::from_secs(5);
+        while h.renewals() == 1 && Instant::now() < end {
+            std::thread::sleep(Duration::from_millis(50));
+            h.report(&c);
+        }
+        assert_eq!(h.renewals(), 2);
+        assert!(h.last_renewal.is_some());
+        assert_eq!(h.with_renewals(&c.detail)["token_renewals"], "2");
     }
 }
