@@ -733,6 +733,7 @@ fn still_markers_jsonl_scaled(truth: &[Camera], markers: &[Point3<f64>], scale: 
                     residual_px: 0.1,
                     out_of_range: false,
                     body: None,
+                    model: None,
                 }
             })
             .collect();

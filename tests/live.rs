@@ -1978,6 +1978,7 @@ fn a_long_session_exports_to_c3d_with_every_frame() {
                     residual_px: 0.1,
                     out_of_range: false,
                     body: None,
+                    model: None,
                 }]
             },
             bodies: Vec::new(),

@@ -16,7 +16,7 @@ import time
 import zenoh
 
 POSE_FIELDS = {"object_id", "position_m", "velocity_m_per_s", "heading_deg", "heading_directed",
-               "method", "cameras", "residual_px", "out_of_range", "body"}
+               "method", "cameras", "residual_px", "out_of_range", "body", "model"}
 FRAME_FIELDS = {"schema", "rig", "sequence", "timestamp_ns", "frame_published_ns",
                 "published_ns", "cameras", "poses", "bodies", "models"}
 MODEL_FIELDS = {"name", "valid", "rms_mm", "markers_seen", "markers", "joints", "links"}
@@ -44,6 +44,10 @@ def check_pose(p):
     label = p["body"]
     if label is not None and (set(label) != {"name", "marker"} or not isinstance(label["marker"], int)):
         raise ValueError(f"body label {label}")
+    model = p["model"]
+    if model is not None and (set(model) != {"name", "link", "marker"}
+                              or not all(isinstance(v, str) and v for v in model.values())):
+        raise ValueError(f"model label {model}")
     return [p["object_id"], p["position_m"], h, label]
 
 

@@ -17,7 +17,7 @@ mod models;
 mod view;
 pub use control::TokenRenewal;
 pub use detail::Detail;
-pub use models::{JointState, LinkPose, ModelPose, ModelUpdate};
+pub use models::{JointState, LinkPose, ModelLabel, ModelPose, ModelUpdate};
 pub use view::{CameraCoverage, MAX_COVERAGE_CELLS, PREVIEW_HISTOGRAM_BINS, Preview, WandCoverage};
 
 /// Version of every message schema below; a receiver rejects a message with another.
@@ -136,6 +136,10 @@ pub struct Pose {
     /// definition (`docs/bodies.md`); `None` for a loose marker.
     #[serde(default)]
     pub body: Option<BodyLabel>,
+    /// The kinematic model, link and marker this point was fitted as (`docs/models.md`);
+    /// `None` for a point no valid model fit took.
+    #[serde(default)]
+    pub model: Option<ModelLabel>,
 }
 
 /// Which body, and which of its markers, a point is.
@@ -564,6 +568,9 @@ impl Pose {
         if let Some(b) = &self.body {
             c.name("body.name", &b.name)?;
         }
+        if let Some(m) = &self.model {
+            c.within("model".into(), |c| m.validate(c))?;
+        }
         c.range("residual_px", self.residual_px, 0.0, f64::MAX)
     }
 }
@@ -872,6 +879,11 @@ mod tests {
                 body: Some(BodyLabel {
                     name: "head".into(),
                     marker: 2,
+                }),
+                model: Some(ModelLabel {
+                    name: "arm".into(),
+                    link: "forearm".into(),
+                    marker: "forearm_1".into(),
                 }),
             }],
             bodies: vec![BodyPose {

@@ -53,6 +53,24 @@ pub struct LinkPose {
     pub orientation_xyzw: [f64; 4],
 }
 
+/// Which model, link and marker a triangulated point was fitted as: the rig's names
+/// (`[[model]]`'s `name`, the link's, `[[model.marker]]`'s).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ModelLabel {
+    pub name: String,
+    pub link: String,
+    pub marker: String,
+}
+
+impl ModelLabel {
+    pub(super) fn validate(&self, c: &mut Checker) -> Checked {
+        c.name("name", &self.name)?;
+        c.name("link", &self.link)?;
+        c.name("marker", &self.marker)
+    }
+}
+
 /// One model on its own key (`stereoscope/<rig>/models/<name>`), with the times of the frame
 /// set it came from.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]

@@ -50,7 +50,8 @@ pub fn export_markers_csv(
         e.filled.iter().map(|&(c, f, _)| (c, f)).collect();
     let mut s = String::from("frame,time_s");
     for l in &e.trial.labels {
-        // Labels are object ids and the rig's body names (checked there: no commas).
+        // Labels are object ids and the rig's body, model, link and marker names (checked
+        // there: no commas).
         s.push_str(&format!(",{l}_x_mm,{l}_y_mm,{l}_z_mm,{l}_filled"));
     }
     s.push('\n');
@@ -140,6 +141,7 @@ pub fn export_c3d(
     for pf in &session.poses {
         for p in &pf.poses {
             match &p.body {
+                None if p.model.is_some() => {}
                 None => *objects.entry(p.object_id).or_default() |= p.heading_deg.is_some(),
                 Some(b) => {
                     let n = bodies.entry(b.name.clone()).or_default();
@@ -180,6 +182,7 @@ pub fn export_c3d(
             descriptions.push(format!("rigid body {name}, marker {k}"));
         }
     }
+    let models = ModelColumns::new(&rig, session, &mut labels, &mut descriptions);
     // Checked before the table is allocated: frames × points cells.
     if n_frames.saturating_mul(labels.len().max(1)) > MAX_C3D_CELLS {
         return Err(ReplayError::TooLarge {
@@ -202,15 +205,35 @@ pub fn export_c3d(
                 });
             }
         }
+        for m in pf.models.iter().filter(|m| m.valid) {
+            for l in &m.links {
+                if let Some(&c) = models.link_column.get(&(m.name.clone(), l.name.clone()))
+                    && row[c].is_none()
+                {
+                    row[c] = Some(C3dPoint {
+                        xyz_mm: l.position_m.map(|v| (v * 1000.0) as f32),
+                        cameras: 0,
+                        residual_mm: 0,
+                    });
+                }
+            }
+        }
         for p in &pf.poses {
-            let (pos, head) = match &p.body {
-                Some(b) => match body_column.get(&b.name) {
+            let (pos, head) = match (&p.body, &p.model) {
+                (Some(b), _) => match body_column.get(&b.name) {
                     Some(&c) if b.marker < stereoscope_proto::messages::MAX_BODY_MARKERS => {
                         (c + 1 + b.marker as usize, None)
                     }
                     _ => continue,
                 },
-                None => match column.get(&p.object_id) {
+                (None, Some(m)) => match models
+                    .marker_column
+                    .get(&(m.name.clone(), m.marker.clone()))
+                {
+                    Some(&c) => (c, None),
+                    None => continue,
+                },
+                (None, None) => match column.get(&p.object_id) {
                     Some(&ph) => ph,
                     None => continue,
                 },
@@ -246,7 +269,21 @@ pub fn export_c3d(
         }
     }
     let filled = match fill_gaps_frames {
-        Some(max) => fill_c3d_gaps(&mut frames, &column, &body_column, &bodies, max),
+        Some(max) => {
+            // Loose markers on splines; each body's markers, and each link's, as a rigid set.
+            let loose: Vec<usize> = column.values().map(|&(pos, _)| pos).collect();
+            let mut sets: Vec<Vec<usize>> = body_column
+                .iter()
+                .map(|(name, &origin)| {
+                    let n = bodies.get(name).copied().unwrap_or(0);
+                    (0..n.min(stereoscope_proto::messages::MAX_BODY_MARKERS) as usize)
+                        .map(|k| origin + 1 + k)
+                        .collect()
+                })
+                .collect();
+            sets.extend(models.link_sets.iter().cloned());
+            fill_c3d_gaps(&mut frames, &loose, &sets, max)
+        }
         None => Vec::new(),
     };
     Ok(C3dExport {
@@ -286,25 +323,101 @@ fn residual_mm(rig: &Rig, p: &stereoscope_proto::messages::Pose) -> u8 {
     }
 }
 
-/// Fills the markers' gaps of at most `max` frames in a C3D table (see [`export_c3d`]):
-/// loose objects' columns on splines, each body's marker columns as one rigid set.
+/// The kinematic models' columns of a C3D export: per model of the rig seen in the session,
+/// each link's origin (`<model>:<link>`, from the model's valid fits) and then that link's
+/// markers (`<model>:<marker>`, the points fitted as them), in the rig's order; a label in
+/// the recording its rig does not name comes after, under its own link.
+struct ModelColumns {
+    link_column: std::collections::BTreeMap<(String, String), usize>,
+    marker_column: std::collections::BTreeMap<(String, String), usize>,
+    /// Each link's marker columns: one rigid set for gap filling.
+    link_sets: Vec<Vec<usize>>,
+}
+
+impl ModelColumns {
+    fn new(
+        rig: &Rig,
+        session: &Session,
+        labels: &mut Vec<String>,
+        descriptions: &mut Vec<String>,
+    ) -> ModelColumns {
+        use std::collections::{BTreeMap, BTreeSet};
+        // (model, link) → its markers, in order.
+        let mut links: Vec<((String, String), Vec<String>)> = Vec::new();
+        let mut seen_models: BTreeSet<&str> = BTreeSet::new();
+        let mut extra: BTreeSet<(String, String, String)> = BTreeSet::new();
+        for pf in &session.poses {
+            seen_models.extend(pf.models.iter().map(|m| m.name.as_str()));
+            for m in pf.poses.iter().filter_map(|p| p.model.as_ref()) {
+                seen_models.insert(&m.name);
+                extra.insert((m.name.clone(), m.link.clone(), m.marker.clone()));
+            }
+        }
+        for rm in rig
+            .models
+            .iter()
+            .filter(|m| seen_models.contains(m.model.name.as_str()))
+        {
+            let m = &rm.model;
+            for (l, link) in m.links.iter().enumerate() {
+                let on: Vec<String> = m
+                    .markers
+                    .iter()
+                    .filter(|k| k.link == l)
+                    .map(|k| k.name.clone())
+                    .collect();
+                for k in &on {
+                    extra.remove(&(m.name.clone(), link.name.clone(), k.clone()));
+                }
+                links.push(((m.name.clone(), link.name.clone()), on));
+            }
+        }
+        for (model, link, marker) in extra {
+            let key = (model, link);
+            match links.iter_mut().find(|(k, _)| *k == key) {
+                Some((_, on)) => on.push(marker),
+                None => links.push((key, vec![marker])),
+            }
+        }
+        let mut out = ModelColumns {
+            link_column: BTreeMap::new(),
+            marker_column: BTreeMap::new(),
+            link_sets: Vec::new(),
+        };
+        let label = |s: String| s.chars().take(32).collect::<String>();
+        for ((model, link), markers) in links {
+            out.link_column
+                .insert((model.clone(), link.clone()), labels.len());
+            labels.push(label(format!("{model}:{link}")));
+            descriptions.push(format!("model {model}, link {link}, origin"));
+            let mut set = Vec::new();
+            for k in markers {
+                set.push(labels.len());
+                out.marker_column
+                    .insert((model.clone(), k.clone()), labels.len());
+                labels.push(label(format!("{model}:{k}")));
+                descriptions.push(format!("model {model}, link {link}, marker {k}"));
+            }
+            out.link_sets.push(set);
+        }
+        out
+    }
+}
+
+/// Fills the markers' gaps of at most `max` frames in a C3D table (see [`export_c3d`]): the
+/// `loose` columns on splines, each of `sets` as one rigid set.
 fn fill_c3d_gaps(
     frames: &mut [Vec<Option<crate::c3d::C3dPoint>>],
-    column: &std::collections::BTreeMap<u32, (usize, Option<usize>)>,
-    body_column: &std::collections::BTreeMap<String, usize>,
-    bodies: &std::collections::BTreeMap<String, u32>,
+    loose: &[usize],
+    rigid: &[Vec<usize>],
     max: usize,
 ) -> Vec<(usize, usize, stereoscope_bodies::gaps::FillMethod)> {
     use stereoscope_bodies::gaps::{Track, fill_gaps};
-    let mut cols: Vec<usize> = column.values().map(|&(pos, _)| pos).collect();
+    let mut cols: Vec<usize> = loose.to_vec();
     let mut sets: Vec<Vec<usize>> = Vec::new();
-    for (name, &origin) in body_column {
-        let n = bodies.get(name).copied().unwrap_or(0) as usize;
+    for set in rigid {
         let first = cols.len();
-        cols.extend(
-            (0..n.min(stereoscope_proto::messages::MAX_BODY_MARKERS as usize))
-                .map(|k| origin + 1 + k),
-        );
+        cols.extend(set);
         sets.push((first..cols.len()).collect());
     }
     let mut tracks: Vec<Track> = cols
@@ -550,5 +663,101 @@ mod tests {
             bodies.lines().nth(4).unwrap().ends_with(",3,4,true"),
             "{bodies}"
         );
+    }
+
+    /// A model's points are labelled by model and marker, each link's origin by model and
+    /// link, in C3D and the markers' CSV; a gap in a link's marker is filled from the link's
+    /// other markers (rigid), flagged; an invalid fit adds no link origin.
+    #[test]
+    fn model_markers_and_links_are_labelled_and_filled_as_rigid_sets() {
+        use stereoscope_proto::messages::{LinkPose, ModelLabel, ModelPose};
+        let ms = 1_000_000;
+        let label = |marker: &str| {
+            Some(ModelLabel {
+                name: "arm".into(),
+                link: "forearm".into(),
+                marker: marker.into(),
+            })
+        };
+        let poses: Vec<PoseFrame> = (0..12u64)
+            .map(|i| {
+                // Four markers of the forearm moving together along x, and a loose one.
+                let x = 0.01 * i as f64;
+                let mut f = frame(i * 33 * ms, &[x, x + 0.1, x + 0.2, x + 0.3, 0.9]);
+                for (k, p) in f.poses.iter_mut().take(4).enumerate() {
+                    p.model = label(&format!("forearm_{k}"));
+                    // Not in a line, so the set's motion is determined.
+                    p.position_m[1] = 0.5 + 0.02 * (k * k) as f64;
+                    p.position_m[2] = 0.05 * k as f64;
+                }
+                // forearm_1 hidden in frames 5 and 6.
+                if i == 5 || i == 6 {
+                    f.poses.remove(1);
+                }
+                f.models = vec![ModelPose {
+                    name: "arm".into(),
+                    valid: i != 9,
+                    rms_mm: 0.3,
+                    markers_seen: 4,
+                    markers: 4,
+                    joints: Vec::new(),
+                    links: vec![LinkPose {
+                        name: "forearm".into(),
+                        position_m: [x, 0.0, 0.0],
+                        orientation_xyzw: [0.0, 0.0, 0.0, 1.0],
+                    }],
+                }];
+                f
+            })
+            .collect();
+        let session = session_of(poses);
+        let e = export_c3d(&session, Some(4)).unwrap();
+        assert_eq!(
+            e.trial.labels,
+            [
+                "obj5",
+                "arm:forearm",
+                "arm:forearm_0",
+                "arm:forearm_1",
+                "arm:forearm_2",
+                "arm:forearm_3"
+            ]
+        );
+        assert_eq!(
+            e.trial.descriptions[3],
+            "model arm, link forearm, marker forearm_1"
+        );
+        assert_eq!(e.trial.frames[2][1].unwrap().xyz_mm, [20.0, 0.0, 0.0]);
+        assert!(e.trial.frames[9][1].is_none(), "an invalid fit's link");
+        let measured = e.trial.frames[4][3].unwrap();
+        assert!(measured.cameras != 0);
+        // Filled from forearm_0 and forearm_2 as a rigid set, flagged as filled.
+        for f in [5, 6] {
+            let p = e.trial.frames[f][3].unwrap();
+            let want = [f as f32 * 10.0 + 100.0, 520.0, 50.0];
+            for (a, b) in p.xyz_mm.iter().zip(want) {
+                assert!((a - b).abs() < 0.01, "frame {f}: {:?}", p.xyz_mm);
+            }
+            assert_eq!(p.cameras, 0);
+            assert!(
+                e.filled
+                    .contains(&(3, f, stereoscope_bodies::gaps::FillMethod::Rigid))
+            );
+        }
+        let csv = export_markers_csv(&session, Some(4)).unwrap();
+        let header = csv.lines().next().unwrap();
+        assert!(
+            header.contains(
+                ",arm:forearm_1_x_mm,arm:forearm_1_y_mm,arm:forearm_1_z_mm,arm:forearm_1_filled"
+            ),
+            "{header}"
+        );
+        let flag = header
+            .split(',')
+            .position(|c| c == "arm:forearm_1_filled")
+            .unwrap();
+        let cell = |line: usize| csv.lines().nth(line).unwrap().split(',').nth(flag).unwrap();
+        // Frame 5 (line 6) filled, frame 4 measured.
+        assert_eq!((cell(6), cell(5)), ("1", "0"), "{csv}");
     }
 }

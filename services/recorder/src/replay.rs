@@ -642,6 +642,7 @@ pub(crate) mod tests {
                     residual_px: 0.0,
                     out_of_range: false,
                     body: None,
+                    model: None,
                 })
                 .collect(),
             bodies: Vec::new(),

@@ -340,6 +340,7 @@ mod tests {
                 residual_px: 0.0,
                 out_of_range: true,
                 body: None,
+                model: None,
             }],
             bodies: Vec::new(),
             models: Vec::new(),

@@ -348,6 +348,7 @@ mod tests {
             residual_px: 0.0,
             out_of_range: false,
             body: None,
+            model: None,
         }
     }
 

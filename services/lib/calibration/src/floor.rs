@@ -438,6 +438,7 @@ mod tests {
                     residual_px: 0.1,
                     out_of_range: false,
                     body: None,
+                    model: None,
                 })
                 .collect(),
             sequence: 0,

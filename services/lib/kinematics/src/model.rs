@@ -217,6 +217,26 @@ pub enum ModelError {
     },
     #[error("model {model:?} has no link")]
     Empty { model: String },
+    #[error(
+        "model {model:?}: {what} name {name:?} must be 1–{MAX_PART_NAME_BYTES} bytes without commas, quotes, spaces or control characters (it labels exports' columns and messages)"
+    )]
+    BadName {
+        model: String,
+        what: &'static str,
+        name: String,
+    },
+}
+
+/// The longest link, joint or marker name (a message's name limit).
+pub const MAX_PART_NAME_BYTES: usize = 64;
+
+/// Whether `name` can label a CSV column, a C3D point and a message field as it is.
+fn usable_name(name: &str) -> bool {
+    !name.is_empty()
+        && name.len() <= MAX_PART_NAME_BYTES
+        && !name
+            .chars()
+            .any(|c| c.is_control() || c.is_whitespace() || matches!(c, ',' | '"' | '\''))
 }
 
 /// A checked model: links in tree order (every joint's parent before its child), each
@@ -284,6 +304,20 @@ impl Model {
         let model = name.to_string();
         if links.is_empty() {
             return Err(ModelError::Empty { model });
+        }
+        let names = links
+            .iter()
+            .map(|l| ("link", l))
+            .chain(joints.iter().map(|j| ("joint", &j.name)))
+            .chain(markers.iter().map(|k| ("marker", &k.name)));
+        for (what, n) in names {
+            if !usable_name(n) {
+                return Err(ModelError::BadName {
+                    model,
+                    what,
+                    name: n.clone(),
+                });
+            }
         }
         let mut index = std::collections::HashMap::new();
         for (i, l) in links.iter().enumerate() {

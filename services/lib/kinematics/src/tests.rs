@@ -299,3 +299,25 @@ fn a_frame_that_cannot_start_is_refused_naming_what_is_missing() {
     let f = fit_chain(&m, &seen, Some(&start), &FitOptions::default()).unwrap();
     assert!(f.valid && f.base_determined, "{f:?}");
 }
+
+/// A link, joint or marker name that would break an export's column (a comma, a quote, a
+/// space, a control character, or too long) is refused, naming it.
+#[test]
+fn names_that_cannot_label_a_column_are_refused() {
+    let links: Vec<String> = vec!["base".into()];
+    let marker = |name: &str| MarkerSpec {
+        name: name.into(),
+        link: "base".into(),
+        in_link_m: [0.0; 3],
+    };
+    assert!(Model::new("m", &links, &[], &[marker("base_0")], Base::Floating).is_ok());
+    for bad in ["a,b", "a\"b", "upper arm", "tab\t", "", &"x".repeat(65)] {
+        let e = Model::new("m", &links, &[], &[marker(bad)], Base::Floating).unwrap_err();
+        assert!(
+            e.to_string().contains(&format!("marker name {bad:?}")),
+            "{e}"
+        );
+    }
+    let e = Model::new("m", &["up,per".into()], &[], &[], Base::Floating).unwrap_err();
+    assert!(e.to_string().contains("link name \"up,per\""), "{e}");
+}

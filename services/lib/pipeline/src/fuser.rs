@@ -725,6 +725,7 @@ impl Fuser {
                 residual_px: p.residual_px,
                 out_of_range: p.out_of_range,
                 body: None,
+                model: None,
             });
         }
         poses.sort_by_key(|p| p.object_id);

@@ -217,7 +217,7 @@ impl Fusion {
             .bodies
             .update_refined(&mut poses, timestamp_ns, self.fuser.sightings());
         self.fuser.expect_unseen(timestamp_ns, found.unseen);
-        self.models_found = self.models.update(&poses);
+        self.models_found = self.models.update(&mut poses);
         // A pose frame carries at most MAX_POSES poses (receivers refuse more): the rest of an
         // overfull set is left out and counted.
         let max = stereoscope_proto::messages::limits::MAX_POSES;

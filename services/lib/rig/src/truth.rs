@@ -120,6 +120,7 @@ mod tests {
                 name: n.into(),
                 marker: m,
             }),
+            model: None,
         }
     }
 
