@@ -71,18 +71,18 @@ fn the_arms_links_are_where_yourdfpy_puts_them() {
 /// `stereoscope demo --rig deploy/rigs/<rig>.toml --seconds 8 --json`: the first model's
 /// summary (the whole summary line beside it, for messages).
 fn demo_model(rig: &str) -> (serde_json::Value, String) {
+    demo_model_of(
+        common::repo_root()
+            .join(format!("deploy/rigs/{rig}.toml"))
+            .to_str()
+            .unwrap(),
+    )
+}
+
+/// [`demo_model`] of the rig file at `path`.
+fn demo_model_of(path: &str) -> (serde_json::Value, String) {
     let o = common::run_with_limit(
-        &[
-            "demo",
-            "--rig",
-            common::repo_root()
-                .join(format!("deploy/rigs/{rig}.toml"))
-                .to_str()
-                .unwrap(),
-            "--seconds",
-            "8",
-            "--json",
-        ],
+        &["demo", "--rig", path, "--seconds", "8", "--json"],
         std::time::Duration::from_secs(120),
     );
     let out = String::from_utf8_lossy(&o.stdout);
@@ -104,21 +104,74 @@ fn the_robot_arm_demo_measures_its_joints_through_the_services() {
     let frames = arm["frames"].as_f64().unwrap();
     let valid = arm["valid"].as_f64().unwrap();
     let whole = arm["whole"].as_f64().unwrap();
+    // Measured (8 s, 3 runs): 98–99 % of the frames valid and whole, every joint 0.018–0.077°,
+    // the tool 0.10–0.13 mm; the bounds leave room for a loaded machine.
     assert!(
-        frames >= 150.0 && valid >= 0.7 * frames && whole >= 0.7 * frames,
+        frames >= 150.0 && valid >= 0.9 * frames && whole >= 0.9 * frames,
         "{line}"
     );
-    for (k, j) in arm["joints"].as_array().unwrap().iter().enumerate() {
+    for j in arm["joints"].as_array().unwrap() {
         let Some(rms) = j["rms"].as_f64() else {
             // The tool's flange is fixed.
             assert_eq!(j["name"], "tool_flange", "{line}");
             continue;
         };
-        let bound = if k < 3 { 0.3 } else { 1.0 };
-        assert!(rms < bound, "joint {}: {rms}° RMS\n{line}", j["name"]);
+        assert!(rms < 0.15, "joint {}: {rms}° RMS\n{line}", j["name"]);
     }
     let tool = arm["tool_rms_m"].as_f64().unwrap();
-    assert!(tool < 0.001, "tool {tool} m RMS\n{line}");
+    assert!(tool < 0.0003, "tool {tool} m RMS\n{line}");
+}
+
+/// The robot arm with its upper arm's markers all hidden for 1 s in every 4 s (the scene's
+/// `hide`), through the services: while hidden, no joint is published as determined more
+/// than 0.5° off the truth (the chain carries what it determines, the rest is flagged), and
+/// none of the hidden markers is found; outside those seconds the demo's bounds hold.
+#[test]
+fn the_arms_upper_arm_hidden_for_a_second_through_the_services() {
+    let dir = common::TempDir::new("arm-hidden");
+    let root = common::repo_root();
+    let urdf = root.join("deploy/models/arm6.urdf");
+    let from = "motion = { kind = \"joints\", base =";
+    let text = std::fs::read_to_string(root.join("deploy/rigs/robot-arm.toml")).unwrap();
+    assert!(text.contains(from), "the arm's motion changed form");
+    let text = text
+        .replace(
+            "urdf = \"../models/arm6.urdf\"",
+            &format!("urdf = {:?}", urdf.to_str().unwrap()),
+        )
+        .replace(
+            from,
+            "motion = { kind = \"joints\", hide = { link = \"upper_arm\", every_s = 4.0, for_s = 1.0 }, base =",
+        );
+    let path = dir.file("arm-hidden.toml", &text);
+    let rig = stereoscope_rig::Rig::load(std::path::Path::new(&path)).unwrap();
+    let arm = &rig.models[0].model;
+    let upper = arm
+        .links
+        .iter()
+        .position(|l| l.name == "upper_arm")
+        .unwrap();
+    let on_upper = arm.markers.iter().filter(|m| m.link == upper).count();
+    let (m, line) = demo_model_of(&path);
+    let h = &m["hidden"];
+    assert_eq!(h["link"], "upper_arm", "{line}");
+    let frames = h["frames"].as_u64().unwrap();
+    assert!(frames >= 30, "{frames} frames hidden\n{line}");
+    let seen = h["markers_seen_max"].as_u64().unwrap() as usize;
+    assert!(
+        seen <= arm.markers.len() - on_upper,
+        "{seen} markers found with {on_upper} of {} hidden\n{line}",
+        arm.markers.len()
+    );
+    assert_eq!(h["guesses"], 0, "{line}");
+    for j in h["joints"].as_array().unwrap() {
+        if let Some(w) = j["worst"].as_f64() {
+            assert!(w <= 0.5, "{}: {w}° while hidden\n{line}", j["name"]);
+        }
+    }
+    eprintln!("hidden: {h}");
+    let whole = m["whole"].as_f64().unwrap();
+    assert!(whole >= 0.8 * m["frames"].as_f64().unwrap(), "{line}");
 }
 
 /// The leg (`deploy/rigs/leg.toml`: hip ball joint, knee hinge, ankle universal, defined in
@@ -217,5 +270,162 @@ fn the_legs_joints_reach_ros2_as_joint_states() {
             msg["header"]["stamp"]["sec"].as_i64().unwrap() > 1_700_000_000,
             "{s}"
         );
+    }
+}
+
+/// The robot arm recorded through the services and exported to C3D, read by py-c3d and
+/// ezc3d: every marker of the rig's arm labelled `arm:<marker>` and every link's origin
+/// `arm:<link>`, and the labels right — two markers of one link keep their distance within
+/// 7 mm of its median in every frame both are in (each labelled point lies within
+/// `MARKER_OUTLIER_M`, 3 mm, of its fitted marker; a point given another marker's label would
+/// be tens of millimetres off); every marker labelled in a fifth of the frames or more (fusion
+/// triangulates the wrist's markers in a third to a half), and 90 % of the measured points
+/// labelled.
+#[test]
+fn the_arms_c3d_export_names_every_link_and_marker() {
+    let dir = common::TempDir::new("arm-c3d");
+    let root = common::repo_root();
+    let urdf = root.join("deploy/models/arm6.urdf");
+    let text = std::fs::read_to_string(root.join("deploy/rigs/robot-arm.toml"))
+        .unwrap()
+        .replace(
+            "urdf = \"../models/arm6.urdf\"",
+            &format!("urdf = {:?}", urdf.to_str().unwrap()),
+        );
+    let rig_path = dir.file(
+        "arm.toml",
+        &format!("{text}\n[recorder]\nfolder = \"rec\"\n"),
+    );
+    let o = common::run_with_limit(
+        &["demo", "--rig", &rig_path, "--seconds", "5", "--quiet"],
+        std::time::Duration::from_secs(120),
+    );
+    assert!(o.status.success(), "{}", common::stderr(&o));
+    let sessions: Vec<_> = std::fs::read_dir(dir.0.join("rec"))
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .collect();
+    assert_eq!(sessions.len(), 1, "{sessions:?}");
+    let c3d = dir.0.join("arm.c3d");
+    let o = common::run_with_limit(
+        &[
+            "export",
+            sessions[0].to_str().unwrap(),
+            "--format",
+            "c3d",
+            "--out",
+            c3d.to_str().unwrap(),
+        ],
+        std::time::Duration::from_secs(60),
+    );
+    assert!(o.status.success(), "{}", common::stderr(&o));
+    let rig = stereoscope_rig::Rig::load(std::path::Path::new(&rig_path)).unwrap();
+    let arm = &rig.models[0].model;
+    let o = common::run_program_with_limit(
+        &common::python_clients(),
+        &[
+            root.join("tests/clients/c3d_reader.py").to_str().unwrap(),
+            c3d.to_str().unwrap(),
+        ],
+        std::time::Duration::from_secs(60),
+    );
+    assert!(o.status.success(), "{}", common::stderr(&o));
+    let out = String::from_utf8_lossy(&o.stdout);
+    let readers: Vec<serde_json::Value> = out
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap())
+        .collect();
+    assert_eq!(readers.len(), 2, "{out}");
+    for r in &readers {
+        let labels: Vec<&str> = r["labels"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|l| l.as_str().unwrap())
+            .collect();
+        let column = |name: &str| {
+            labels
+                .iter()
+                .position(|l| *l == format!("arm:{name}"))
+                .unwrap_or_else(|| panic!("{}: no arm:{name} in {labels:?}", r["reader"]))
+        };
+        for l in &arm.links {
+            column(&l.name);
+        }
+        let frames = r["frames"].as_array().unwrap();
+        let at = |f: &serde_json::Value, c: usize| -> Option<nalgebra::Point3<f64>> {
+            let p = f[c].as_array()?;
+            Some(nalgebra::Point3::new(
+                p[0].as_f64()?,
+                p[1].as_f64()?,
+                p[2].as_f64()?,
+            ))
+        };
+        let mut whole = 0;
+        let mut worst = 0.0f64;
+        for (li, l) in arm.links.iter().enumerate() {
+            let cols: Vec<usize> = arm
+                .markers
+                .iter()
+                .filter(|m| m.link == li)
+                .map(|m| column(&m.name))
+                .collect();
+            for (i, &a) in cols.iter().enumerate() {
+                for &b in &cols[i + 1..] {
+                    let d: Vec<f64> = frames
+                        .iter()
+                        .filter_map(|f| Some((at(f, a)? - at(f, b)?).norm()))
+                        .collect();
+                    let mut sorted = d.clone();
+                    sorted.sort_by(f64::total_cmp);
+                    let median = sorted[sorted.len() / 2];
+                    let off = d.iter().map(|v| (v - median).abs()).fold(0.0, f64::max);
+                    worst = worst.max(off);
+                    assert!(off < 7.0, "{}: link {}: {off} mm", r["reader"], l.name);
+                }
+            }
+        }
+        for f in frames {
+            if arm.markers.iter().all(|m| at(f, column(&m.name)).is_some()) {
+                whole += 1;
+            }
+        }
+        // The marker labelled in the fewest frames.
+        let (rarest, share) = arm
+            .markers
+            .iter()
+            .map(|m| {
+                let c = column(&m.name);
+                let n = frames.iter().filter(|f| at(f, c).is_some()).count();
+                (m.name.as_str(), n as f64 / frames.len() as f64)
+            })
+            .min_by(|a, b| a.1.total_cmp(&b.1))
+            .unwrap();
+        eprintln!(
+            "{}: {} frames, {whole} with all {} arm markers, {rarest} in {:.0} %; worst change \
+             of a link's marker distance {worst:.3} mm",
+            r["reader"],
+            frames.len(),
+            arm.markers.len(),
+            share * 100.0
+        );
+        assert!(share >= 0.2, "{rarest} labelled in {share} of the frames");
+        // The scene holds only the arm: nearly every measured point is one of its markers.
+        let loose: usize = labels
+            .iter()
+            .enumerate()
+            .filter(|(_, l)| l.starts_with("obj"))
+            .map(|(c, _)| frames.iter().filter(|f| at(f, c).is_some()).count())
+            .sum();
+        let labelled: usize = arm
+            .markers
+            .iter()
+            .map(|m| {
+                let c = column(&m.name);
+                frames.iter().filter(|f| at(f, c).is_some()).count()
+            })
+            .sum();
+        eprintln!("{}: {labelled} points labelled, {loose} not", r["reader"]);
+        assert!(labelled >= 9 * loose, "{labelled} labelled, {loose} not");
     }
 }

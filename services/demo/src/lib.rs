@@ -34,7 +34,7 @@ pub enum DemoError {
 }
 mod models;
 
-pub use models::ModelStats;
+pub use models::{HiddenStats, ModelStats};
 use models::{ModelAcc, ModelTruth, score_models};
 use std::collections::{BTreeMap, VecDeque};
 use std::io::Write;
@@ -181,13 +181,14 @@ impl DemoSummary {
                     })
                     .collect();
                 format!(
-                    "{{\"name\":{},\"frames\":{},\"valid\":{},\"whole\":{},\"joints\":[{}],\"tool_rms_m\":{}}}",
+                    "{{\"name\":{},\"frames\":{},\"valid\":{},\"whole\":{},\"joints\":[{}],\"tool_rms_m\":{},\"hidden\":{}}}",
                     serde_json::to_string(&m.name).unwrap_or_default(),
                     m.frames,
                     m.valid,
                     m.whole,
                     joints.join(","),
-                    json_number(m.tool_rms_m, 6)
+                    json_number(m.tool_rms_m, 6),
+                    m.hidden.as_ref().map_or("null".to_string(), |h| h.json())
                 )
             })
             .collect();

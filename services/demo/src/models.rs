@@ -1,5 +1,6 @@
 //! The demo's scoring of kinematic models (`docs/models.md`): each fitted model's joints
-//! against the joint truth of the synthetic scene, and its last link (the tool) in the world.
+//! against the joint truth of the synthetic scene, and its last link (the tool) in the world;
+//! the frames in which the scene hid a link's markers scored apart.
 
 use std::collections::BTreeMap;
 use stereoscope_proto::messages::{PoseFrame, Truth};
@@ -19,7 +20,26 @@ pub struct ModelStats {
     /// fixed joint.
     pub joints_rms: Vec<(String, Option<f64>)>,
     pub tool_rms_m: f64,
+    /// The frames a link's markers were hidden in (the scene's `hide`), scored apart.
+    pub hidden: Option<HiddenStats>,
 }
+
+/// How a model did while one link's markers were all hidden: each joint's worst error in the
+/// frames it was published as determined, how often it was flagged instead, and how many
+/// determined values were more than [`GUESS_DEG`] off (guesses published as measurements).
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct HiddenStats {
+    pub link: String,
+    pub frames: u64,
+    /// The most markers any of those frames' fits found (the hidden ones cannot be among them).
+    pub markers_seen_max: u32,
+    /// Per joint: name, worst error while determined (`None`: never determined), frames flagged.
+    pub joints: Vec<(String, Option<f64>, u64)>,
+    pub guesses: u64,
+}
+
+/// A determined joint further than this from the truth while a link is hidden is a guess.
+pub const GUESS_DEG: f64 = 0.5;
 
 /// The scene's truth for the rig's kinematic models: how each moves, and the truth camera's
 /// frame rate and loop (a looped camera's frame `k` shows the scene at `k / fps`).
@@ -38,6 +58,64 @@ pub(crate) struct ModelAcc {
     joint_sq: Vec<f64>,
     joint_n: Vec<u64>,
     tool_sq: f64,
+    hidden: Option<HiddenStats>,
+}
+
+/// A joint's error against the truth: degrees (millimetres for a slide); `None` where the
+/// value's form does not match the truth's.
+fn joint_error(tv: &stereoscope_kinematics::JointValue, v: &[f64]) -> Option<f64> {
+    use stereoscope_kinematics::JointValue;
+    match (tv, v) {
+        (JointValue::Angle(x), [y]) => Some((y - x).to_degrees()),
+        (JointValue::Offset(x), [y]) => Some((y - x) * 1e3),
+        (JointValue::Angles([x0, x1]), [y0, y1]) => {
+            Some(((y0 - x0).powi(2) + (y1 - x1).powi(2)).sqrt().to_degrees())
+        }
+        (JointValue::Rotation(q), [x, y, z, w]) => {
+            let f = nalgebra::UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(
+                *w, *x, *y, *z,
+            ));
+            Some(f.angle_to(q).to_degrees())
+        }
+        _ => None,
+    }
+}
+
+/// Scores a frame in which `link` was hidden.
+fn score_hidden(
+    a: &mut ModelAcc,
+    model: &stereoscope_kinematics::Model,
+    link: usize,
+    fit: Option<&stereoscope_proto::messages::ModelPose>,
+    truth: &[stereoscope_kinematics::JointValue],
+) {
+    let h = a.hidden.get_or_insert_with(|| HiddenStats {
+        link: model.links[link].name.clone(),
+        joints: model
+            .joints
+            .iter()
+            .map(|j| (j.name.clone(), None, 0))
+            .collect(),
+        ..HiddenStats::default()
+    });
+    h.frames += 1;
+    let Some(fit) = fit else {
+        h.joints.iter_mut().for_each(|j| j.2 += 1);
+        return;
+    };
+    h.markers_seen_max = h.markers_seen_max.max(fit.markers_seen);
+    for ((tv, js), slot) in truth.iter().zip(&fit.joints).zip(h.joints.iter_mut()) {
+        if !fit.valid || !js.determined {
+            slot.2 += 1;
+            continue;
+        }
+        if let Some(e) = joint_error(tv, &js.values).map(f64::abs) {
+            slot.1 = Some(slot.1.unwrap_or(0.0).max(e));
+            if e > GUESS_DEG {
+                h.guesses += 1;
+            }
+        }
+    }
 }
 
 /// Scores each fitted model of `p` against its truth at `t`'s frame.
@@ -47,7 +125,6 @@ pub(crate) fn score_models(
     mt: &ModelTruth,
     acc: &mut BTreeMap<String, ModelAcc>,
 ) {
-    use stereoscope_kinematics::JointValue;
     if mt.fps <= 0.0 {
         return;
     }
@@ -60,6 +137,12 @@ pub(crate) fn score_models(
     for m in &mt.motions {
         let model = &m.model;
         let a = acc.entry(model.name.clone()).or_default();
+        if let Some(link) = m.hidden_at(t_s) {
+            let truth = model.swing_values(&m.swings, t_s);
+            let fit = p.models.iter().find(|f| f.name == model.name);
+            score_hidden(a, model, link, fit, &truth);
+            continue;
+        }
         a.frames += 1;
         let Some(fit) = p.models.iter().find(|f| f.name == model.name && f.valid) else {
             continue;
@@ -72,22 +155,7 @@ pub(crate) fn score_models(
             if !js.determined {
                 continue;
             }
-            let v = &js.values;
-            let e = match (tv, v.as_slice()) {
-                (JointValue::Angle(x), [y]) => Some((y - x).to_degrees()),
-                (JointValue::Offset(x), [y]) => Some((y - x) * 1e3),
-                (JointValue::Angles([x0, x1]), [y0, y1]) => {
-                    Some(((y0 - x0).powi(2) + (y1 - x1).powi(2)).sqrt().to_degrees())
-                }
-                (JointValue::Rotation(q), [x, y, z, w]) => {
-                    let f = nalgebra::UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(
-                        *w, *x, *y, *z,
-                    ));
-                    Some(f.angle_to(q).to_degrees())
-                }
-                _ => None,
-            };
-            if let Some(e) = e {
+            if let Some(e) = joint_error(tv, &js.values) {
                 a.joint_sq[j] += e * e;
                 a.joint_n[j] += 1;
             }
@@ -105,6 +173,65 @@ pub(crate) fn score_models(
                 .sum();
             a.tool_sq += d;
         }
+    }
+}
+
+impl HiddenStats {
+    /// As JSON: `{"link", "frames", "markers_seen_max", "guesses", "joints": [{"name",
+    /// "worst", "flagged"}]}`.
+    pub fn json(&self) -> String {
+        let joints: Vec<String> = self
+            .joints
+            .iter()
+            .map(|(n, w, f)| {
+                format!(
+                    "{{\"name\":{},\"worst\":{},\"flagged\":{f}}}",
+                    serde_json::to_string(n).unwrap_or_default(),
+                    w.filter(|w| w.is_finite())
+                        .map_or("null".to_string(), |w| format!("{w:.4}"))
+                )
+            })
+            .collect();
+        format!(
+            "{{\"link\":{},\"frames\":{},\"markers_seen_max\":{},\"guesses\":{},\"joints\":[{}]}}",
+            serde_json::to_string(&self.link).unwrap_or_default(),
+            self.frames,
+            self.markers_seen_max,
+            self.guesses,
+            joints.join(",")
+        )
+    }
+
+    /// For people: "upper_arm hidden in 60 frames: worst while determined shoulder_pan 0.12°,
+    /// …; flagged elbow 60, …; 0 guesses".
+    pub fn line(&self) -> String {
+        let worst: Vec<String> = self
+            .joints
+            .iter()
+            .filter_map(|(n, w, _)| w.map(|w| format!("{n} {w:.3}")))
+            .collect();
+        let flagged: Vec<String> = self
+            .joints
+            .iter()
+            .filter(|(_, _, f)| *f > 0)
+            .map(|(n, _, f)| format!("{n} {f}"))
+            .collect();
+        format!(
+            "{} hidden in {} frames: worst while determined (degrees; mm for a slide) {}; frames flagged {}; {} guesses over {GUESS_DEG}°",
+            self.link,
+            self.frames,
+            if worst.is_empty() {
+                "none".into()
+            } else {
+                worst.join(", ")
+            },
+            if flagged.is_empty() {
+                "none".into()
+            } else {
+                flagged.join(", ")
+            },
+            self.guesses
+        )
     }
 }
 
@@ -139,6 +266,7 @@ pub(crate) fn stats(truth: &ModelTruth, acc: BTreeMap<String, ModelAcc>) -> Vec<
                 name,
                 frames: a.frames,
                 valid: a.valid,
+                hidden: a.hidden,
             }
         })
         .collect()

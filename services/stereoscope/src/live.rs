@@ -121,6 +121,9 @@ pub fn summary_text(s: &DemoSummary) -> String {
             joints.join(", "),
             m.tool_rms_m * 1000.0
         ));
+        if let Some(h) = &m.hidden {
+            out.push_str(&format!("  model {}: {}\n", m.name, h.line()));
+        }
     }
     let listening: Vec<&str> = s
         .servers

@@ -17,6 +17,7 @@ fn main() {
         Actor {
             shape: Shape::DoubleSphere { radius_m: 0.02 },
             contrast: 190.0,
+            hidden: None,
             motion: Motion::Circle {
                 centre: Point3::new(0.0, 0.0, 0.3),
                 radius_m: 0.3,
@@ -26,6 +27,7 @@ fn main() {
         Actor {
             shape: Shape::DoubleSphere { radius_m: 0.02 },
             contrast: 190.0,
+            hidden: None,
             motion: Motion::Line {
                 from: Point3::new(-0.5, -0.3, 0.02),
                 to: Point3::new(0.5, 0.3, 0.8),
@@ -35,6 +37,7 @@ fn main() {
         Actor {
             shape: Shape::DoubleSphere { radius_m: 0.02 },
             contrast: 190.0,
+            hidden: None,
             motion: Motion::Wander {
                 centre: Point3::new(0.1, 0.1, 0.5),
                 extent_m: Vector3::new(0.4, 0.3, 0.3),

@@ -14,7 +14,7 @@ pub mod motion;
 pub mod render;
 pub mod scene;
 
-pub use motion::{Actor, Motion, State, scene_at};
+pub use motion::{Actor, Blink, Motion, State, scene_at};
 pub use render::{Frame, RenderOptions, TargetTruth, render_u8, render_u16};
 pub use scene::{Background, Distractor, Light, Scene, Shape, Target};
 

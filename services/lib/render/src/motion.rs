@@ -264,12 +264,26 @@ impl Motion {
     }
 }
 
-/// A target that moves: its shape, brightness and motion.
+/// A target that moves: its shape, brightness and motion, and when it is hidden.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Actor {
     pub shape: Shape,
     pub contrast: f64,
     pub motion: Motion,
+    pub hidden: Option<Blink>,
+}
+
+/// Hidden again and again: at scene times `t` with `t mod every_s < for_s`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Blink {
+    pub every_s: f64,
+    pub for_s: f64,
+}
+
+impl Blink {
+    pub fn hides_at(&self, t_s: f64) -> bool {
+        t_s.rem_euclid(self.every_s) < self.for_s
+    }
 }
 
 /// The scene at time `t_s`: `base` (background, light, distractors) with every actor placed,
@@ -281,7 +295,14 @@ pub fn scene_at(base: &Scene, actors: &[Actor], t_s: f64) -> (Scene, Vec<State>)
         .iter()
         .zip(&states)
         .map(|(a, s)| Target {
-            shape: a.shape.clone(),
+            // A hidden actor keeps its place in the list (its truth: not visible), no shape.
+            shape: if a.hidden.is_some_and(|h| h.hides_at(t_s)) {
+                Shape::Markers {
+                    spheres: Vec::new(),
+                }
+            } else {
+                a.shape.clone()
+            },
             world_from_body: s.world_from_body(),
             contrast: a.contrast,
         })

@@ -331,6 +331,7 @@ fn motions_are_deterministic_and_in_bounds() {
         shape: Shape::Sphere { radius_m: 0.02 },
         contrast: 150.0,
         motion: circle.clone(),
+        hidden: None,
     }];
     let (scene, states) = scene_at(&Scene::default(), &actors, 1.0);
     assert_eq!(scene.targets.len(), 1);

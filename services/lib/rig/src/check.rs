@@ -670,7 +670,13 @@ fn check_synthetic(
                 base,
                 base_rpy_deg,
                 swing,
+                hide,
             } => {
+                if let Some(h) = hide {
+                    let hkey = format!("{mkey}.hide");
+                    positive_at_most(&format!("{hkey}.every_s"), h.every_s, 1e6, "s")?;
+                    positive_at_most(&format!("{hkey}.for_s"), h.for_s, h.every_s, "s")?;
+                }
                 finite(&format!("{mkey}.base"), base)?;
                 finite(&format!("{mkey}.base_rpy_deg"), base_rpy_deg)?;
                 for (k, w) in swing.iter().enumerate() {

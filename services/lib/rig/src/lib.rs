@@ -82,6 +82,7 @@ impl Rig {
         check::check(&spec, base, sources)?;
         let cameras = cameras::build_cameras(&spec)?;
         let models = models::build_models(&spec, base)?;
+        models::check_hidden_links(&spec, &models)?;
         let rig = Rig {
             path: None,
             base_dir: base.map(Path::to_path_buf),

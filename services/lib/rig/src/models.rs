@@ -292,6 +292,46 @@ pub struct ModelMotion {
     pub model: Model,
     pub world_from_root: Isometry3<f64>,
     pub swings: Vec<stereoscope_kinematics::Swing>,
+    /// A link whose markers are hidden periodically: its index, every, for (seconds).
+    pub hide: Option<(usize, f64, f64)>,
+}
+
+impl ModelMotion {
+    /// The link hidden at scene time `t_s`, if any.
+    pub fn hidden_at(&self, t_s: f64) -> Option<usize> {
+        let (link, every, for_s) = self.hide?;
+        (t_s.rem_euclid(every) < for_s).then_some(link)
+    }
+}
+
+/// Each model target's `hide` names a link of its model (the rig's other checks hold).
+pub(crate) fn check_hidden_links(file: &RigFile, models: &[RigModel]) -> Result<(), RigError> {
+    let Some(spec) = &file.synthetic else {
+        return Ok(());
+    };
+    for (i, t) in spec.targets.iter().enumerate() {
+        let crate::schema::MotionSpec::Joints { hide: Some(h), .. } = &t.motion else {
+            continue;
+        };
+        let Some(m) = models
+            .iter()
+            .find(|m| t.model.as_ref() == Some(&m.model.name))
+        else {
+            continue;
+        };
+        if !m.model.links.iter().any(|l| l.name == h.link) {
+            return Err(err(
+                format!("synthetic.target[{i}].motion.hide.link"),
+                format!(
+                    "{:?} is not a link of model {:?} (links: {:?})",
+                    h.link,
+                    m.model.name,
+                    m.model.links.iter().map(|l| &l.name).collect::<Vec<_>>()
+                ),
+            ));
+        }
+    }
+    Ok(())
 }
 
 /// The rig's model targets and how they move (targets naming no model of `models` are left
@@ -309,6 +349,7 @@ pub fn model_motions(file: &RigFile, models: &[RigModel]) -> Vec<ModelMotion> {
                 base,
                 base_rpy_deg,
                 swing,
+                hide,
             } = &t.motion
             else {
                 return None;
@@ -344,11 +385,16 @@ pub fn model_motions(file: &RigFile, models: &[RigModel]) -> Vec<ModelMotion> {
                     phase_rad: w[3].to_radians(),
                 })
                 .collect();
+            let hide = hide.as_ref().and_then(|h| {
+                let link = model.links.iter().position(|l| l.name == h.link)?;
+                Some((link, h.every_s, h.for_s))
+            });
             Some(ModelMotion {
                 target: i,
                 model,
                 world_from_root,
                 swings,
+                hide,
             })
         })
         .collect()
@@ -443,6 +489,36 @@ position = [6.0, -4.0, -15.0]
         assert_eq!(m.joints[1].kind.name(), "universal");
         assert!((m.markers[0].in_link_m.z + 0.15).abs() < 1e-12);
         assert!((rig.models[0].tolerance_m - 0.003).abs() < 1e-15);
+    }
+
+    /// A model target's `hide` names a link of its model and hides it `for_s` of every
+    /// `every_s`; a link the model lacks, or longer hidden than the period, is refused by key.
+    #[test]
+    fn a_hidden_link_is_checked_and_hidden_on_its_period() {
+        let target = |hide: &str| {
+            format!(
+                "{KNEE}\n[[synthetic.target]]\nshape = \"model\"\nmodel = \"knee\"\nradius = 7.0\n\
+                 motion = {{ kind = \"joints\", base = [0.0, 0.0, 900.0], hide = {hide} }}\n"
+            )
+        };
+        let rig = with(&target("{ link = \"shank\", every_s = 4.0, for_s = 1.0 }")).unwrap();
+        let m = model_motions(&rig.spec, &rig.models);
+        let shank = m[0].model.links.iter().position(|l| l.name == "shank");
+        assert!(shank.is_some());
+        assert_eq!(m[0].hidden_at(8.5), shank);
+        assert_eq!(m[0].hidden_at(9.5), None);
+        assert_eq!(m[0].hidden_at(-3.5), shank);
+        let e = with(&target("{ link = \"hand\", every_s = 4.0, for_s = 1.0 }"))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("synthetic.target[0].motion.hide.link") && e.contains("\"hand\""),
+            "{e}"
+        );
+        let e = with(&target("{ link = \"shank\", every_s = 1.0, for_s = 2.0 }"))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("synthetic.target[0].motion.hide.for_s"), "{e}");
     }
 
     #[test]

@@ -9,7 +9,8 @@ use stereoscope_geometry::Camera;
 use stereoscope_proto::frame::PixelFormat;
 use stereoscope_proto::messages::TargetTruth;
 use stereoscope_render::{
-    Actor, Background, Light, Motion, RenderOptions, Scene, Shape, render_u8, render_u16, scene_at,
+    Actor, Background, Blink, Light, Motion, RenderOptions, Scene, Shape, render_u8, render_u16,
+    scene_at,
 };
 use stereoscope_rig::models::{ModelMotion, RigModel};
 use stereoscope_rig::schema::{
@@ -67,6 +68,10 @@ fn model_actors(t: &SyntheticTarget, motion: &ModelMotion, scale: f64) -> Vec<Sc
                             world_from_root: motion.world_from_root,
                             swings: motion.swings.clone(),
                         },
+                        hidden: motion
+                            .hide
+                            .filter(|h| h.0 == l)
+                            .map(|(_, every_s, for_s)| Blink { every_s, for_s }),
                     },
                     true,
                     Some(format!("{}/{}", model.name, model.links[l].name)),
@@ -216,6 +221,7 @@ pub fn actors(
                     shape,
                     contrast: t.contrast.unwrap_or(180.0),
                     motion,
+                    hidden: None,
                 },
                 has_axis,
                 body,

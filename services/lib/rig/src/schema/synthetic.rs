@@ -35,6 +35,16 @@ pub struct GridSpec {
     pub spacing: f64,
 }
 
+/// A model target's link hidden periodically (`motion = { kind = "joints", …, hide = { link,
+/// every_s, for_s } }`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct HideSpec {
+    pub link: String,
+    pub every_s: f64,
+    pub for_s: f64,
+}
+
 /// The scene synthetic cameras render (lengths in the file's unit).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Default)]
 #[serde(deny_unknown_fields)]
@@ -136,6 +146,10 @@ pub enum MotionSpec {
         base_rpy_deg: [f64; 3],
         #[serde(default)]
         swing: Vec<[f64; 4]>,
+        /// One link's markers hidden for a while, again and again (what a hand over a link
+        /// does): scene time `t` with `t mod every_s < for_s`.
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        hide: Option<HideSpec>,
     },
     /// A head: round a horizontal circle, turning through 360° every `turn_period_s`, nodding
     /// and tilting by up to `nod_deg`.
