@@ -17,7 +17,42 @@ use common::{Proc, TempDir, repo_root};
 use std::io::{Read, Write};
 use std::net::TcpStream;
 use std::path::PathBuf;
+use std::sync::Mutex;
 use std::time::{Duration, Instant};
+
+/// The browser tests each run a demo and a Chromium on a 2-core machine: one at a time.
+static ONE_BROWSER: Mutex<()> = Mutex::new(());
+
+/// Runs `stereoscope demo --rig RIG --view` on a free port until the viewer serves
+/// `/api/rig`: the demo and the viewer's address.
+fn demo_with_view(rig: &str) -> (Proc, String) {
+    let port = stereoscope_transport::net::free_loopback_port().unwrap();
+    let listen = format!("127.0.0.1:{port}");
+    let demo = Proc::start(&[
+        "demo",
+        "--rig",
+        rig,
+        "--view",
+        "--view-listen",
+        &listen,
+        "--seconds",
+        "300",
+        "--quiet",
+    ]);
+    demo.wait_for(Duration::from_secs(30), "the URL", |o| {
+        o.contains(&format!("http://{listen}/"))
+    });
+    let end = Instant::now() + Duration::from_secs(60);
+    while http_status(port, "/api/rig").is_none_or(|l| !l.contains(" 200 ")) {
+        assert!(
+            Instant::now() < end,
+            "the viewer did not serve /api/rig within 60 s; demo output:\n{}",
+            demo.output()
+        );
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    (demo, listen)
+}
 
 /// Chromium from the Debian package (`.ci/run` installs it).
 fn chromium() -> PathBuf {
@@ -47,35 +82,12 @@ fn http_status(port: u16, path: &str) -> Option<String> {
 
 #[test]
 fn the_live_view_in_a_real_browser() {
+    let _one = ONE_BROWSER.lock().unwrap_or_else(|e| e.into_inner());
     let chromium = chromium();
-    let port = stereoscope_transport::net::free_loopback_port().unwrap();
-    let listen = format!("127.0.0.1:{port}");
     // The demo rig with its VR feed on this test's own ports.
     let dir = common::TempDir::new("viewer");
     let rig = dir.file("demo.toml", &common::demo_rig_on_own_ports());
-    let mut demo = Proc::start(&[
-        "demo",
-        "--rig",
-        &rig,
-        "--view",
-        "--view-listen",
-        &listen,
-        "--seconds",
-        "300",
-        "--quiet",
-    ]);
-    demo.wait_for(Duration::from_secs(30), "the URL", |o| {
-        o.contains(&format!("http://{listen}/"))
-    });
-    let end = Instant::now() + Duration::from_secs(60);
-    while http_status(port, "/api/rig").is_none_or(|l| !l.contains(" 200 ")) {
-        assert!(
-            Instant::now() < end,
-            "the viewer did not serve /api/rig within 60 s; demo output:\n{}",
-            demo.output()
-        );
-        std::thread::sleep(Duration::from_millis(100));
-    }
+    let (mut demo, listen) = demo_with_view(&rig);
     let shots = TempDir::new("viewer-shots");
     let script = repo_root().join("tests/clients/viewer_check.py");
     let o = common::run_program_with_limit(
@@ -111,5 +123,46 @@ fn the_live_view_in_a_real_browser() {
             std::fs::copy(shots.0.join(name), docs.join(name)).unwrap();
         }
     }
+    demo.stop();
+}
+
+/// The robot-arm demo in the live view: the page draws the arm as its chain (link origins and
+/// the lines between them) where an independent projection of the fit's link poses puts them
+/// (`tests/clients/viewer_chain.py`).
+#[test]
+fn the_arm_is_drawn_as_its_chain_in_a_real_browser() {
+    let _one = ONE_BROWSER.lock().unwrap_or_else(|e| e.into_inner());
+    let chromium = chromium();
+    let rig = repo_root().join("deploy/rigs/robot-arm.toml");
+    let (mut demo, listen) = demo_with_view(rig.to_str().unwrap());
+    let shots = TempDir::new("viewer-chain-shots");
+    let o = common::run_program_with_limit(
+        &common::python_clients(),
+        &[
+            repo_root()
+                .join("tests/clients/viewer_chain.py")
+                .to_str()
+                .unwrap(),
+            chromium.to_str().unwrap(),
+            &format!("http://{listen}"),
+            shots.0.to_str().unwrap(),
+        ],
+        Duration::from_secs(180),
+    );
+    let out = String::from_utf8_lossy(&o.stdout).to_string();
+    if !o.status.success() {
+        let keep = repo_root().join("target/viewer-chain-failed");
+        let _ = std::fs::create_dir_all(&keep);
+        for e in std::fs::read_dir(&shots.0).unwrap().flatten() {
+            let _ = std::fs::copy(e.path(), keep.join(e.file_name()));
+        }
+    }
+    assert!(
+        o.status.success(),
+        "viewer_chain.py: {}\n{out}\ndemo output:\n{}",
+        common::stderr(&o),
+        demo.output()
+    );
+    println!("{out}");
     demo.stop();
 }

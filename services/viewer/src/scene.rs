@@ -1,6 +1,7 @@
 //! What the page draws that does not move: each camera as its centre and the four corners of
-//! its image at a display depth (a frustum), the bodies' definitions, and the volume the
-//! cameras span — computed here from the rig, so the page does no camera geometry.
+//! its image at a display depth (a frustum), the bodies' definitions, each model's links and
+//! their parents (the chain it draws), and the volume the cameras span — computed here from
+//! the rig, so the page does no camera geometry.
 
 use nalgebra::{Point2, Point3};
 use serde_json::{Value, json};
@@ -64,10 +65,28 @@ pub fn rig_json(rig: &Rig) -> Value {
             json!({"name": b.name, "markers_m": markers})
         })
         .collect();
+    // Each model's links with their parent link (the joint's), for drawing the chain.
+    let models: Vec<Value> = rig
+        .models
+        .iter()
+        .map(|rm| {
+            let m = &rm.model;
+            let links: Vec<Value> = m
+                .links
+                .iter()
+                .map(|l| {
+                    let parent = l.joint.and_then(|j| m.joints.get(j)).map(|j| j.parent);
+                    json!({"name": l.name, "parent": parent})
+                })
+                .collect();
+            json!({"name": m.name, "links": links})
+        })
+        .collect();
     json!({
         "rig": rig.name,
         "cameras": cameras,
         "bodies": bodies,
+        "models": models,
         "extent_m": {"min": point(&lo), "max": point(&hi)},
         "frustum_depth_m": depth_m,
     })
@@ -76,6 +95,28 @@ pub fn rig_json(rig: &Rig) -> Value {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A model's links go to the page with their parents: the root none, every other link
+    /// its joint's parent.
+    #[test]
+    fn a_models_links_come_with_their_parents() {
+        let urdf = concat!(env!("CARGO_MANIFEST_DIR"), "/../../deploy/models/arm6.urdf");
+        let text = include_str!("../../../deploy/rigs/robot-arm.toml")
+            .replace("\"../models/arm6.urdf\"", &format!("{urdf:?}"));
+        let rig = Rig::from_toml(&text).unwrap();
+        let v = rig_json(&rig);
+        let links = v["models"][0]["links"].as_array().unwrap();
+        let m = &rig.models[0].model;
+        assert_eq!(links.len(), m.links.len());
+        assert_eq!(links[0]["parent"], Value::Null);
+        for (i, l) in links.iter().enumerate().skip(1) {
+            let p = l["parent"].as_u64().unwrap() as usize;
+            assert!(p < i, "{l}");
+            let j = m.links[i].joint.unwrap();
+            assert_eq!(m.joints[j].parent, p);
+            assert_eq!(l["name"], m.links[i].name.as_str());
+        }
+    }
 
     /// A frustum's corners are the image corners seen at the display depth: projected back,
     /// they land on the corners, and the centre is the camera's.

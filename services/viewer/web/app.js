@@ -1,6 +1,6 @@
 // The viewer's page (docs/viewer.md): the rig's 3D scene, each camera's monitor, the services'
 // health. Data comes over one WebSocket from the viewer service; the scene's fixed parts
-// (cameras, bodies) from /api/rig. World frame: z up, metres.
+// (cameras, bodies, models' links) from /api/rig. World frame: z up, metres.
 import * as THREE from 'three';
 import { OrbitControls } from 'three/addons/controls/OrbitControls.js';
 
@@ -17,7 +17,7 @@ const $ = (id) => document.getElementById(id);
 const state = window.stereoscope = {
   connects: 0, poseFrames: 0, lastPoseSequence: null, truthFrames: 0, previews: 0, healthReports: 0, coverageReports: 0, errors: [],
   drawnCoverage: {},
-  socketOpen: false, frozen: false, drawnFrame: null,
+  socketOpen: false, frozen: false, drawnFrame: null, drawnChains: [],
   freeze(on) { state.frozen = on; },
   health(key) { return health.get(key)?.h ?? null; },
   healthAgeMs(key) { const e = health.get(key); return e ? performance.now() - e.at : null; },
@@ -128,6 +128,8 @@ function topView() {
 const sphere = new THREE.SphereGeometry(1, 16, 12);
 const objects = new Map();   // object_id -> {mesh, trail, points, seen}
 const bodies = new Map();    // name -> {group, seen}
+const chains = new Map();    // model name -> {lines, joints, label, seen}
+const CHAIN_COLOUR = 0xff00ff, CHAIN_HELD_COLOUR = 0x8a4f8a;
 const ghosts = [];
 let showTrails = true, showTruth = true;
 
@@ -166,6 +168,70 @@ function bodyFor(name) {
   return b;
 }
 
+// A kinematic model as its chain: a sphere at each link's origin and a line from each link's
+// parent to it (parents from /api/rig), drawn over everything else; magenta while the fit is
+// valid, dull while the frame carries the last values.
+function chainFor(m) {
+  let c = chains.get(m.name);
+  const def = rig?.models?.find((d) => d.name === m.name);
+  if (!c && def) {
+    const pairs = def.links.filter((l) => l.parent !== null).length;
+    const geo = new THREE.BufferGeometry();
+    geo.setAttribute('position', new THREE.BufferAttribute(new Float32Array(pairs * 6), 3));
+    const material = new THREE.LineBasicMaterial({ color: CHAIN_COLOUR, depthTest: false });
+    const lines = new THREE.LineSegments(geo, material);
+    lines.renderOrder = 2;
+    const jointMaterial = new THREE.MeshBasicMaterial({ color: CHAIN_COLOUR, depthTest: false });
+    const joints = def.links.map(() => {
+      const s = new THREE.Mesh(sphere, jointMaterial);
+      s.scale.setScalar(markerRadius * 0.8);
+      s.renderOrder = 2;
+      scene.add(s);
+      return s;
+    });
+    const l = label(m.name, '#ff80ff', 0.05);
+    scene.add(lines, l);
+    c = { def, lines, material, jointMaterial, joints, label: l, seen: 0 };
+    chains.set(m.name, c);
+  }
+  return c;
+}
+
+function drawChains(f, now) {
+  const drawn = [];
+  for (const m of f.models || []) {
+    const c = chainFor(m);
+    if (!c || m.links.length !== c.def.links.length) continue;
+    c.seen = now;
+    const colour = m.valid ? CHAIN_COLOUR : CHAIN_HELD_COLOUR;
+    c.material.color.setHex(colour);
+    c.jointMaterial.color.setHex(colour);
+    const a = c.lines.geometry.attributes.position;
+    let k = 0;
+    c.def.links.forEach((l, i) => {
+      c.joints[i].position.set(...m.links[i].position_m);
+      c.joints[i].visible = true;
+      if (l.parent === null) return;
+      a.setXYZ(k++, ...m.links[l.parent].position_m);
+      a.setXYZ(k++, ...m.links[i].position_m);
+    });
+    a.needsUpdate = true;
+    c.lines.geometry.computeBoundingSphere();
+    c.lines.visible = true;
+    c.label.position.set(...m.links[0].position_m).add(new THREE.Vector3(0, 0, 0.1));
+    c.label.visible = true;
+    drawn.push({ name: m.name, valid: m.valid, links: m.links.map((l) => l.position_m),
+                 parents: c.def.links.map((l) => l.parent) });
+  }
+  for (const [, c] of chains) {
+    if (now - c.seen > FORGET_MS) {
+      c.lines.visible = c.label.visible = false;
+      c.joints.forEach((s) => { s.visible = false; });
+    }
+  }
+  state.drawnChains = drawn;
+}
+
 function drawFrame(f, now) {
   for (const p of f.poses) {
     const o = objectFor(p.object_id);
@@ -191,6 +257,7 @@ function drawFrame(f, now) {
     g.group.visible = true;
   }
   for (const [, b] of bodies) if (now - b.seen > FORGET_MS) b.group.visible = false;
+  drawChains(f, now);
   state.drawnFrame = f;
 }
 
