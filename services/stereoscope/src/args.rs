@@ -562,7 +562,8 @@ pub struct BodyDefineArgs {
     #[arg(long, value_delimiter = ',', num_args = 6)]
     pub inside: Option<Vec<f64>>,
     /// The body's origin: "centroid", "marker:K" (the K-th marker taken, from 0, in object-id
-    /// order) or "point:X,Y,Z" (world, rig file unit).
+    /// order), "point:X,Y,Z" (world, rig file unit) or "pivot[:SECONDS]" (then listens 10 s, or
+    /// SECONDS, while the body is turned about the point: a pointer's tip in a divot).
     #[arg(long, default_value = "centroid")]
     pub origin: stereoscope::body::Origin,
     /// The body's axes: "world" (the world's, now) or "markers:A,B,C" (x from marker A towards

@@ -38,7 +38,13 @@ pub enum Origin {
     Marker(usize),
     /// A point in the world, rig file unit (a tip, a pivot measured by other means).
     Point([f64; 3]),
+    /// The point the body turns about (a pointer's tip in a divot), found by listening this
+    /// many seconds more while the user turns the body about it (`stereoscope_bodies::pivot`).
+    Pivot(f64),
 }
+
+/// How long `--origin pivot` listens to the body turning, seconds, unless told.
+pub const PIVOT_SECONDS: f64 = 10.0;
 
 /// How the body's axes lie.
 #[derive(Debug, Clone, Default, PartialEq)]
@@ -54,7 +60,9 @@ pub enum Axes {
 /// An `--origin` or `--axes` that does not parse, with the text given.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum ChoiceError {
-    #[error("--origin {0:?}: \"centroid\", \"marker:K\" or \"point:X,Y,Z\" (rig file unit)")]
+    #[error(
+        "--origin {0:?}: \"centroid\", \"marker:K\", \"point:X,Y,Z\" (rig file unit) or \"pivot\" / \"pivot:SECONDS\" (1–120 s)"
+    )]
     Origin(String),
     #[error("--axes {0:?}: \"world\" or \"markers:A,B,C\" (three different markers)")]
     Axes(String),
@@ -66,6 +74,15 @@ impl std::str::FromStr for Origin {
         let bad = || ChoiceError::Origin(s.to_string());
         if s == "centroid" {
             return Ok(Origin::Centroid);
+        }
+        if s == "pivot" {
+            return Ok(Origin::Pivot(PIVOT_SECONDS));
+        }
+        if let Some(t) = s.strip_prefix("pivot:") {
+            return match t.parse::<f64>() {
+                Ok(t) if (1.0..=120.0).contains(&t) => Ok(Origin::Pivot(t)),
+                _ => Err(bad()),
+            };
         }
         if let Some(k) = s.strip_prefix("marker:") {
             return k.parse().map(Origin::Marker).map_err(|_| bad());
@@ -139,6 +156,12 @@ pub enum DefineError {
     Collinear { a: usize, b: usize, c: usize },
     #[error("{0}")]
     Body(#[from] stereoscope_bodies::BodyError),
+    #[error(
+        "the body was found whole in {found} of the {frames} frames while it turned; keep all its markers in view"
+    )]
+    PivotUnseen { found: usize, frames: usize },
+    #[error("pivot: {0}")]
+    Pivot(#[from] stereoscope_bodies::pivot::PivotError),
 }
 
 /// The body the frames show: `name`, markers (file unit) about their centroid, the given
@@ -218,7 +241,8 @@ pub fn define(
             })
     };
     let origin = match &choice.origin {
-        Origin::Centroid => {
+        // A pivot is found by `pivot_point` and given here as a point.
+        Origin::Centroid | Origin::Pivot(_) => {
             Point3::from(means.iter().map(|p| p.coords).sum::<Vector3<f64>>() / means.len() as f64)
         }
         Origin::Marker(k) => marker("--origin", *k)?,
@@ -287,6 +311,45 @@ pub fn define(
     Ok((spec, (wobble_sq / n.max(1) as f64).sqrt(), ids))
 }
 
+/// Where `def` (markers about its centroid, the world's axes, as [`define`] with the
+/// centroid makes them) turned about while `moving` was recorded, as a world point at the
+/// pose `still` shows it in: the body found whole in each frame among the loose markers
+/// (`stereoscope_bodies::identify`), and the point fixed in it through those poses
+/// (`stereoscope_bodies::pivot`).
+pub fn pivot_point(
+    def: &BodyDef,
+    still: &[PoseFrame],
+    moving: &[PoseFrame],
+) -> Result<(Point3<f64>, stereoscope_bodies::pivot::Pivot), DefineError> {
+    let whole = |f: &PoseFrame| {
+        let points: Vec<Point3<f64>> = f
+            .poses
+            .iter()
+            .filter(|p| p.body.is_none() && p.method == PoseMethod::Triangulated)
+            .map(|p| Point3::from(p.position_m))
+            .collect();
+        stereoscope_bodies::identify(std::slice::from_ref(def), &points)
+            .into_iter()
+            .find(|m| m.seen() == def.markers_m.len())
+            .map(|m| m.world_from_body)
+    };
+    let Some(at_still) = still.iter().rev().find_map(whole) else {
+        return Err(DefineError::PivotUnseen {
+            found: 0,
+            frames: still.len(),
+        });
+    };
+    let poses: Vec<nalgebra::Isometry3<f64>> = moving.iter().filter_map(whole).collect();
+    if poses.len() < stereoscope_bodies::pivot::MIN_POSES {
+        return Err(DefineError::PivotUnseen {
+            found: poses.len(),
+            frames: moving.len(),
+        });
+    }
+    let p = stereoscope_bodies::pivot::pivot(&poses)?;
+    Ok((at_still * p.in_body_m, p))
+}
+
 /// The `[[body]]` table as TOML.
 pub fn to_toml(b: &BodySpec) -> String {
     let markers: Vec<String> = b
@@ -352,7 +415,49 @@ pub fn define_live(
             rig_path.display()
         );
     }
-    let (spec, wobble, ids) = define(name, &frames, rig.spec.units, &existing, choice)?;
+    let (spec, wobble, ids) = match choice.origin {
+        Origin::Pivot(turn_s) => {
+            // The shape first (about its centroid, the world's axes), then the point it
+            // turns about, then the body again with its origin there.
+            let plain = DefineChoice {
+                origin: Origin::Centroid,
+                axes: Axes::World,
+                ..choice.clone()
+            };
+            let (shape, _, _) = define(name, &frames, rig.spec.units, &existing, &plain)?;
+            let scale = rig.spec.units.metres();
+            let def = BodyDef {
+                name: name.to_string(),
+                markers_m: shape
+                    .markers
+                    .iter()
+                    .map(|m| Point3::new(m[0] * scale, m[1] * scale, m[2] * scale))
+                    .collect(),
+                tolerance_m: shape.tolerance.map_or(0.003, |t| t * scale),
+            };
+            eprintln!(
+                "now turn the body about the point to be its origin (a tip in a divot), tilting it \
+                 both ways: listening {turn_s} s …"
+            );
+            let _ = std::iter::from_fn(|| inlet.try_next(&mut refused)).count();
+            std::thread::sleep(std::time::Duration::from_secs_f64(turn_s));
+            let moving: Vec<PoseFrame> =
+                std::iter::from_fn(|| inlet.try_next(&mut refused)).collect();
+            let (at, p) = pivot_point(&def, &frames, &moving)?;
+            eprintln!(
+                "pivot: {} poses, turned up to {:.0}°, the point held within {:.2} mm RMS",
+                p.frames,
+                p.turn_deg,
+                p.rms_m * 1e3
+            );
+            let pivoted = DefineChoice {
+                origin: Origin::Point([at.x / scale, at.y / scale, at.z / scale]),
+                ..choice.clone()
+            };
+            define(name, &frames, rig.spec.units, &existing, &pivoted)?
+        }
+        _ => define(name, &frames, rig.spec.units, &existing, choice)?,
+    };
     eprintln!(
         "{} markers from {} frames; each wobbled {:.2} mm RMS about its mean",
         spec.markers.len(),
@@ -577,5 +682,73 @@ mod tests {
                 .to_string()
                 .contains("point:X,Y,Z")
         );
+    }
+
+    /// A pointer held still, then turned about its tip in a divot: the tip found within
+    /// 0.5 mm, and the body defined with its origin there (its markers measured from the tip).
+    #[test]
+    fn a_pivot_origin_is_found_from_the_body_turned_about_it() {
+        use nalgebra::UnitQuaternion;
+        let layout = [
+            Vector3::new(0.05, 0.0, 0.0),
+            Vector3::new(0.20, 0.0, 0.0),
+            Vector3::new(0.12, 0.06, 0.0),
+            Vector3::new(0.09, -0.03, 0.05),
+        ];
+        // The tip at the body's own origin; the divot in the world.
+        let divot = Vector3::new(0.4, 0.1, 0.9);
+        let at = |rot: UnitQuaternion<f64>, noise: f64, k: usize| -> PoseFrame {
+            let pts: Vec<(u32, [f64; 3])> = layout
+                .iter()
+                .enumerate()
+                .map(|(i, m)| {
+                    let w = divot + rot * m;
+                    let e = noise * (((k * 7 + i * 3) % 11) as f64 / 5.0 - 1.0);
+                    (i as u32 + 1, [w.x + e, w.y - e, w.z + e])
+                })
+                .collect();
+            frame(&pts)
+        };
+        let still: Vec<PoseFrame> = (0..20)
+            .map(|k| at(UnitQuaternion::identity(), 0.0002, k))
+            .collect();
+        let moving: Vec<PoseFrame> = (0..120)
+            .map(|k| {
+                let s = k as f64 / 120.0 * std::f64::consts::TAU;
+                let rot = UnitQuaternion::from_euler_angles(
+                    0.5 * s.sin(),
+                    0.4 * (2.0 * s).cos() - 0.4,
+                    0.2 * s,
+                );
+                at(rot, 0.0002, k)
+            })
+            .collect();
+        let plain = DefineChoice::default();
+        let (shape, _, _) = define("pointer", &still, Units::Metres, &[], &plain).unwrap();
+        let def = BodyDef {
+            name: "pointer".into(),
+            markers_m: shape
+                .markers
+                .iter()
+                .map(|m| Point3::new(m[0], m[1], m[2]))
+                .collect(),
+            tolerance_m: 0.003,
+        };
+        let (tip, p) = pivot_point(&def, &still, &moving).unwrap();
+        assert!((tip.coords - divot).norm() < 0.0005, "{tip} {p:?}");
+        let choice = DefineChoice {
+            origin: Origin::Point([tip.x, tip.y, tip.z]),
+            ..DefineChoice::default()
+        };
+        let (spec, _, _) = define("pointer", &still, Units::Metres, &[], &choice).unwrap();
+        for (got, want) in spec.markers.iter().zip(&layout) {
+            let d = Vector3::new(got[0], got[1], got[2]) - want;
+            assert!(d.norm() < 0.001, "{got:?} {want}");
+        }
+        // Held still throughout: no turn, refused saying so.
+        let e = pivot_point(&def, &still, &still).unwrap_err().to_string();
+        assert!(e.contains("turned") && e.contains("15"), "{e}");
+        assert_eq!("pivot:20".parse::<Origin>(), Ok(Origin::Pivot(20.0)));
+        assert!("pivot:0".parse::<Origin>().is_err());
     }
 }

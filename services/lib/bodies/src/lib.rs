@@ -788,6 +788,7 @@ fn search_body(
 
 pub mod filter;
 pub mod gaps;
+pub mod pivot;
 pub mod tracker;
 
 #[cfg(test)]
