@@ -402,6 +402,19 @@ fn a_killed_router_is_restarted_and_the_services_rejoin_it() {
     launcher.stop();
 }
 
+/// The `stereoscope status --json` entry of `service` on the rig at `path` (null if absent).
+fn status_entry(path: &str, service: &str) -> serde_json::Value {
+    let out = run_with_limit(&["status", path, "--json"], Duration::from_secs(30));
+    assert!(out.status.success(), "{}", stderr(&out));
+    let v: serde_json::Value =
+        serde_json::from_str(String::from_utf8_lossy(&out.stdout).trim()).unwrap();
+    v["services"]
+        .as_array()
+        .and_then(|a| a.iter().find(|x| x["service"] == service))
+        .cloned()
+        .unwrap_or_default()
+}
+
 /// A router can lose a running service's liveliness token (docs/reliability.md): the launcher
 /// that hears a service's reports without its token asks it to declare it again, and a
 /// service asked does, at once and without a restart. Both ends are driven by a client the
@@ -449,23 +462,96 @@ fn a_token_a_router_lost_is_asked_for_and_declared_again() {
     // Counted in its health; not restarted.
     let end = Instant::now() + Duration::from_secs(30);
     loop {
-        let out = run_with_limit(&["status", &path, "--json"], Duration::from_secs(30));
-        assert!(out.status.success(), "{}", stderr(&out));
-        let v: serde_json::Value =
-            serde_json::from_str(String::from_utf8_lossy(&out.stdout).trim()).unwrap();
-        let renewals = v["services"].as_array().and_then(|a| {
-            a.iter()
-                .find(|x| x["service"] == "fusion")
-                .map(|f| f["health"]["detail"]["token_renewals"].clone())
-        });
-        if renewals == Some("1".into()) {
+        let fusion = status_entry(&path, "fusion");
+        if fusion["health"]["detail"]["token_renewals"] == "1" {
             break;
         }
-        assert!(Instant::now() < end, "no renewal in fusion's health: {v}");
+        assert!(
+            Instant::now() < end,
+            "no renewal in fusion's health: {fusion}"
+        );
         std::thread::sleep(Duration::from_millis(200));
     }
     let log = launcher.output();
     assert!(!log.contains("restarted fusion"), "{log}");
+    let mut launcher = launcher;
+    launcher.stop();
+}
+
+/// Bodies changed in the rig file while the rig runs (docs/bodies.md): fusion applies them
+/// without a restart once the whole file loads, and a file that does not load changes
+/// nothing. The helmet's definition made 1.5 times larger: the helmet is no longer found;
+/// back as it was: found again; then a body without markers: refused, the helmet still found.
+#[test]
+fn bodies_changed_in_the_rig_file_apply_without_a_restart() {
+    let _serial = serial();
+    let dir = TempDir::new("reload");
+    let (launcher, watcher, path, _port) = running_demo(&dir, 'b');
+    let head_seen = |p: &PoseFrame| p.bodies.iter().any(|b| b.name == "head" && !b.held);
+    watcher.until(Duration::from_secs(30), "the helmet", head_seen);
+    let original = std::fs::read_to_string(&path).unwrap();
+    let head = "markers = [[0.0, 0.0, 0.0], [18.0, 0.0, 0.0], [0.0, 11.0, 0.0], [6.0, 6.0, 8.0]]";
+    assert!(original.contains(head), "the demo's helmet changed");
+    let larger = original.replace(
+        head,
+        "markers = [[0.0, 0.0, 0.0], [27.0, 0.0, 0.0], [0.0, 16.5, 0.0], [9.0, 9.0, 12.0]]",
+    );
+    // Written beside and renamed, as an editor saves.
+    let write = |text: &str| {
+        let tmp = format!("{path}.new");
+        std::fs::write(&tmp, text).unwrap();
+        std::fs::rename(&tmp, &path).unwrap();
+        stereoscope_proto::messages::now_ns()
+    };
+    // After a change at `t`, 40 frames in a row published 1.5 s or more later that `pred` holds
+    // for (the file is looked at each second; a held body lasts 0.25 s).
+    let settled = |t: u64, what: &str, pred: &dyn Fn(&PoseFrame) -> bool| {
+        let run = std::cell::Cell::new(0);
+        watcher.until(Duration::from_secs(20), what, |p| {
+            if p.published_ns < t + 1_500_000_000 {
+                return false;
+            }
+            run.set(if pred(p) { run.get() + 1 } else { 0 });
+            run.get() >= 40
+        });
+    };
+    let t = write(&larger);
+    settled(t, "no helmet with its definition enlarged", &|p| {
+        !head_seen(p)
+    });
+    let t = write(&original);
+    settled(t, "the helmet again", &|p| head_seen(p));
+    let t = write(&format!("{original}\n[[body]]\nname = \"bad\"\n"));
+    settled(t, "the helmet after a file that does not load", &|p| {
+        head_seen(p)
+    });
+    write(&original);
+    // Fusion counted two changes applied (then the third, the file put back), reported the
+    // refused one, and was never restarted.
+    let end = Instant::now() + Duration::from_secs(30);
+    loop {
+        let fusion = status_entry(&path, "fusion")["health"].clone();
+        if fusion["detail"]["rig_reloads"] == "3" {
+            assert_eq!(fusion["detail"]["bodies"], "head", "{fusion}");
+            let e = fusion["last_error"].as_str().unwrap_or_default();
+            assert!(
+                e.contains("not applied") && e.contains("missing field `markers`"),
+                "{fusion}"
+            );
+            break;
+        }
+        assert!(
+            Instant::now() < end,
+            "fusion did not apply 3 changes: {fusion}"
+        );
+        std::thread::sleep(Duration::from_millis(200));
+    }
+    let log = launcher.output();
+    assert!(!log.contains("restarted fusion"), "{log}");
+    assert!(
+        log.contains("bodies and models from the changed rig file applied"),
+        "{log}"
+    );
     let mut launcher = launcher;
     launcher.stop();
 }

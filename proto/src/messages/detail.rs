@@ -67,6 +67,10 @@ pub enum Detail {
     /// Any service: liveliness tokens declared anew when a launcher found one missing at its
     /// router (`TokenRenewal`).
     TokenRenewals,
+    /// fusion: the bodies it follows, and the changes of the rig file's bodies and models it
+    /// applied while running.
+    Bodies,
+    RigReloads,
 }
 
 impl Detail {
@@ -117,6 +121,8 @@ impl Detail {
             Detail::Listen => "listen",
             Detail::Routers => "routers",
             Detail::TokenRenewals => "token_renewals",
+            Detail::Bodies => "bodies",
+            Detail::RigReloads => "rig_reloads",
         }
     }
 }

@@ -9,9 +9,13 @@
 //! more: triangulation; one: depth from area where that camera has a model). Observations that
 //! do not decode, or come from a camera the rig does not have, are counted, named in the log
 //! and in health, and ignored.
+//!
+//! The rig file's `[[body]]` and `[[model]]` tables are applied while fusion runs when the file
+//! changes and loads (`reload`).
 
 pub mod cli;
 pub mod identity;
+pub mod reload;
 
 use std::time::Duration;
 use stereoscope_pipeline::pairing::{self, Pairer};
@@ -77,6 +81,10 @@ pub struct FusionService {
     ids: identity::Reservations,
     /// Blobs left out because they held two objects' merged images.
     merged_blobs: u64,
+    /// The rig file, for bodies and models changed while fusion runs.
+    watch: Option<reload::RigWatch>,
+    /// Changes of bodies and models applied.
+    reloads: u64,
 }
 
 impl std::fmt::Debug for FusionService {
@@ -196,8 +204,51 @@ impl FusionService {
             sequence,
             ids,
             merged_blobs: 0,
+            watch: ctx
+                .rig
+                .path
+                .as_ref()
+                .map(|p| reload::RigWatch::new(p.clone())),
+            reloads: 0,
             cfg,
         })
+    }
+
+    /// Applies the rig file's bodies and models when it changed and loads; reports why not
+    /// otherwise. The running rig (cameras, keys, settings) stays as it started.
+    fn apply_rig_changes(&mut self) {
+        let Some(change) = self.watch.as_mut().and_then(|w| w.poll(&self.cfg.ctx.rig)) else {
+            return;
+        };
+        match change {
+            reload::Change::Refused(e) => {
+                tracing::warn!("the rig file changed but does not load; nothing applied: {e}");
+                self.node
+                    .counters
+                    .set_error(&format!("rig file changed, not applied: {e}"));
+            }
+            reload::Change::Apply {
+                rig,
+                others_changed,
+            } => {
+                self.fusion.set_bodies_and_models(&rig);
+                self.reloads += 1;
+                let names = |v: Vec<&str>| v.join(", ");
+                tracing::info!(
+                    "bodies and models from the changed rig file applied: bodies [{}], models [{}]",
+                    names(rig.spec.bodies.iter().map(|b| b.name.as_str()).collect()),
+                    names(rig.models.iter().map(|m| m.model.name.as_str()).collect())
+                );
+                if others_changed {
+                    tracing::warn!(
+                        "the rig file changed beyond [[body]] and [[model]]: restart the rig to apply the rest"
+                    );
+                    self.node.counters.set_error(
+                        "rig file changed beyond [[body]] and [[model]]: restart to apply the rest",
+                    );
+                }
+            }
+        }
     }
 
     /// Takes every observation waiting, local and remote, into the pairer.
@@ -347,6 +398,8 @@ impl FusionService {
         counters.set_nonzero(Detail::SingleViewUnmatched, fuser.single_view_unmatched);
         counters.set_nonzero(Detail::TooFewViews, fuser.too_few_views);
         counters.set_nonzero(Detail::MergedBlobs, self.merged_blobs);
+        counters.set(Detail::Bodies, self.fusion.body_names().join(","));
+        counters.set_nonzero(Detail::RigReloads, self.reloads);
     }
 }
 
@@ -382,6 +435,7 @@ impl Service for FusionService {
             self.report_detail();
             return Ok(Flow::Stop);
         }
+        self.apply_rig_changes();
         if self.node.report_due() {
             self.report_detail();
         }

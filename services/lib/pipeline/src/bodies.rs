@@ -41,6 +41,15 @@ impl Bodies {
         self.tracker.defs().is_empty()
     }
 
+    /// The bodies' names, in the rig's order.
+    pub fn names(&self) -> Vec<&str> {
+        self.tracker
+            .defs()
+            .iter()
+            .map(|d| d.name.as_str())
+            .collect()
+    }
+
     /// Finds the bodies among `poses` (only triangulated ones: depth from area is too coarse to
     /// match distances), labels their markers, and returns the bodies' poses (Kabsch on the
     /// triangulated markers).

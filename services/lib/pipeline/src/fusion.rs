@@ -179,6 +179,20 @@ impl Fusion {
         f
     }
 
+    /// Follows `rig`'s `[[body]]`s and `[[model]]`s from the next set on (a rig file changed
+    /// while fusion runs): bodies and models found again from their definitions; objects, ids
+    /// and settings as they were.
+    pub fn set_bodies_and_models(&mut self, rig: &Rig) {
+        let settings = FusionSettings::of_rig(&rig.spec);
+        self.bodies = Bodies::new(stereoscope_rig::body_defs(&rig.spec), settings.body_hold_ns);
+        self.models = Models::new(rig.models.clone());
+    }
+
+    /// The names of the bodies followed.
+    pub fn body_names(&self) -> Vec<&str> {
+        self.bodies.names()
+    }
+
     /// Fuses one set (`(rig camera index, observation)`, at `timestamp_ns`, its oldest
     /// exposure): the objects' poses (bodies' markers labelled) and the bodies' poses.
     /// Cameras that are not synchronised expose at different instants: with `interpolate`,
