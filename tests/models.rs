@@ -273,17 +273,9 @@ fn the_legs_joints_reach_ros2_as_joint_states() {
     }
 }
 
-/// The robot arm recorded through the services and exported to C3D, read by py-c3d and
-/// ezc3d: every marker of the rig's arm labelled `arm:<marker>` and every link's origin
-/// `arm:<link>`, and the labels right — two markers of one link keep their distance within
-/// 7 mm of its median in every frame both are in (each labelled point lies within
-/// `MARKER_OUTLIER_M`, 3 mm, of its fitted marker; a point given another marker's label would
-/// be tens of millimetres off); every marker labelled in a fifth of the frames or more (fusion
-/// triangulates the wrist's markers in a third to a half), and 90 % of the measured points
-/// labelled.
-#[test]
-fn the_arms_c3d_export_names_every_link_and_marker() {
-    let dir = common::TempDir::new("arm-c3d");
+/// The robot-arm demo rig in `dir` with a `[recorder]`, run for `seconds` by `stereoscope
+/// demo`: the rig file and the one session it recorded.
+fn recorded_arm(dir: &common::TempDir, seconds: u32) -> (String, std::path::PathBuf) {
     let root = common::repo_root();
     let urdf = root.join("deploy/models/arm6.urdf");
     let text = std::fs::read_to_string(root.join("deploy/rigs/robot-arm.toml"))
@@ -296,8 +288,9 @@ fn the_arms_c3d_export_names_every_link_and_marker() {
         "arm.toml",
         &format!("{text}\n[recorder]\nfolder = \"rec\"\n"),
     );
+    let s = seconds.to_string();
     let o = common::run_with_limit(
-        &["demo", "--rig", &rig_path, "--seconds", "5", "--quiet"],
+        &["demo", "--rig", &rig_path, "--seconds", &s, "--quiet"],
         std::time::Duration::from_secs(120),
     );
     assert!(o.status.success(), "{}", common::stderr(&o));
@@ -306,6 +299,23 @@ fn the_arms_c3d_export_names_every_link_and_marker() {
         .map(|e| e.unwrap().path())
         .collect();
     assert_eq!(sessions.len(), 1, "{sessions:?}");
+    (rig_path, sessions[0].clone())
+}
+
+/// The robot arm recorded through the services and exported to C3D, read by py-c3d and
+/// ezc3d: every marker of the rig's arm labelled `arm:<marker>` and every link's origin
+/// `arm:<link>`, and the labels right — two markers of one link keep their distance within
+/// 7 mm of its median in every frame both are in (each labelled point lies within
+/// `MARKER_OUTLIER_M`, 3 mm, of its fitted marker; a point given another marker's label would
+/// be tens of millimetres off); every marker labelled in a fifth of the frames or more (fusion
+/// triangulates the wrist's markers in a third to a half), and 90 % of the measured points
+/// labelled.
+#[test]
+fn the_arms_c3d_export_names_every_link_and_marker() {
+    let dir = common::TempDir::new("arm-c3d");
+    let root = common::repo_root();
+    let (rig_path, session) = recorded_arm(&dir, 5);
+    let sessions = [session];
     let c3d = dir.0.join("arm.c3d");
     let o = common::run_with_limit(
         &[
@@ -428,4 +438,101 @@ fn the_arms_c3d_export_names_every_link_and_marker() {
         eprintln!("{}: {labelled} points labelled, {loose} not", r["reader"]);
         assert!(labelled >= 9 * loose, "{labelled} labelled, {loose} not");
     }
+}
+
+/// `body define --session`: the robot arm recorded through the services; the markers that moved
+/// together are its links' (several groups — links whose joints barely moved in the take make
+/// one — so the command lists them and asks for `--objects`); the group seen together longest,
+/// defined as a body, fits the recording's frames that show it.
+#[test]
+fn a_body_is_defined_from_the_markers_that_moved_together_in_a_recording() {
+    let dir = common::TempDir::new("body-session");
+    let (rig_path, session) = recorded_arm(&dir, 6);
+    let define = |extra: &[&str]| {
+        let mut args = vec![
+            "body",
+            "define",
+            "wand",
+            "--rig",
+            &rig_path,
+            "--session",
+            session.to_str().unwrap(),
+        ];
+        args.extend_from_slice(extra);
+        common::run_with_limit(&args, std::time::Duration::from_secs(60))
+    };
+    let o = define(&[]);
+    let e = common::stderr(&o);
+    assert!(!o.status.success(), "{e}");
+    assert!(
+        e.contains("several groups of markers moved together") && e.contains("--objects"),
+        "{e}"
+    );
+    // The groups as listed: "[a, b, c] (N frames)"; the one seen together longest is taken
+    // (an id fusion passed from one marker to another can join a group for a while).
+    let mut groups: Vec<(usize, Vec<u32>)> = e
+        .split('[')
+        .skip(1)
+        .filter_map(|g| {
+            let (ids, rest) = g.split_once("] (")?;
+            let frames = rest.split(' ').next()?.parse().ok()?;
+            let ids = ids
+                .split(',')
+                .map(|x| x.trim().parse().ok())
+                .collect::<Option<_>>()?;
+            Some((frames, ids))
+        })
+        .collect();
+    assert!(groups.len() >= 3, "{groups:?}\n{e}");
+    groups.sort_by_key(|g| std::cmp::Reverse(g.0));
+    let groups: Vec<Vec<u32>> = groups.into_iter().map(|(_, g)| g).collect();
+    let first: Vec<String> = groups[0].iter().map(u32::to_string).collect();
+    let o = define(&["--objects", &first.join(",")]);
+    let table = String::from_utf8_lossy(&o.stdout).to_string();
+    assert!(o.status.success(), "{}", common::stderr(&o));
+    let body = stereoscope_rig::Rig::from_toml(&format!(
+        "{}\n{table}",
+        std::fs::read_to_string(&rig_path).unwrap()
+    ))
+    .map(|r| r.spec.bodies.last().cloned().unwrap())
+    .unwrap_or_else(|e| panic!("{e}\n{table}"));
+    // The body posed onto the recording's frames that show all its markers: it fits them
+    // (the group kept its shape), within 1.5 mm RMS in 95 % of them.
+    let rec = stereoscope_recorder::session::Session::read(&session).unwrap();
+    let body_m: Vec<nalgebra::Point3<f64>> = body
+        .markers
+        .iter()
+        .map(|m| nalgebra::Point3::new(m[0], m[1], m[2]) * 1e-3)
+        .collect();
+    let residuals: Vec<f64> = rec
+        .poses
+        .iter()
+        .filter_map(|f| {
+            let ps: Option<Vec<nalgebra::Point3<f64>>> = groups[0]
+                .iter()
+                .map(|id| {
+                    f.poses
+                        .iter()
+                        .find(|p| p.object_id == *id)
+                        .map(|p| nalgebra::Point3::from(p.position_m))
+                })
+                .collect();
+            let ones = vec![1.0; body_m.len()];
+            stereoscope_bodies::kabsch(&body_m, &ps?, &ones).map(|(_, r)| r)
+        })
+        .collect();
+    let good = residuals.iter().filter(|r| **r < 0.0015).count();
+    eprintln!(
+        "{} groups moved together; the longest seen, {:?}, as a body fits {good} of the {} frames \
+         showing it within 1.5 mm RMS",
+        groups.len(),
+        groups[0],
+        residuals.len()
+    );
+    assert!(residuals.len() >= 30, "{}", residuals.len());
+    assert!(
+        good * 20 >= residuals.len() * 19,
+        "{good} of {}",
+        residuals.len()
+    );
 }

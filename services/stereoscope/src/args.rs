@@ -549,6 +549,10 @@ pub struct BodyDefineArgs {
     /// How long to average, seconds.
     #[arg(long, default_value_t = 1.0)]
     pub seconds: f64,
+    /// Define it from a recording instead of live: the markers that moved together in the
+    /// session folder (or --objects), their shape averaged over it.
+    #[arg(long)]
+    pub session: Option<PathBuf>,
     /// Tolerance of a measured inter-marker distance, rig file unit (default 3 mm).
     #[arg(long)]
     pub tolerance: Option<f64>,

@@ -11,6 +11,9 @@ use stereoscope_bodies::{BodyDef, MAX_MARKERS, check_bodies};
 use stereoscope_proto::messages::{PoseFrame, PoseMethod};
 use stereoscope_rig::schema::{BodySpec, Units};
 
+/// The most a recording's markers may wander about their mean shape (RMS) to make a body.
+pub const MAX_SHAPE_SPREAD_M: f64 = 0.0015;
+
 /// Share of the frames a marker must be in to be taken.
 pub const MIN_SHARE: f64 = 0.9;
 
@@ -380,13 +383,7 @@ pub fn define_live(
     tls: stereoscope_service::context::TlsArgs,
     choice: &DefineChoice,
 ) -> anyhow::Result<String> {
-    use anyhow::Context as _;
-    let rig = stereoscope_rig::Rig::load(rig_path)?;
-    if !stereoscope_proto::names::valid_segment(name) {
-        anyhow::bail!(
-            "body name {name:?}: 1–32 letters, digits, '_' or '-' (it is part of network keys)"
-        );
-    }
+    let rig = rig_for_new_body(rig_path, name)?;
     let (session, endpoint) = crate::mask::client_session(&rig, connect, &tls)?;
     let inlet = stereoscope_transport::Inlet::<PoseFrame>::zenoh(
         &session,
@@ -409,12 +406,6 @@ pub fn define_live(
         .into_iter()
         .filter(|b| b.name != name)
         .collect();
-    if rig.spec.bodies.iter().any(|b| b.name == name) {
-        anyhow::bail!(
-            "{}: a body named {name:?} is defined already",
-            rig_path.display()
-        );
-    }
     let (spec, wobble, ids) = match choice.origin {
         Origin::Pivot(turn_s) => {
             // The shape first (about its centroid, the world's axes), then the point it
@@ -469,18 +460,189 @@ pub fn define_live(
     }
     let text = to_toml(&spec);
     if write {
-        let old = std::fs::read_to_string(rig_path)
-            .with_context(|| format!("reading {}", rig_path.display()))?;
-        // A blank line between the file's last table and the new one.
-        let new = format!("{}\n\n{text}", old.trim_end());
-        // The whole file with the body must load before it replaces the old one.
-        stereoscope_rig::Rig::from_toml(&new)
-            .with_context(|| format!("{} with the new body", rig_path.display()))?;
-        let tmp = rig_path.with_extension("toml.new");
-        std::fs::write(&tmp, &new).with_context(|| format!("writing {}", tmp.display()))?;
-        std::fs::rename(&tmp, rig_path)
-            .with_context(|| format!("replacing {}", rig_path.display()))?;
-        eprintln!("added to {}", rig_path.display());
+        append_body(rig_path, &text)?;
+    }
+    Ok(text)
+}
+
+/// The rig at `rig_path`, loaded, once `name` can be a new body of it (a valid name no body
+/// has).
+fn rig_for_new_body(
+    rig_path: &std::path::Path,
+    name: &str,
+) -> anyhow::Result<stereoscope_rig::Rig> {
+    let rig = stereoscope_rig::Rig::load(rig_path)?;
+    if !stereoscope_proto::names::valid_segment(name) {
+        anyhow::bail!(
+            "body name {name:?}: 1–32 letters, digits, '_' or '-' (it is part of network keys)"
+        );
+    }
+    if rig.spec.bodies.iter().any(|b| b.name == name) {
+        anyhow::bail!(
+            "{}: a body named {name:?} is defined already",
+            rig_path.display()
+        );
+    }
+    Ok(rig)
+}
+
+/// Appends a `[[body]]` table to the rig file, once the whole file with it loads (written
+/// beside and renamed: a failure leaves the file as it was).
+fn append_body(rig_path: &std::path::Path, text: &str) -> anyhow::Result<()> {
+    use anyhow::Context as _;
+    let old = std::fs::read_to_string(rig_path)
+        .with_context(|| format!("reading {}", rig_path.display()))?;
+    // A blank line between the file's last table and the new one.
+    let new = format!("{}\n\n{text}", old.trim_end());
+    stereoscope_rig::Rig::from_toml(&new)
+        .with_context(|| format!("{} with the new body", rig_path.display()))?;
+    let tmp = rig_path.with_extension("toml.new");
+    std::fs::write(&tmp, &new).with_context(|| format!("writing {}", tmp.display()))?;
+    std::fs::rename(&tmp, rig_path).with_context(|| format!("replacing {}", rig_path.display()))?;
+    eprintln!("added to {}", rig_path.display());
+    Ok(())
+}
+
+/// The shape of markers `ids` through `frames`: in the frames that show them all, each
+/// frame's markers brought onto the first such frame's by their rigid motion (Kabsch) and
+/// averaged — a pose frame of the mean shape where the markers first were together, for
+/// [`define`] — with the RMS spread about the mean, metres, and the frames used.
+pub fn mean_shape(frames: &[PoseFrame], ids: &[u32]) -> Option<(PoseFrame, f64, usize)> {
+    let together: Vec<(&PoseFrame, Vec<Point3<f64>>)> = frames
+        .iter()
+        .filter_map(|f| {
+            let ps: Option<Vec<Point3<f64>>> = ids
+                .iter()
+                .map(|id| {
+                    f.poses
+                        .iter()
+                        .find(|p| p.object_id == *id && p.body.is_none())
+                        .map(|p| Point3::from(p.position_m))
+                })
+                .collect();
+            Some((f, ps?))
+        })
+        .collect();
+    let (first_frame, reference) = together.first()?.clone();
+    let ones = vec![1.0; ids.len()];
+    let mut sum = vec![Vector3::zeros(); ids.len()];
+    let mut placed: Vec<Vec<Point3<f64>>> = Vec::new();
+    for (_, ps) in &together {
+        let (reference_from_frame, _) = stereoscope_bodies::kabsch(ps, &reference, &ones)?;
+        let back: Vec<Point3<f64>> = ps.iter().map(|p| reference_from_frame * p).collect();
+        for (s, p) in sum.iter_mut().zip(&back) {
+            *s += p.coords;
+        }
+        placed.push(back);
+    }
+    let n = placed.len() as f64;
+    let mean: Vec<Point3<f64>> = sum.iter().map(|s| Point3::from(s / n)).collect();
+    let sq: f64 = placed
+        .iter()
+        .flat_map(|ps| ps.iter().zip(&mean).map(|(p, m)| (p - m).norm_squared()))
+        .sum();
+    let spread = (sq / (n * ids.len() as f64)).sqrt();
+    let mut frame = first_frame.clone();
+    frame.poses = ids
+        .iter()
+        .zip(&mean)
+        .filter_map(|(id, m)| {
+            let mut p = first_frame
+                .poses
+                .iter()
+                .find(|p| p.object_id == *id)?
+                .clone();
+            p.position_m = [m.x, m.y, m.z];
+            Some(p)
+        })
+        .collect();
+    Some((frame, spread, placed.len()))
+}
+
+/// `stereoscope body define NAME --rig RIG --session DIR`: the markers that moved together in
+/// a recording (`stereoscope_kinematics::moved_together`; or `--objects`), their mean shape
+/// (`mean_shape`), defined as from the cameras with the origin and axes asked (the world's
+/// axes and points as they were where the markers were first seen together).
+pub fn define_from_session(
+    name: &str,
+    rig_path: &std::path::Path,
+    session_dir: &std::path::Path,
+    write: bool,
+    choice: &DefineChoice,
+) -> anyhow::Result<String> {
+    let rig = rig_for_new_body(rig_path, name)?;
+    if matches!(choice.origin, Origin::Pivot(_)) {
+        anyhow::bail!("--origin pivot listens to the body turning live: not with --session");
+    }
+    let session = stereoscope_recorder::session::Session::read(session_dir)?;
+    let frames = &session.poses;
+    let ids: Vec<u32> = match &choice.objects {
+        Some(ids) => ids.clone(),
+        None => {
+            let tracks = crate::model::tracks(frames);
+            let groups = stereoscope_kinematics::moved_together(
+                &tracks,
+                &stereoscope_kinematics::DefineOptions::default(),
+            );
+            match groups.as_slice() {
+                [] => anyhow::bail!(
+                    "{}: no 3 or more markers moved together (kept their distances within 1.5 mm while moving {} cm or more) in its {} frames",
+                    session_dir.display(),
+                    stereoscope_kinematics::define::MIN_TRAVEL_M * 100.0,
+                    frames.len()
+                ),
+                [g] => {
+                    eprintln!(
+                        "markers that moved together: objects {:?}, seen together in {} frames, travelled {:.2} m",
+                        g.ids, g.frames_together, g.travel_m
+                    );
+                    g.ids.clone()
+                }
+                many => {
+                    let list: Vec<String> = many
+                        .iter()
+                        .map(|g| format!("{:?} ({} frames)", g.ids, g.frames_together))
+                        .collect();
+                    anyhow::bail!(
+                        "{}: several groups of markers moved together: {}; choose one with --objects",
+                        session_dir.display(),
+                        list.join(", ")
+                    )
+                }
+            }
+        }
+    };
+    let Some((frame, spread, used)) = mean_shape(frames, &ids) else {
+        anyhow::bail!(
+            "{}: objects {ids:?} are never all seen in one frame",
+            session_dir.display()
+        );
+    };
+    eprintln!(
+        "their shape from {used} frames: each marker within {:.2} mm RMS of the mean",
+        spread * 1e3
+    );
+    if spread > MAX_SHAPE_SPREAD_M {
+        anyhow::bail!(
+            "{}: objects {ids:?} did not keep one shape ({:.1} mm RMS about their mean, at most {} mm): an id may have passed from one marker to another; choose others with --objects",
+            session_dir.display(),
+            spread * 1e3,
+            MAX_SHAPE_SPREAD_M * 1e3
+        );
+    }
+    let existing: Vec<BodyDef> = stereoscope_rig::body_defs(&rig.spec);
+    let chosen = DefineChoice {
+        objects: Some(ids),
+        inside: None,
+        ..choice.clone()
+    };
+    let (spec, _, ids) = define(name, &[frame], rig.spec.units, &existing, &chosen)?;
+    for (k, (id, m)) in ids.iter().zip(&spec.markers).enumerate() {
+        eprintln!("  marker {k}: object {id}, at {m:?} in the body");
+    }
+    let text = to_toml(&spec);
+    if write {
+        append_body(rig_path, &text)?;
     }
     Ok(text)
 }

@@ -261,15 +261,20 @@ fn main() -> ExitCode {
                 }
             }
         }
-        Command::Body(BodyCommand::Define(a)) => match stereoscope::body::define_live(
-            &a.name,
-            &a.rig,
-            a.connect.clone(),
-            a.seconds,
-            a.write,
-            a.tls.clone(),
-            &a.choice(),
-        ) {
+        Command::Body(BodyCommand::Define(a)) => match match &a.session {
+            Some(dir) => {
+                stereoscope::body::define_from_session(&a.name, &a.rig, dir, a.write, &a.choice())
+            }
+            None => stereoscope::body::define_live(
+                &a.name,
+                &a.rig,
+                a.connect.clone(),
+                a.seconds,
+                a.write,
+                a.tls.clone(),
+                &a.choice(),
+            ),
+        } {
             Ok(text) => {
                 print!("{text}");
                 ExitCode::SUCCESS

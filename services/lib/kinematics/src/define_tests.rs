@@ -237,3 +237,46 @@ fn a_still_joint_or_a_slide_is_refused_naming_what_is_missing() {
     .unwrap_err();
     assert!(matches!(e, DefineError::HomeMoved { .. }), "{e}");
 }
+
+/// A wand of four markers carried through the volume for 4 s beside two markers standing
+/// still and one moving on its own, 0.3 mm of noise, a second of the take standing still: the
+/// wand's four are the one group that moved together.
+#[test]
+fn the_markers_that_moved_together_are_found() {
+    use crate::define::moved_together;
+    let frames = 240;
+    let mut rng = SplitMix64::new(11);
+    let wand = [
+        Vector3::new(0.0, 0.0, 0.0),
+        Vector3::new(0.12, 0.0, 0.0),
+        Vector3::new(0.0, 0.08, 0.0),
+        Vector3::new(0.05, 0.04, 0.06),
+    ];
+    let mut tracks: Vec<Track> = (0..7)
+        .map(|i| Track {
+            id: 20 + i,
+            points: vec![None; frames],
+        })
+        .collect();
+    for f in 0..frames {
+        // Still for the first second, then moving.
+        let t = (f as f64 / 60.0 - 1.0).max(0.0);
+        let pose = Isometry3::from_parts(
+            Translation3::new(0.3 * t.sin(), 0.2 * t, 1.0 + 0.1 * (2.0 * t).sin()),
+            UnitQuaternion::from_euler_angles(0.3 * t, 0.2 * (1.5 * t).sin(), t),
+        );
+        let mut noisy =
+            |p: Point3<f64>| p + Vector3::new(rng.normal(), rng.normal(), rng.normal()) * 0.0003;
+        for (k, m) in wand.iter().enumerate() {
+            tracks[k].points[f] = Some(noisy(pose * Point3::from(*m)));
+        }
+        tracks[4].points[f] = Some(noisy(Point3::new(1.0, 1.0, 0.0)));
+        tracks[5].points[f] = Some(noisy(Point3::new(1.2, 0.9, 0.0)));
+        tracks[6].points[f] = Some(noisy(Point3::new(-0.5 + 0.3 * t, 0.4 * t.cos(), 0.5)));
+    }
+    let found = moved_together(&tracks, &DefineOptions::default());
+    assert_eq!(found.len(), 1, "{found:?}");
+    assert_eq!(found[0].ids, [20, 21, 22, 23]);
+    assert_eq!(found[0].frames_together, frames);
+    assert!(found[0].travel_m > 0.2, "{found:?}");
+}

@@ -17,7 +17,9 @@ pub mod model;
 pub mod synthetic;
 pub mod urdf;
 
-pub use define::{DefineError, DefineOptions, Defined, Track, define_model};
+pub use define::{
+    DefineError, DefineOptions, Defined, MovedTogether, Track, define_model, moved_together,
+};
 pub use fit::{ChainFit, ChainState, FitError, FitOptions, JointFit, fit_chain, initial_state};
 pub use model::{
     Base, Joint, JointKind, JointSpec, JointValue, Limits, Link, Marker, MarkerSpec, Model,

@@ -64,6 +64,65 @@ impl Default for DefineOptions {
     }
 }
 
+/// A group of markers that moved together in a recording (`moved_together`).
+#[derive(Debug, Clone, PartialEq)]
+pub struct MovedTogether {
+    /// The tracks' ids (fusion's object ids), ascending.
+    pub ids: Vec<u32>,
+    /// Frames in which every one of them was seen.
+    pub frames_together: usize,
+    /// How far the group went from where it was first seen whole (its centroid), metres.
+    pub travel_m: f64,
+}
+
+/// A group that went less far than this did not move: markers standing still keep their
+/// distances as well as a body's do.
+pub const MIN_TRAVEL_M: f64 = 0.05;
+
+/// The markers that moved together in a recording (a body to define, `stereoscope body
+/// define --session`): tracks whose distances stayed within `opts.rigid_tolerance_m` while
+/// anything moved (the same grouping as a model's links, [`define_model`]), in groups of 3 or
+/// more that travelled [`MIN_TRAVEL_M`] or further; the largest group first.
+pub fn moved_together(tracks: &[Track], opts: &DefineOptions) -> Vec<MovedTogether> {
+    let frames = tracks.first().map_or(0, |t| t.points.len());
+    if frames == 0 || tracks.iter().any(|t| t.points.len() != frames) {
+        return Vec::new();
+    }
+    let still = still_frames(tracks, frames, opts.rigid_tolerance_m);
+    let keep: Vec<usize> = (0..tracks.len()).collect();
+    let mut out: Vec<MovedTogether> = rigid_groups(tracks, &keep, opts.rigid_tolerance_m, &still)
+        .into_iter()
+        .filter_map(|g| {
+            let centroids: Vec<Vector3<f64>> = (0..frames)
+                .filter_map(|f| {
+                    let ps: Option<Vec<Point3<f64>>> =
+                        g.iter().map(|&t| tracks[t].points[f]).collect();
+                    ps.map(|ps| ps.iter().map(|p| p.coords).sum::<Vector3<f64>>() / ps.len() as f64)
+                })
+                .collect();
+            let first = centroids.first()?;
+            let travel_m = centroids
+                .iter()
+                .map(|c| (c - first).norm())
+                .fold(0.0, f64::max);
+            let mut ids: Vec<u32> = g.iter().map(|&t| tracks[t].id).collect();
+            ids.sort_unstable();
+            (travel_m >= MIN_TRAVEL_M).then_some(MovedTogether {
+                ids,
+                frames_together: centroids.len(),
+                travel_m,
+            })
+        })
+        .collect();
+    out.sort_by(|a, b| {
+        b.ids
+            .len()
+            .cmp(&a.ids.len())
+            .then(b.travel_m.total_cmp(&a.travel_m))
+    });
+    out
+}
+
 /// Why no model could be defined.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum DefineError {
