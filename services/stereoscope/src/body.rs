@@ -504,10 +504,13 @@ fn append_body(rig_path: &std::path::Path, text: &str) -> anyhow::Result<()> {
 }
 
 /// The shape of markers `ids` through `frames`: in the frames that show them all, each
-/// frame's markers brought onto the first such frame's by their rigid motion (Kabsch) and
-/// averaged — a pose frame of the mean shape where the markers first were together, for
-/// [`define`] — with the RMS spread about the mean, metres, and the frames used.
-pub fn mean_shape(frames: &[PoseFrame], ids: &[u32]) -> Option<(PoseFrame, f64, usize)> {
+/// frame's markers brought onto a reference shape by their rigid motion (Kabsch) and averaged,
+/// twice — first onto the first such frame, then onto that mean, leaving out the frames more
+/// than [`SHAPE_FRAME_OUTLIER_M`] RMS off it (blobs of two markers merged in a view) — as a
+/// pose frame of the mean shape where the markers first were together, for [`define`]; with
+/// the RMS spread of the frames kept about it, metres, the frames kept and the frames showing
+/// them all.
+pub fn mean_shape(frames: &[PoseFrame], ids: &[u32]) -> Option<(PoseFrame, f64, usize, usize)> {
     let together: Vec<(&PoseFrame, Vec<Point3<f64>>)> = frames
         .iter()
         .filter_map(|f| {
@@ -523,41 +526,60 @@ pub fn mean_shape(frames: &[PoseFrame], ids: &[u32]) -> Option<(PoseFrame, f64, 
             Some((f, ps?))
         })
         .collect();
-    let (first_frame, reference) = together.first()?.clone();
+    let (first_frame, first) = together.first()?.clone();
     let ones = vec![1.0; ids.len()];
-    let mut sum = vec![Vector3::zeros(); ids.len()];
-    let mut placed: Vec<Vec<Point3<f64>>> = Vec::new();
-    for (_, ps) in &together {
-        let (reference_from_frame, _) = stereoscope_bodies::kabsch(ps, &reference, &ones)?;
-        let back: Vec<Point3<f64>> = ps.iter().map(|p| reference_from_frame * p).collect();
-        for (s, p) in sum.iter_mut().zip(&back) {
-            *s += p.coords;
-        }
-        placed.push(back);
-    }
-    let n = placed.len() as f64;
-    let mean: Vec<Point3<f64>> = sum.iter().map(|s| Point3::from(s / n)).collect();
-    let sq: f64 = placed
+    // Each frame brought onto `reference`, with its RMS residual there.
+    let onto = |reference: &[Point3<f64>]| -> Vec<(Vec<Point3<f64>>, f64)> {
+        together
+            .iter()
+            .filter_map(|(_, ps)| {
+                let (m, r) = stereoscope_bodies::kabsch(ps, reference, &ones)?;
+                Some((ps.iter().map(|p| m * p).collect(), r))
+            })
+            .collect()
+    };
+    let mean = |placed: &[&Vec<Point3<f64>>]| -> Vec<Point3<f64>> {
+        let n = placed.len().max(1) as f64;
+        (0..ids.len())
+            .map(|k| Point3::from(placed.iter().map(|ps| ps[k].coords).sum::<Vector3<f64>>() / n))
+            .collect()
+    };
+    let pass1 = onto(&first);
+    let mean1 = mean(&pass1.iter().map(|(ps, _)| ps).collect::<Vec<_>>());
+    let pass2 = onto(&mean1);
+    let kept: Vec<&Vec<Point3<f64>>> = pass2
         .iter()
-        .flat_map(|ps| ps.iter().zip(&mean).map(|(p, m)| (p - m).norm_squared()))
+        .filter(|(_, r)| *r <= SHAPE_FRAME_OUTLIER_M)
+        .map(|(ps, _)| ps)
+        .collect();
+    let shape = mean(&kept);
+    let sq: f64 = kept
+        .iter()
+        .flat_map(|ps| ps.iter().zip(&shape).map(|(p, m)| (p - m).norm_squared()))
         .sum();
-    let spread = (sq / (n * ids.len() as f64)).sqrt();
+    let spread = (sq / (kept.len().max(1) * ids.len()) as f64).sqrt();
+    // The mean shape placed where the markers first were together.
+    let (back, _) = stereoscope_bodies::kabsch(&shape, &first, &ones)?;
     let mut frame = first_frame.clone();
     frame.poses = ids
         .iter()
-        .zip(&mean)
+        .zip(&shape)
         .filter_map(|(id, m)| {
             let mut p = first_frame
                 .poses
                 .iter()
                 .find(|p| p.object_id == *id)?
                 .clone();
-            p.position_m = [m.x, m.y, m.z];
+            let w = back * m;
+            p.position_m = [w.x, w.y, w.z];
             Some(p)
         })
         .collect();
-    Some((frame, spread, placed.len()))
+    Some((frame, spread, kept.len(), together.len()))
 }
+
+/// A frame whose markers lie further than this (RMS) from the mean shape is left out of it.
+pub const SHAPE_FRAME_OUTLIER_M: f64 = 0.002;
 
 /// `stereoscope body define NAME --rig RIG --session DIR`: the markers that moved together in
 /// a recording (`stereoscope_kinematics::moved_together`; or `--objects`), their mean shape
@@ -612,20 +634,24 @@ pub fn define_from_session(
             }
         }
     };
-    let Some((frame, spread, used)) = mean_shape(frames, &ids) else {
+    let Some((frame, spread, used, together)) = mean_shape(frames, &ids) else {
         anyhow::bail!(
             "{}: objects {ids:?} are never all seen in one frame",
             session_dir.display()
         );
     };
     eprintln!(
-        "their shape from {used} frames: each marker within {:.2} mm RMS of the mean",
+        "their shape from {used} of the {together} frames showing them all (the rest over {} mm \
+         RMS off it): each marker within {:.2} mm RMS of the mean",
+        SHAPE_FRAME_OUTLIER_M * 1e3,
         spread * 1e3
     );
-    if spread > MAX_SHAPE_SPREAD_M {
+    // An id passed from one marker to another spoils many frames, not a few.
+    if spread > MAX_SHAPE_SPREAD_M || used * 5 < together * 4 {
         anyhow::bail!(
-            "{}: objects {ids:?} did not keep one shape ({:.1} mm RMS about their mean, at most {} mm): an id may have passed from one marker to another; choose others with --objects",
+            "{}: objects {ids:?} did not keep one shape ({used} of {together} frames within {} mm RMS of their mean, which they keep within {:.1} mm; a body needs 80 % and {} mm): an id may have passed from one marker to another; choose others with --objects",
             session_dir.display(),
+            SHAPE_FRAME_OUTLIER_M * 1e3,
             spread * 1e3,
             MAX_SHAPE_SPREAD_M * 1e3
         );

@@ -235,8 +235,9 @@ impl Entry {
         });
         // From nothing too when prediction did not place every marker: a wrong state (a link
         // turned by a mislabelled marker) would otherwise hold itself, its links' markers
-        // predicted where they are not. The fit that places more markers wins (then the lower
-        // RMS), valid before not valid.
+        // predicted where they are not. A valid fit by prediction stays unless the other places
+        // more markers; otherwise the fit that places more markers wins (then the lower RMS),
+        // valid before not valid.
         let complete = fit
             .as_ref()
             .is_some_and(|(_, f)| f.valid && f.markers_used == model.markers.len());
@@ -263,7 +264,15 @@ impl Entry {
                         std::cmp::Reverse(b.rms_m.to_bits()),
                     )
                 };
-                if fit.as_ref().is_none_or(|(_, old)| better(&f, old)) {
+                // A valid fit by prediction is given up only for one that places more
+                // markers: with as many, a lower RMS is no reason to jump (with a link hidden,
+                // clusters found from nothing fitted the arm 98–208° off at a lower RMS).
+                let replace = match fit.as_ref() {
+                    None => true,
+                    Some((_, old)) if old.valid => f.valid && f.markers_used > old.markers_used,
+                    Some((_, old)) => better(&f, old),
+                };
+                if replace {
                     fit = Some((all, f));
                 }
             }
