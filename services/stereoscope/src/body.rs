@@ -455,10 +455,20 @@ pub fn define_live(
         frames.len(),
         wobble * 1e3
     );
+    finish(&spec, &ids, rig_path, write)
+}
+
+/// Lists the markers taken, and the table: appended to the rig file with `write`.
+fn finish(
+    spec: &BodySpec,
+    ids: &[u32],
+    rig_path: &std::path::Path,
+    write: bool,
+) -> anyhow::Result<String> {
     for (k, (id, m)) in ids.iter().zip(&spec.markers).enumerate() {
         eprintln!("  marker {k}: object {id}, at {m:?} in the body");
     }
-    let text = to_toml(&spec);
+    let text = to_toml(spec);
     if write {
         append_body(rig_path, &text)?;
     }
@@ -663,14 +673,7 @@ pub fn define_from_session(
         ..choice.clone()
     };
     let (spec, _, ids) = define(name, &[frame], rig.spec.units, &existing, &chosen)?;
-    for (k, (id, m)) in ids.iter().zip(&spec.markers).enumerate() {
-        eprintln!("  marker {k}: object {id}, at {m:?} in the body");
-    }
-    let text = to_toml(&spec);
-    if write {
-        append_body(rig_path, &text)?;
-    }
-    Ok(text)
+    finish(&spec, &ids, rig_path, write)
 }
 
 #[cfg(test)]
