@@ -510,14 +510,9 @@ fn a_body_is_defined_from_the_markers_that_moved_together_in_a_recording() {
                 if o.status.success() {
                     return Some((g.clone(), String::from_utf8_lossy(&o.stdout).to_string()));
                 }
-                // Refused only as not rigid, or (seen once, not explained yet: the listing
-                // counted frames with them all) as never all in one frame.
+                // Refused only as not rigid.
                 let e = common::stderr(&o);
-                assert!(
-                    e.contains("did not keep one shape")
-                        || e.contains("never all seen in one frame"),
-                    "{e}"
-                );
+                assert!(e.contains("did not keep one shape"), "{e}");
                 eprintln!("refused: {}", e.lines().last().unwrap_or_default());
                 refused += 1;
                 None

@@ -557,11 +557,16 @@ pub fn mean_shape(frames: &[PoseFrame], ids: &[u32]) -> Option<(PoseFrame, f64, 
     let pass1 = onto(&first);
     let mean1 = mean(&pass1.iter().map(|(ps, _)| ps).collect::<Vec<_>>());
     let pass2 = onto(&mean1);
-    let kept: Vec<&Vec<Point3<f64>>> = pass2
+    let mut kept: Vec<&Vec<Point3<f64>>> = pass2
         .iter()
         .filter(|(_, r)| *r <= SHAPE_FRAME_OUTLIER_M)
         .map(|(ps, _)| ps)
         .collect();
+    let used = kept.len();
+    // No frame near the mean: the shape (to be refused, `used` 0) from every frame.
+    if kept.is_empty() {
+        kept = pass2.iter().map(|(ps, _)| ps).collect();
+    }
     let shape = mean(&kept);
     let sq: f64 = kept
         .iter()
@@ -585,7 +590,7 @@ pub fn mean_shape(frames: &[PoseFrame], ids: &[u32]) -> Option<(PoseFrame, f64, 
             Some(p)
         })
         .collect();
-    Some((frame, spread, kept.len(), together.len()))
+    Some((frame, spread, used, together.len()))
 }
 
 /// A frame whose markers lie further than this (RMS) from the mean shape is left out of it.
