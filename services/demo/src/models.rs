@@ -26,7 +26,7 @@ pub struct ModelStats {
 
 /// How a model did while one link's markers were all hidden: each joint's worst error in the
 /// frames it was published as determined, how often it was flagged instead, and how many
-/// determined values were more than [`GUESS_DEG`] off (guesses published as measurements).
+/// determined values were more than `GUESS_DEG` off (guesses published as measurements).
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct HiddenStats {
     pub link: String,
