@@ -15,7 +15,6 @@
 
 pub mod cli;
 pub mod identity;
-pub mod reload;
 
 use std::time::Duration;
 use stereoscope_pipeline::pairing::{self, Pairer};
@@ -25,6 +24,7 @@ use stereoscope_proto::messages::{
     now_ns,
 };
 use stereoscope_proto::names::{iox as iox_names, zenoh as keys};
+use stereoscope_rig::watch::{Change, RigWatch};
 use stereoscope_service::Context;
 use stereoscope_transport::inlet::Unexpected;
 use stereoscope_transport::iox::Waker;
@@ -82,7 +82,7 @@ pub struct FusionService {
     /// Blobs left out because they held two objects' merged images.
     merged_blobs: u64,
     /// The rig file, for bodies and models changed while fusion runs.
-    watch: Option<reload::RigWatch>,
+    watch: Option<RigWatch>,
     /// Changes of bodies and models applied.
     reloads: u64,
 }
@@ -204,11 +204,7 @@ impl FusionService {
             sequence,
             ids,
             merged_blobs: 0,
-            watch: ctx
-                .rig
-                .path
-                .as_ref()
-                .map(|p| reload::RigWatch::new(p.clone())),
+            watch: ctx.rig.path.as_ref().map(|p| RigWatch::new(p.clone())),
             reloads: 0,
             cfg,
         })
@@ -221,13 +217,13 @@ impl FusionService {
             return;
         };
         match change {
-            reload::Change::Refused(e) => {
+            Change::Refused(e) => {
                 tracing::warn!("the rig file changed but does not load; nothing applied: {e}");
                 self.node
                     .counters
                     .set_error(&format!("rig file changed, not applied: {e}"));
             }
-            reload::Change::Apply {
+            Change::Apply {
                 rig,
                 others_changed,
             } => {

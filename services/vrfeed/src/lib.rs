@@ -15,8 +15,10 @@
 //! receiver that is not there is a counted send error; a VRPN client that misbehaves is
 //! dropped and counted ([`vrpn`]). None of it stops the feed.
 
+pub mod bodies;
 pub mod cli;
 pub mod feeds;
+mod labs;
 pub mod lsl;
 pub mod natnet;
 pub mod output;
@@ -24,6 +26,7 @@ pub mod qualisys;
 pub mod ros2;
 pub mod vrpn;
 
+use labs::{Defs, Lab, labs, nominal_fps};
 use nalgebra::{Isometry3, Point3, Quaternion, Translation3, UnitQuaternion, Vector3};
 use std::net::{SocketAddr, UdpSocket};
 use std::time::Duration;
@@ -79,183 +82,6 @@ struct PoseInput {
     waker: Option<stereoscope_transport::iox::Waker>,
 }
 
-/// A lab protocol the rig asks for: its server once it could bind, and until then when to try
-/// again (once a second, the reason in health meanwhile).
-struct Lab {
-    name: &'static str,
-    /// Where it listens, or (ROS 2) the router it connects to.
-    addr: String,
-    state_key: Detail,
-    clients_key: Option<Detail>,
-    /// The state health reports once it is up (`listening`, `publishing`).
-    up: &'static str,
-    open: Box<dyn Fn() -> std::io::Result<Box<dyn output::Output + Send>> + Send>,
-    server: Option<Box<dyn output::Output + Send>>,
-    next_bind: std::time::Instant,
-}
-
-impl Lab {
-    /// Binds if it is not bound and a try is due; says what happened in `counters`.
-    fn bind(&mut self, counters: &mut stereoscope_transport::Counters) {
-        if self.server.is_some() || std::time::Instant::now() < self.next_bind {
-            return;
-        }
-        self.next_bind = std::time::Instant::now() + Duration::from_secs(1);
-        match (self.open)() {
-            Ok(s) => {
-                tracing::info!("{} {} on {}", self.name, self.up, self.addr);
-                counters.set(self.state_key, self.up);
-                self.server = Some(s);
-            }
-            Err(e) => {
-                let m = format!(
-                    "{} ({}) is not up: {e}; trying again every second",
-                    self.name, self.addr
-                );
-                if counters.last_error() != Some(&m) {
-                    tracing::warn!("{m}");
-                }
-                counters.set_error(&m);
-                let state = if e.kind() == std::io::ErrorKind::AddrInUse {
-                    "port in use"
-                } else {
-                    "unavailable"
-                };
-                counters.set(self.state_key, state);
-            }
-        }
-    }
-}
-
-/// The rig's bodies with their markers in metres.
-fn body_defs(spec: &stereoscope_rig::schema::RigFile) -> Vec<output::BodyDef> {
-    let s = spec.units.metres();
-    spec.bodies
-        .iter()
-        .map(|b| output::BodyDef {
-            name: b.name.clone(),
-            markers_m: b
-                .markers
-                .iter()
-                .map(|m| Point3::new(m[0] * s, m[1] * s, m[2] * s))
-                .collect(),
-        })
-        .collect()
-}
-
-/// The rig's nominal frame rate: its first camera's that states one (0 when none does).
-fn nominal_fps(spec: &stereoscope_rig::schema::RigFile) -> f64 {
-    use stereoscope_rig::schema::SourceSpec;
-    spec.cameras
-        .iter()
-        .filter_map(|c| match c.source.as_ref()? {
-            SourceSpec::Synthetic { fps, .. } | SourceSpec::Images { fps, .. } => Some(*fps),
-            SourceSpec::V4l { fps, .. } | SourceSpec::Genicam { fps, .. } => *fps,
-            SourceSpec::Y4m { .. } => None,
-        })
-        .next()
-        .unwrap_or(0.0)
-}
-
-/// The lab protocols of `settings`, not yet bound.
-fn labs(
-    settings: &VrSettings,
-    bodies: &[output::BodyDef],
-    model_trees: &[ros2::ModelTree],
-    fps: f64,
-    rig: &str,
-) -> Vec<Lab> {
-    let mut out = Vec::new();
-    if let Some(n) = &settings.natnet {
-        let cfg = natnet::NatNetConfig {
-            command: n.command,
-            data_port: n.data_port,
-            multicast: n.multicast,
-            frame: n.frame,
-        };
-        let b = bodies.to_vec();
-        out.push(Lab {
-            name: "NatNet",
-            addr: n.command.to_string(),
-            state_key: Detail::Natnet,
-            clients_key: Some(Detail::NatnetClients),
-            up: "listening",
-            open: Box::new(move || {
-                natnet::NatNetServer::bind(cfg.clone(), b.clone())
-                    .map(|s| Box::new(s) as Box<dyn output::Output + Send>)
-            }),
-            server: None,
-            next_bind: std::time::Instant::now(),
-        });
-    }
-    if let Some(q) = &settings.qualisys {
-        let cfg = qualisys::QualisysConfig {
-            base: q.base,
-            frame: q.frame,
-            frequency_hz: fps,
-        };
-        let b = bodies.to_vec();
-        let port = if q.base.port() == 0 {
-            0
-        } else {
-            q.base.port() + 1
-        };
-        out.push(Lab {
-            name: "Qualisys RT",
-            addr: SocketAddr::new(q.base.ip(), port).to_string(),
-            state_key: Detail::Qualisys,
-            clients_key: Some(Detail::QualisysClients),
-            up: "listening",
-            open: Box::new(move || {
-                qualisys::QualisysServer::bind(cfg.clone(), b.clone())
-                    .map(|s| Box::new(s) as Box<dyn output::Output + Send>)
-            }),
-            server: None,
-            next_bind: std::time::Instant::now(),
-        });
-    }
-    if let Some(r) = &settings.ros2 {
-        let cfg = r.clone();
-        let names: Vec<String> = bodies.iter().map(|b| b.name.clone()).collect();
-        let model_trees = model_trees.to_vec();
-        out.push(Lab {
-            name: "ROS 2",
-            addr: r.router.clone(),
-            state_key: Detail::Ros2,
-            clients_key: None,
-            up: "publishing",
-            open: Box::new(move || {
-                ros2::Ros2Output::open(cfg.clone(), names.clone(), model_trees.clone())
-                    .map(|s| Box::new(s) as Box<dyn output::Output + Send>)
-            }),
-            server: None,
-            next_bind: std::time::Instant::now(),
-        });
-    }
-    if let Some(l) = &settings.lsl {
-        let cfg = l.clone();
-        let names: Vec<String> = bodies.iter().map(|b| b.name.clone()).collect();
-        let rig = rig.to_string();
-        out.push(Lab {
-            name: "LSL",
-            addr: l
-                .source_id
-                .clone()
-                .unwrap_or_else(|| format!("stereoscope/{rig}")),
-            state_key: Detail::Lsl,
-            clients_key: Some(Detail::LslConsumers),
-            up: "streaming",
-            open: Box::new(move || {
-                lsl::LslOutlet::open(&cfg, &rig, &names, fps)
-                    .map(|s| Box::new(s) as Box<dyn output::Output + Send>)
-            }),
-            server: None,
-            next_bind: std::time::Instant::now(),
-        });
-    }
-    out
-}
-
 /// Latencies kept for the percentiles.
 const LATENCY_WINDOW: usize = 4096;
 /// The time `vrpn_Tracker Velocity`'s rotation is given over, seconds.
@@ -270,7 +96,13 @@ pub struct VrFeedService {
     cfg: VrFeedConfig,
     node: ServiceNode,
     settings: VrSettings,
-    names: Vec<String>,
+    /// The bodies by the index every protocol knows them by, and the models.
+    defs: Defs,
+    /// The running rig's bodies in its order: what `settings`' body indices count.
+    rig_names: Vec<String>,
+    /// The rig file, looked at for changed bodies and models.
+    watch: Option<stereoscope_rig::watch::RigWatch>,
+    reloads: u64,
     input: PoseInput,
     vrpn: Option<vrpn::Server>,
     next_bind: std::time::Instant,
@@ -340,7 +172,22 @@ impl VrFeedService {
     pub fn setup(cfg: VrFeedConfig) -> Result<Self, VrFeedError> {
         let ctx = &cfg.ctx;
         let settings = stereoscope_rig::vr::settings(&ctx.rig.spec)?.ok_or(VrFeedError::NoVr)?;
-        let names: Vec<String> = ctx.rig.spec.bodies.iter().map(|b| b.name.clone()).collect();
+        let rig_names: Vec<String> = ctx.rig.spec.bodies.iter().map(|b| b.name.clone()).collect();
+        let defs = Defs {
+            bodies: bodies::BodyTable::new(&bodies::body_defs(&ctx.rig.spec)),
+            model_trees: ctx
+                .rig
+                .models
+                .iter()
+                .map(|m| ros2::ModelTree::of(&m.model))
+                .collect(),
+        };
+        let names = defs.bodies.names();
+        if names.is_empty() && defs.model_trees.is_empty() {
+            tracing::warn!(
+                "the rig defines no [[body]] or [[model]] yet: the feed listens, and sends from the first one defined in the rig file"
+            );
+        }
         // A port in use is reported and tried again every second (`bind_vrpn`); any other
         // failure to listen (an address not of this PC) stops the service with its reason.
         let vrpn = match settings.vrpn {
@@ -380,22 +227,11 @@ impl VrFeedService {
         }
         // The lab protocols bind (ROS 2's session takes about half a second to open) before the
         // pose input exists, so no frame waits behind them.
-        let model_trees: Vec<ros2::ModelTree> = ctx
-            .rig
-            .models
-            .iter()
-            .map(|m| ros2::ModelTree::of(&m.model))
-            .collect();
-        let mut labs = labs(
-            &settings,
-            &body_defs(&ctx.rig.spec),
-            &model_trees,
-            nominal_fps(&ctx.rig.spec),
-            &ctx.rig.name,
-        );
+        let mut labs = labs(&settings, nominal_fps(&ctx.rig.spec), &ctx.rig.name);
         for l in &mut labs {
-            l.bind(&mut node.counters);
+            l.bind(&mut node.counters, &defs);
         }
+        node.counters.set(Detail::Bodies, rig_names.join(","));
         let rig = ctx.rig.name.clone();
         let input = if ctx.fusion_here() {
             let name = stereoscope_proto::names::iox::poses(&rig);
@@ -427,7 +263,7 @@ impl VrFeedService {
             tracing::info!("VMC /VMC/Ext/Tra/Pos to {a}");
         }
         if let Some((a, _, b)) = &settings.opentrack {
-            tracing::info!("opentrack UDP to {a} with body {:?}", names.get(*b));
+            tracing::info!("opentrack UDP to {a} with body {:?}", rig_names.get(*b));
         }
         let filters = settings
             .bodies
@@ -435,11 +271,19 @@ impl VrFeedService {
             .map(|b| b.smoothing.map(PoseFilter::new))
             .collect();
 
+        let watch = ctx
+            .rig
+            .path
+            .as_ref()
+            .map(|p| stereoscope_rig::watch::RigWatch::new(p.clone()));
         Ok(VrFeedService {
             cfg,
             node,
             settings,
-            names,
+            defs,
+            rig_names,
+            watch,
+            reloads: 0,
             input,
             vrpn,
             next_bind: std::time::Instant::now(),
@@ -468,9 +312,10 @@ impl VrFeedService {
             return;
         }
         self.next_bind = std::time::Instant::now() + Duration::from_secs(1);
-        match vrpn::Server::bind(addr, self.names.clone()) {
+        let names = self.defs.bodies.names();
+        match vrpn::Server::bind(addr, names.clone()) {
             Ok(s) => {
-                tracing::info!("VRPN trackers {:?} on {addr} (TCP and UDP)", self.names);
+                tracing::info!("VRPN trackers {names:?} on {addr} (TCP and UDP)");
                 self.node.counters.set(Detail::Vrpn, "listening");
                 self.vrpn = Some(s);
             }
@@ -498,9 +343,13 @@ impl VrFeedService {
         }
     }
 
-    /// The pose to send for one body: smoothed and predicted as its `[[body]]` asks.
-    fn output_pose(&mut self, index: usize, b: &BodyPose, t_ns: u64) -> Isometry3<f64> {
+    /// The pose to send for one body (`rig_index`: its place in the running rig's bodies):
+    /// smoothed and predicted as its `[[body]]` asks.
+    fn output_pose(&mut self, rig_index: Option<usize>, b: &BodyPose, t_ns: u64) -> Isometry3<f64> {
         let mut pose = isometry(b);
+        let Some(index) = rig_index else {
+            return pose;
+        };
         if let Some(f) = self.filters.get_mut(index).and_then(|f| f.as_mut()) {
             pose = f.filter(&pose, t_ns);
         }
@@ -521,7 +370,10 @@ impl VrFeedService {
         // Bodies absent from this frame start their smoothing afresh when they return.
         for (i, f) in self.filters.iter_mut().enumerate() {
             if let Some(f) = f
-                && !frame.bodies.iter().any(|b| b.name == self.names[i])
+                && !frame
+                    .bodies
+                    .iter()
+                    .any(|b| self.rig_names.get(i) == Some(&b.name))
             {
                 f.reset();
             }
@@ -532,10 +384,11 @@ impl VrFeedService {
         let mut sent: Vec<(&'static str, String, [f64; 3])> = Vec::new();
         let tracing_sends = self.trace.is_some();
         for b in &frame.bodies {
-            let Some(index) = self.names.iter().position(|n| *n == b.name) else {
+            let Some(index) = self.defs.bodies.index(&b.name) else {
                 continue;
             };
-            let pose = self.output_pose(index, b, frame.timestamp_ns);
+            let rig_index = self.rig_names.iter().position(|n| *n == b.name);
+            let pose = self.output_pose(rig_index, b, frame.timestamp_ns);
             out_bodies.push(output::OutputBody {
                 index,
                 world_from_body: pose,
@@ -565,7 +418,7 @@ impl VrFeedService {
                 }
             }
             if let Some((to, f, bodies)) = &self.settings.vmt
-                && let Some(k) = bodies.iter().position(|&x| x == index)
+                && let Some(k) = bodies.iter().position(|&x| Some(x) == rig_index)
             {
                 let c = feeds::in_frame(f, &position, &pose.rotation);
                 if tracing_sends {
@@ -578,7 +431,7 @@ impl VrFeedService {
                 datagrams.push((feeds::vmc_tracker(&b.name, &c), *to));
             }
             if let Some((to, f, body)) = &self.settings.opentrack
-                && *body == index
+                && Some(*body) == rig_index
             {
                 let c = feeds::in_frame(f, &position, &pose.rotation);
                 if tracing_sends {
@@ -601,12 +454,10 @@ impl VrFeedService {
                 .iter()
                 .map(|p| output::OutputMarker {
                     position_m: Point3::from(p.position_m),
-                    label: p.body.as_ref().and_then(|l| {
-                        self.names
-                            .iter()
-                            .position(|n| *n == l.name)
-                            .map(|i| (i, l.marker))
-                    }),
+                    label: p
+                        .body
+                        .as_ref()
+                        .and_then(|l| self.defs.bodies.index(&l.name).map(|i| (i, l.marker))),
                     object_id: p.object_id,
                 })
                 .collect();
@@ -653,7 +504,15 @@ impl VrFeedService {
                 let _ = write!(
                     t.line,
                     "{sep}[{:?},{},{:?},{:?},{:?},{:?},{:?},{:?},{:?}]",
-                    self.names[o.index], o.tracked, p.x, p.y, p.z, q.i, q.j, q.k, q.w
+                    self.defs.bodies.name(o.index),
+                    o.tracked,
+                    p.x,
+                    p.y,
+                    p.z,
+                    q.i,
+                    q.j,
+                    q.k,
+                    q.w
                 );
             }
             t.line.push_str("]}\n");
@@ -723,9 +582,10 @@ impl Service for VrFeedService {
     }
 
     fn step(&mut self, _shutdown: &Shutdown) -> Result<Flow, VrFeedError> {
+        self.apply_rig_changes();
         self.bind_vrpn();
         for l in &mut self.labs {
-            l.bind(&mut self.node.counters);
+            l.bind(&mut self.node.counters, &self.defs);
         }
         // Wake for a frame, or every 5 ms to serve VRPN clients.
         let wait = Duration::from_millis(5);

@@ -56,6 +56,10 @@ pub const MAX_PAYLOAD: usize = u16::MAX as usize;
 pub const MAX_UNICAST_CLIENTS: usize = 32;
 /// Marker diameter reported for every labelled marker, metres (the rig does not measure it).
 const MARKER_SIZE_M: f32 = 0.0;
+/// `FRAMEOFDATA` params bit: the tracked models changed; clients ask for the definitions again.
+pub const MODELS_CHANGED: u16 = 0x02;
+/// How long after a change of the bodies every frame carries [`MODELS_CHANGED`].
+pub const MODELS_CHANGED_FOR: std::time::Duration = std::time::Duration::from_secs(1);
 
 /// Settings of the NatNet server, resolved from the rig.
 #[derive(Debug, Clone, PartialEq)]
@@ -191,6 +195,7 @@ pub fn frame_of_data(
     bodies: &[BodyDef],
     frame: &ConsumerFrame,
     transmit_ns: u64,
+    models_changed: bool,
 ) -> Vec<u8> {
     let pos = |p: &Point3<f64>| frame.position(p);
     let mut p = Vec::with_capacity(256);
@@ -270,8 +275,9 @@ pub fn frame_of_data(
     let frac = (((f.exposure_ns % 1_000_000_000) << 32) / 1_000_000_000) as u32;
     p.extend_from_slice(&secs.to_le_bytes());
     p.extend_from_slice(&frac.to_le_bytes());
-    // Params (not recording, models unchanged): the last field OptiTrack's client reads.
-    put_u16(&mut p, 0);
+    // Params (not recording; bit 1 while the bodies changed lately, so clients ask for the
+    // model definitions again): the last field OptiTrack's client reads.
+    put_u16(&mut p, if models_changed { MODELS_CHANGED } else { 0 });
     p
 }
 
@@ -287,6 +293,8 @@ pub struct NatNetServer {
     command: UdpSocket,
     data: UdpSocket,
     bodies: Vec<BodyDef>,
+    /// Until when frames say the models changed (a second after the bodies last did).
+    models_changed_until: Option<std::time::Instant>,
     /// Unicast clients: where they sent from, and when last heard (poll count).
     clients: Vec<(SocketAddr, u64)>,
     heard: u64,
@@ -328,6 +336,7 @@ impl NatNetServer {
             command,
             data: data.into(),
             bodies,
+            models_changed_until: None,
             clients: Vec::new(),
             heard: 0,
             last_frame: None,
@@ -511,7 +520,10 @@ impl Output for NatNetServer {
 
     fn send(&mut self, f: &OutputFrame) {
         let transmit_ns = stereoscope_proto::messages::now_ns();
-        let payload = frame_of_data(f, &self.bodies, &self.cfg.frame, transmit_ns);
+        let changed = self
+            .models_changed_until
+            .is_some_and(|t| std::time::Instant::now() < t);
+        let payload = frame_of_data(f, &self.bodies, &self.cfg.frame, transmit_ns, changed);
         let Some(bytes) = packet(NAT_FRAMEOFDATA, &payload) else {
             self.counts.error(format!(
                 "NatNet: frame {} takes {} bytes, over a packet's {MAX_PAYLOAD}; not sent",
@@ -527,6 +539,14 @@ impl Output for NatNetServer {
 
     fn counts(&mut self) -> &mut Counts {
         &mut self.counts
+    }
+
+    /// In place: the definitions clients ask for are the new ones, and for a second every
+    /// frame's params say the models changed (a client may miss a datagram).
+    fn set_bodies(&mut self, bodies: &[BodyDef]) -> bool {
+        self.bodies = bodies.to_vec();
+        self.models_changed_until = Some(std::time::Instant::now() + MODELS_CHANGED_FOR);
+        true
     }
 
     fn clients(&self) -> Option<usize> {
@@ -581,7 +601,7 @@ mod tests {
             models: &[],
         };
         let frame = ConsumerFrame::y_up();
-        let p = frame_of_data(&f, &body(), &frame, 1_700_000_000_252_000_000);
+        let p = frame_of_data(&f, &body(), &frame, 1_700_000_000_252_000_000, false);
         let i32_at = |at: usize| i32::from_le_bytes(p[at..at + 4].try_into().unwrap());
         let f32_at = |at: usize| f32::from_le_bytes(p[at..at + 4].try_into().unwrap());
         assert_eq!(i32_at(0), 77);
@@ -625,6 +645,10 @@ mod tests {
         // A quarter second is 2³⁰ in 1/2³² s.
         assert_eq!(i32_at(at + 4), 1 << 30);
         assert_eq!(p.len(), at + 8 + 2);
+        assert_eq!(&p[at + 8..], &[0, 0]);
+        // After a change of the bodies, the params say so.
+        let changed = frame_of_data(&f, &body(), &frame, 1_700_000_000_252_000_000, true);
+        assert_eq!(&changed[at + 8..], &[MODELS_CHANGED as u8, 0]);
     }
 
     #[test]

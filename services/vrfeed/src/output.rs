@@ -94,4 +94,11 @@ pub trait Output {
     fn counts(&mut self) -> &mut Counts;
     /// Clients connected now, where the protocol knows them.
     fn clients(&self) -> Option<usize>;
+    /// The rig's bodies changed while running (`docs/bodies.md`): the feed's body table, in
+    /// which a body keeps its index for as long as the feed runs and new ones are appended.
+    /// True when the protocol took them in place; false when it must be opened again with them
+    /// (the feed then drops it and opens it anew).
+    fn set_bodies(&mut self, _bodies: &[BodyDef]) -> bool {
+        false
+    }
 }

@@ -397,6 +397,23 @@ impl Server {
         self.tcp.local_addr()
     }
 
+    /// The trackers after a change of the rig's bodies: `senders` begins with the ones the
+    /// server has (a sender's id never changes while it runs); the new ones are described to
+    /// every connected client, as a VRPN server does when it registers a sender.
+    pub fn set_senders(&mut self, senders: &[String]) {
+        let known = self.senders.len();
+        if senders.len() <= known || senders[..known] != self.senders[..] {
+            return;
+        }
+        let now = Stamp::from_ns(stereoscope_proto::messages::now_ns());
+        for (i, name) in senders.iter().enumerate().skip(known) {
+            for c in &mut self.clients {
+                c.queue(i as i32, SENDER_DESCRIPTION, now, &name_payload(name));
+            }
+        }
+        self.senders = senders.to_vec();
+    }
+
     pub fn clients(&self) -> usize {
         self.clients.iter().filter(|c| c.cookie_ok).count()
     }

@@ -17,6 +17,7 @@ pub mod security;
 pub mod settings;
 pub mod truth;
 pub mod vr;
+pub mod watch;
 
 use std::path::{Path, PathBuf};
 

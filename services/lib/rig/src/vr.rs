@@ -292,12 +292,6 @@ pub fn settings(file: &RigFile) -> Result<Option<VrSettings>, RigError> {
                 )
             })
     };
-    if file.bodies.is_empty() && file.models.is_empty() {
-        return Err(err(
-            "vr",
-            "the VR feed sends bodies and kinematic models, and the rig defines no [[body]] or [[model]]",
-        ));
-    }
     let vrpn = match &vr.vrpn {
         None => None,
         Some(s) => Some((

@@ -648,6 +648,14 @@ impl Output for QualisysServer {
     fn clients(&self) -> Option<usize> {
         Some(self.clients.len())
     }
+
+    /// In place: `GetParameters 6D` and 3D's labels answer with the new bodies, and 6D data
+    /// carries one entry per body of the table from the next frame (a body no longer in the rig
+    /// keeps its place, untracked). QTM has no event for it; clients read the parameters again.
+    fn set_bodies(&mut self, bodies: &[BodyDef]) -> bool {
+        self.bodies = bodies.to_vec();
+        true
+    }
 }
 
 impl QualisysServer {

@@ -1,12 +1,12 @@
 //! Bodies and models changed on a running rig (`docs/bodies.md`, "Changing bodies while the
-//! rig runs"): fusion looks at its rig file once a second; when it changed, the whole file is
-//! loaded and checked as at start, and only then are its `[[body]]` and `[[model]]` tables
-//! applied — a file that does not load changes nothing and its error is reported. Other
-//! sections changed are reported as needing a restart; they are not applied.
+//! rig runs"): a service (fusion, the VR feed) looks at its rig file once a second; when it
+//! changed, the whole file is loaded and checked as at start, and only then are its `[[body]]`
+//! and `[[model]]` tables applied — a file that does not load changes nothing and its error is
+//! reported. Other sections changed are reported as needing a restart; they are not applied.
 
+use crate::Rig;
 use std::path::PathBuf;
 use std::time::{Duration, Instant, SystemTime};
-use stereoscope_rig::Rig;
 
 /// How often the rig file is looked at.
 pub const LOOK_EVERY: Duration = Duration::from_secs(1);
@@ -21,7 +21,7 @@ pub enum Change {
     Refused(String),
 }
 
-/// The rig file fusion runs from, and the state it was last seen in.
+/// The rig file a service runs from, and the state it was last seen in.
 #[derive(Debug)]
 pub struct RigWatch {
     path: PathBuf,
@@ -87,7 +87,7 @@ impl RigWatch {
 mod tests {
     use super::*;
 
-    const RIG: &str = include_str!("../../../deploy/rigs/demo.toml");
+    const RIG: &str = include_str!("../../../../deploy/rigs/demo.toml");
 
     /// A body's change is applied, a file that does not load is refused with its error and
     /// changes nothing, a change elsewhere is told apart, and an unchanged rewrite is no
