@@ -44,7 +44,20 @@ pub fn router_specs(ctx: &Context) -> Result<Option<(ZenohSpec, ZenohSpec)>, Rig
         .iter()
         .find(|h| h.name == ctx.host)
         .and_then(security::service_endpoint);
-    Ok(local.map(|l| (router, ZenohSpec::client_of(&l))))
+    // With local_auth the services show the host's certificate, as the router does.
+    let local_auth = ctx
+        .rig
+        .spec
+        .hosts
+        .iter()
+        .any(|h| h.name == ctx.host && h.local_auth);
+    Ok(local.map(|l| {
+        let mut client = ZenohSpec::client_of(&l);
+        if local_auth {
+            client.tls = router.tls.clone();
+        }
+        (router, client)
+    }))
 }
 
 /// Runs only this host's Zenoh router (`stereoscope service router`) until shutdown: for a

@@ -499,6 +499,7 @@ pub fn frames_rig(
         iceoryx2_prefix: Some(iox_prefix.to_string()),
         tls: None,
         local_listen: None,
+        local_auth: false,
     }];
     Ok(file.to_toml()?)
 }

@@ -223,27 +223,17 @@ pub fn status(
     tls: stereoscope_service::context::TlsArgs,
 ) -> anyhow::Result<usize> {
     use stereoscope_status::{Monitor, StatusConfig, to_json, to_text};
-    use stereoscope_transport::net::ZenohSpec;
-    let (name, endpoint) = match &rig {
-        Some(p) => {
-            let rig = stereoscope_rig::Rig::load(p)?;
-            let ep = rig
-                .spec
-                .hosts
-                .first()
-                .and_then(stereoscope_rig::security::service_endpoint);
-            (rig.name, ep)
-        }
-        None => (
-            rig_name.ok_or_else(|| anyhow::anyhow!("give a rig file or --rig-name"))?,
-            None,
-        ),
+    let loaded = rig
+        .as_ref()
+        .map(|p| stereoscope_rig::Rig::load(p))
+        .transpose()?;
+    let name = match (&loaded, rig_name) {
+        (Some(r), _) => r.name.clone(),
+        (None, Some(n)) => n,
+        (None, None) => anyhow::bail!("give a rig file or --rig-name"),
     };
-    let endpoint = connect
-        .or(endpoint)
-        .unwrap_or_else(|| "tcp/127.0.0.1:7447".to_string());
-    let mut zenoh = ZenohSpec::client_of(&endpoint);
-    zenoh.tls = tls.files();
+    let zenoh = crate::mask::tool_zenoh(loaded.as_ref(), connect, &tls)?;
+    let endpoint = zenoh.connect.join(", ");
     let shutdown = Shutdown::on_signals()?;
     let monitor = Monitor::connect(StatusConfig {
         rig: name,

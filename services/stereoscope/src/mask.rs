@@ -33,22 +33,35 @@ pub struct MaskOptions {
     pub tls: stereoscope_service::context::TlsArgs,
 }
 
-/// A client session to the rig's router (or `connect`), and the endpoint asked.
+/// How a tool reaches a rig's router: `connect` if given, else the rig's first host's
+/// endpoint for its services (with the host's certificate when it says `local_auth`), else
+/// `tcp/127.0.0.1:7447`; certificates given on the command line are used over the rig's.
+pub fn tool_zenoh(
+    rig: Option<&Rig>,
+    connect: Option<String>,
+    tls: &stereoscope_service::context::TlsArgs,
+) -> anyhow::Result<ZenohSpec> {
+    let host = rig.and_then(|r| r.spec.hosts.first().map(|h| (r, h)));
+    let mut zenoh = match (connect, host) {
+        (Some(endpoint), _) => ZenohSpec::client_of(&endpoint),
+        (None, Some((r, h))) => stereoscope_service::context::default_zenoh(r, Some(h))?,
+        (None, None) => ZenohSpec::client_of("tcp/127.0.0.1:7447"),
+    };
+    if let Some(t) = tls.files() {
+        zenoh.tls = Some(t);
+    }
+    Ok(zenoh)
+}
+
+/// A client session to the rig's router (or `connect`, [`tool_zenoh`]), and the endpoint
+/// asked.
 pub fn client_session(
     rig: &Rig,
     connect: Option<String>,
     tls: &stereoscope_service::context::TlsArgs,
 ) -> anyhow::Result<(zenoh::Session, String)> {
-    let endpoint = connect
-        .or_else(|| {
-            rig.spec
-                .hosts
-                .first()
-                .and_then(stereoscope_rig::security::service_endpoint)
-        })
-        .unwrap_or_else(|| "tcp/127.0.0.1:7447".to_string());
-    let mut zenoh = ZenohSpec::client_of(&endpoint);
-    zenoh.tls = tls.files();
+    let zenoh = tool_zenoh(Some(rig), connect, tls)?;
+    let endpoint = zenoh.connect.join(", ");
     let session =
         net::open_client(&zenoh).with_context(|| format!("asking the router at {endpoint}"))?;
     Ok((session, endpoint))

@@ -16,6 +16,15 @@ use stereoscope_proto::names::zenoh as keys;
 /// Where a PC's own services reach its router when its first listen endpoint is TLS and the
 /// host names no `local_listen`.
 pub const DEFAULT_LOCAL_LISTEN: &str = "tcp/127.0.0.1:7446";
+/// Where a PC's own services reach its router when it says `local_auth = true`.
+pub const DEFAULT_LOCAL_TLS_LISTEN: &str = "tls/127.0.0.1:7446";
+
+/// Whether `endpoint` is `tls/` on a loopback address.
+fn loopback_tls(endpoint: &str) -> bool {
+    endpoint
+        .strip_prefix("tls/")
+        .is_some_and(|rest| reach(&format!("tcp/{rest}")) == Ok(Reach::Loopback))
+}
 
 /// What a Zenoh endpoint exposes.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -109,13 +118,32 @@ pub(crate) fn check_hosts(file: &RigFile) -> Result<(), RigError> {
                 Reach::Network => {}
             }
         }
-        if let Some(l) = &h.local_listen
-            && reach(l) != Ok(Reach::Loopback)
-        {
+        if h.local_auth && h.tls.is_none() {
             return Err(err(
-                format!("host[{i}].local_listen"),
-                format!("{l:?} must be a tcp/ endpoint on 127.0.0.1 (this PC's services only)"),
+                format!("host[{i}].local_auth"),
+                format!(
+                    "host {:?} has no tls = {{ ca, cert, key }}: with local_auth its own services \
+                     show its certificate to its router",
+                    h.name
+                ),
             ));
+        }
+        if let Some(l) = &h.local_listen {
+            if h.local_auth && !loopback_tls(l) {
+                return Err(err(
+                    format!("host[{i}].local_listen"),
+                    format!(
+                        "{l:?} must be a tls/ endpoint on 127.0.0.1 (local_auth: this PC's \
+                         services show its certificate)"
+                    ),
+                ));
+            }
+            if !h.local_auth && reach(l) != Ok(Reach::Loopback) {
+                return Err(err(
+                    format!("host[{i}].local_listen"),
+                    format!("{l:?} must be a tcp/ endpoint on 127.0.0.1 (this PC's services only)"),
+                ));
+            }
         }
         if let Some(t) = &h.tls {
             for (name, path) in [("ca", &t.ca), ("cert", &t.cert), ("key", &t.key)] {
@@ -141,6 +169,9 @@ pub fn service_endpoint(h: &HostSpec) -> Option<String> {
     if let Some(l) = &h.local_listen {
         return Some(l.clone());
     }
+    if h.local_auth {
+        return Some(DEFAULT_LOCAL_TLS_LISTEN.to_string());
+    }
     let first = h.zenoh_listen.first()?;
     Some(match reach(first) {
         Ok(Reach::Tls) => DEFAULT_LOCAL_LISTEN.to_string(),
@@ -160,18 +191,22 @@ fn runs_on<'a>(file: &'a RigFile, host: &'a Option<String>) -> Option<&'a str> {
 /// The keys host `name`'s services publish on: its health and liveliness, its launcher's
 /// requests that another PC's service renew a token its router lost (any service's: a host
 /// certificate's holder can make tokens flap, no faster than `RENEW_AT_MOST_EVERY`), its
-/// cameras' observations (and the renderer's truth), the poses if fusion runs there.
+/// cameras' observations, previews (and the renderer's truth), the poses, bodies and models if
+/// fusion runs there, and the live wand calibration's coverage (`calibrate wand --live` runs on
+/// any PC).
 pub fn published_by(file: &RigFile, name: &str) -> Vec<String> {
     let rig = &file.name;
     let mut out = vec![
         keys::health(rig, name, "**"),
         keys::alive(rig, name, "**"),
         keys::all_renew(rig),
+        keys::wand_coverage(rig),
     ];
     for c in &file.cameras {
         if runs_on(file, &c.host) == Some(name) {
             out.push(keys::observations(rig, &c.id));
             out.push(keys::truth(rig, &c.id));
+            out.push(keys::preview(rig, &c.id));
         }
     }
     if let Some(f) = &file.fusion
@@ -179,18 +214,21 @@ pub fn published_by(file: &RigFile, name: &str) -> Vec<String> {
     {
         out.push(keys::poses(rig));
         out.push(keys::all_poses(rig));
+        out.push(keys::all_bodies(rig));
+        out.push(keys::all_models(rig));
     }
     out
 }
 
-/// The Zenoh `access_control` document every router of the rig enforces (denied unless a rule
+/// The Zenoh `access_control` document host `here`'s router enforces (denied unless a rule
 /// allows it):
-/// - its own PC (the loopback interface): everything;
+/// - its own PC (the loopback interface): everything — unless the host says `local_auth`,
+///   when its own services are held to its certificate's rights below like any other PC's;
 /// - any peer with a certificate of the rig's authority (a `tls` link): subscribe and ask on
 ///   the rig's keys, and receive what is published there;
 /// - a host's certificate (common name = host name): publish what its services publish
 ///   ([`published_by`]), nothing else.
-pub fn access_control(file: &RigFile) -> Value {
+pub fn access_control(file: &RigFile, here: &HostSpec) -> Value {
     let everything = [
         "put",
         "delete",
@@ -204,8 +242,6 @@ pub fn access_control(file: &RigFile) -> Value {
     ];
     let rig_keys = format!("stereoscope/{}/**", file.name);
     let mut rules = vec![
-        json!({"id": "this-pc", "key_exprs": ["**"], "messages": everything,
-               "flows": ["ingress", "egress"], "permission": "allow"}),
         json!({"id": "read", "key_exprs": [rig_keys],
                "messages": ["declare_subscriber", "declare_liveliness_subscriber",
                             "liveliness_query", "query", "reply"],
@@ -214,14 +250,18 @@ pub fn access_control(file: &RigFile) -> Value {
                "messages": ["put", "delete", "liveliness_token"],
                "flows": ["egress"], "permission": "allow"}),
     ];
-    let mut subjects = vec![
-        json!({"id": "this-pc", "interfaces": ["lo"]}),
-        json!({"id": "rig-certificate", "link_protocols": ["tls"]}),
-    ];
+    let mut subjects = vec![json!({"id": "rig-certificate", "link_protocols": ["tls"]})];
     let mut policies = vec![
-        json!({"id": "this-pc", "rules": ["this-pc"], "subjects": ["this-pc"]}),
         json!({"id": "readers", "rules": ["read", "receive"], "subjects": ["rig-certificate"]}),
     ];
+    if !here.local_auth {
+        rules.push(
+            json!({"id": "this-pc", "key_exprs": ["**"], "messages": everything,
+                          "flows": ["ingress", "egress"], "permission": "allow"}),
+        );
+        subjects.push(json!({"id": "this-pc", "interfaces": ["lo"]}));
+        policies.push(json!({"id": "this-pc", "rules": ["this-pc"], "subjects": ["this-pc"]}));
+    }
     for h in &file.hosts {
         let id = format!("host-{}", h.name);
         rules.push(json!({"id": id, "key_exprs": published_by(file, &h.name),
@@ -328,15 +368,80 @@ mod tests {
         assert!(cap.contains(&format!("stereoscope/{n}/observations/cam0")));
         assert!(!cap.iter().any(|k| k.contains("pose")), "{cap:?}");
         assert!(cap.contains(&format!("stereoscope/{n}/renew/**")));
+        assert!(cap.contains(&format!("stereoscope/{n}/preview/cam1")));
         let fus = published_by(&r.spec, "fus");
         assert!(fus.contains(&format!("stereoscope/{n}/poses")));
+        assert!(fus.contains(&format!("stereoscope/{n}/bodies/*")));
+        assert!(fus.contains(&format!("stereoscope/{n}/models/*")));
         assert!(!fus.iter().any(|k| k.contains("observations")), "{fus:?}");
-        let acl = access_control(&r.spec);
+        let acl = access_control(&r.spec, &r.spec.hosts[0]);
         assert_eq!(acl["default_permission"], "deny");
-        assert_eq!(acl["subjects"][2]["cert_common_names"][0], "cap");
+        let cap_subject = acl["subjects"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|x| x["id"] == "host-cap")
+            .unwrap();
+        assert_eq!(cap_subject["cert_common_names"][0], "cap");
+        // Loopback trusted: the interface's policy is there.
+        let policy = |acl: &Value, id: &str| {
+            acl["policies"]
+                .as_array()
+                .unwrap()
+                .iter()
+                .any(|p| p["id"] == id)
+        };
+        assert!(policy(&acl, "this-pc") && policy(&acl, "host-cap"));
         // The document is what Zenoh accepts.
         let mut cfg = zenoh::Config::default();
         cfg.insert_json5("access_control", &acl.to_string())
             .unwrap();
+        // With local_auth the PC's own services have only the host certificate's rights.
+        let mut here = r.spec.hosts[0].clone();
+        here.local_auth = true;
+        let strict = access_control(&r.spec, &here);
+        assert!(!policy(&strict, "this-pc") && policy(&strict, "host-cap"));
+        assert!(!strict.to_string().contains("\"lo\""), "{strict}");
+        let mut cfg = zenoh::Config::default();
+        cfg.insert_json5("access_control", &strict.to_string())
+            .unwrap();
+    }
+
+    /// `local_auth`: the host's certificate is needed, the services' endpoint is TLS on
+    /// loopback, and a plain or remote one is refused by name.
+    #[test]
+    fn loopback_authentication_needs_a_certificate_and_a_loopback_tls_endpoint() {
+        let tls = "tls = { ca = \"ca.pem\", cert = \"pc1.pem\", key = \"pc1.key\" }\n";
+        let host =
+            "[[host]]\nname = \"pc1\"\nzenoh_listen = [\"tls/10.0.0.1:7447\"]\nlocal_auth = true\n";
+        let e = rig(
+            "",
+            &host.replace("zenoh_listen = [\"tls/10.0.0.1:7447\"]\n", ""),
+        )
+        .unwrap_err();
+        assert_eq!(e.key, "host[0].local_auth");
+        assert!(e.message.contains("tls = { ca, cert, key }"), "{e}");
+        let r = rig("", &format!("{host}{tls}")).unwrap();
+        assert_eq!(
+            service_endpoint(&r.spec.hosts[0]).as_deref(),
+            Some(DEFAULT_LOCAL_TLS_LISTEN)
+        );
+        for (bad, why) in [
+            ("tcp/127.0.0.1:7446", "tls/"),
+            ("tls/10.0.0.1:7446", "127.0.0.1"),
+        ] {
+            let e = rig("", &format!("{host}{tls}local_listen = \"{bad}\"\n")).unwrap_err();
+            assert_eq!(e.key, "host[0].local_listen");
+            assert!(e.message.contains(bad) && e.message.contains(why), "{e}");
+        }
+        let r = rig(
+            "",
+            &format!("{host}{tls}local_listen = \"tls/127.0.0.1:9000\"\n"),
+        )
+        .unwrap();
+        assert_eq!(
+            service_endpoint(&r.spec.hosts[0]).as_deref(),
+            Some("tls/127.0.0.1:9000")
+        );
     }
 }

@@ -139,7 +139,7 @@ impl CommonArgs {
                 tls: self.tls.files(),
                 access_control: None,
             },
-            None => default_zenoh(host_spec.as_ref()),
+            None => default_zenoh(&rig, host_spec.as_ref())?,
         };
         Ok(Context {
             rig_path: self.rig.clone(),
@@ -152,12 +152,22 @@ impl CommonArgs {
 }
 
 /// A client of the host's router (its first listen endpoint, seen from this PC), or a lone
-/// peer when the rig says nothing.
-pub fn default_zenoh(host: Option<&HostSpec>) -> ZenohSpec {
-    match host.and_then(stereoscope_rig::security::service_endpoint) {
-        Some(e) => ZenohSpec::client_of(&e),
-        None => ZenohSpec::lone_peer(),
+/// peer when the rig says nothing. With `local_auth` the client shows the host's certificate.
+pub fn default_zenoh(rig: &Rig, host: Option<&HostSpec>) -> Result<ZenohSpec, RigError> {
+    let Some(e) = host.and_then(stereoscope_rig::security::service_endpoint) else {
+        return Ok(ZenohSpec::lone_peer());
+    };
+    let mut spec = ZenohSpec::client_of(&e);
+    if let Some(h) = host.filter(|h| h.local_auth) {
+        let index = rig
+            .spec
+            .hosts
+            .iter()
+            .position(|x| x.name == h.name)
+            .unwrap_or(0);
+        spec.tls = crate::router::tls_files(h, index, rig.base_dir.as_deref())?;
     }
+    Ok(spec)
 }
 
 impl Context {
@@ -228,7 +238,7 @@ mod tests {
         );
         let rig = Rig::from_toml(&with_host).unwrap();
         assert_eq!(
-            default_zenoh(rig.spec.hosts.first()).connect,
+            default_zenoh(&rig, rig.spec.hosts.first()).unwrap().connect,
             vec!["tcp/127.0.0.1:7447".to_string()]
         );
         let bad = format!("{RIG}\n[fusion]\nhost = \"pc9\"\n");

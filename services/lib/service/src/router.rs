@@ -47,14 +47,15 @@ pub fn router_spec(
         return Ok(None);
     };
     let mut listen = h.zenoh_listen.clone();
+    // A TLS listener serves this PC's services only when they show the host's certificate.
     let served = listen
         .iter()
-        .any(|e| local_endpoint(e) == local && reach(e) != Ok(Reach::Tls));
+        .any(|e| local_endpoint(e) == local && (h.local_auth || reach(e) != Ok(Reach::Tls)));
     if !served {
         listen.push(local);
     }
     let tls = tls_files(h, index, base)?;
-    let access_control = tls.as_ref().map(|_| access_control(file).to_string());
+    let access_control = tls.as_ref().map(|_| access_control(file, h).to_string());
     Ok(Some(ZenohSpec {
         mode: ZenohMode::Router,
         connect: h.zenoh_connect.clone(),

@@ -325,9 +325,16 @@ pub struct HostSpec {
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub tls: Option<TlsSpec>,
     /// The loopback endpoint this PC's own services reach its router on (default: the first
-    /// listen endpoint as seen from this PC when it is plain TCP, else `tcp/127.0.0.1:7446`).
+    /// listen endpoint as seen from this PC when it is plain TCP, else `tcp/127.0.0.1:7446`;
+    /// with `local_auth`, `tls/127.0.0.1:7446`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub local_listen: Option<String>,
+    /// Loopback is not trusted: this PC's own services (and its tools: `status`, the viewer)
+    /// reach its router over mutual TLS with the host's certificate and are held to what the
+    /// host may publish, as the other PCs are (`docs/deploy.md`, "Security"). Needs `tls`,
+    /// whose certificate must name 127.0.0.1. Off by default.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub local_auth: bool,
 }
 
 /// PEM files (paths relative to the rig file) of one PC's mutual-TLS identity: the rig's
