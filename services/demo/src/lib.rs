@@ -181,14 +181,16 @@ impl DemoSummary {
                     })
                     .collect();
                 format!(
-                    "{{\"name\":{},\"frames\":{},\"valid\":{},\"whole\":{},\"joints\":[{}],\"tool_rms_m\":{},\"hidden\":{}}}",
+                    "{{\"name\":{},\"frames\":{},\"valid\":{},\"whole\":{},\"joints\":[{}],\"tool_rms_m\":{},\"hidden\":{},\"ids_passed\":{},\"ids_per_marker\":{}}}",
                     serde_json::to_string(&m.name).unwrap_or_default(),
                     m.frames,
                     m.valid,
                     m.whole,
                     joints.join(","),
                     json_number(m.tool_rms_m, 6),
-                    m.hidden.as_ref().map_or("null".to_string(), |h| h.json())
+                    m.hidden.as_ref().map_or("null".to_string(), |h| h.json()),
+                    m.ids_passed,
+                    json_number(m.ids_per_marker, 2)
                 )
             })
             .collect();

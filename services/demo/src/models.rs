@@ -2,7 +2,7 @@
 //! against the joint truth of the synthetic scene, and its last link (the tool) in the world;
 //! the frames in which the scene hid a link's markers scored apart.
 
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, BTreeSet};
 use stereoscope_proto::messages::{PoseFrame, Truth};
 
 /// Error statistics of one kinematic model: its joints against the scene's truth (degrees;
@@ -22,7 +22,15 @@ pub struct ModelStats {
     pub tool_rms_m: f64,
     /// The frames a link's markers were hidden in (the scene's `hide`), scored apart.
     pub hidden: Option<HiddenStats>,
+    /// Fusion's object ids against the model's true markers (a point within [`ID_MATCH_M`] of
+    /// one): ids seen on two or more different markers (an id passed from marker to marker),
+    /// and the mean number of ids a marker was seen under (1: never renumbered).
+    pub ids_passed: usize,
+    pub ids_per_marker: f64,
 }
+
+/// A point this close to a model's true marker is that marker, for the id scoring.
+pub const ID_MATCH_M: f64 = 0.005;
 
 /// How a model did while one link's markers were all hidden: each joint's worst error in the
 /// frames it was published as determined, how often it was flagged instead, and how many
@@ -59,6 +67,8 @@ pub(crate) struct ModelAcc {
     joint_n: Vec<u64>,
     tool_sq: f64,
     hidden: Option<HiddenStats>,
+    /// Per object id, the true markers (indices) it was seen on.
+    id_markers: BTreeMap<u32, BTreeSet<usize>>,
 }
 
 /// A joint's error against the truth: degrees (millimetres for a slide); `None` where the
@@ -137,6 +147,12 @@ pub(crate) fn score_models(
     for m in &mt.motions {
         let model = &m.model;
         let a = acc.entry(model.name.clone()).or_default();
+        note_ids(
+            a,
+            m,
+            p.poses.iter().map(|q| (q.object_id, q.position_m)),
+            t_s,
+        );
         if let Some(link) = m.hidden_at(t_s) {
             let truth = model.swing_values(&m.swings, t_s);
             let fit = p.models.iter().find(|f| f.name == model.name);
@@ -172,6 +188,38 @@ pub(crate) fn score_models(
                 .map(|i| (last.position_m[i] - tool.translation.vector[i]).powi(2))
                 .sum();
             a.tool_sq += d;
+        }
+    }
+}
+
+/// Notes which true marker each of a frame's points (object id, world position) is: the
+/// nearest within [`ID_MATCH_M`].
+fn note_ids(
+    a: &mut ModelAcc,
+    m: &stereoscope_rig::models::ModelMotion,
+    points: impl Iterator<Item = (u32, [f64; 3])>,
+    t_s: f64,
+) {
+    let model = &m.model;
+    let truth = model.swing_values(&m.swings, t_s);
+    let mut poses = Vec::new();
+    model.forward(&m.world_from_root, &truth, &mut poses);
+    let markers: Vec<nalgebra::Point3<f64>> = model
+        .markers
+        .iter()
+        .filter_map(|k| poses.get(k.link).map(|pose| pose * k.in_link_m))
+        .collect();
+    for (id, position_m) in points {
+        let at = nalgebra::Point3::from(position_m);
+        let nearest = markers
+            .iter()
+            .enumerate()
+            .map(|(i, k)| (i, (k - at).norm()))
+            .min_by(|x, y| x.1.total_cmp(&y.1));
+        if let Some((i, d)) = nearest
+            && d < ID_MATCH_M
+        {
+            a.id_markers.entry(id).or_default().insert(i);
         }
     }
 }
@@ -267,7 +315,95 @@ pub(crate) fn stats(truth: &ModelTruth, acc: BTreeMap<String, ModelAcc>) -> Vec<
                 frames: a.frames,
                 valid: a.valid,
                 hidden: a.hidden,
+                ids_passed: a.id_markers.values().filter(|s| s.len() > 1).count(),
+                ids_per_marker: {
+                    let mut per: BTreeMap<usize, usize> = BTreeMap::new();
+                    for s in a.id_markers.values() {
+                        for &k in s {
+                            *per.entry(k).or_default() += 1;
+                        }
+                    }
+                    if per.is_empty() {
+                        f64::NAN
+                    } else {
+                        per.values().sum::<usize>() as f64 / per.len() as f64
+                    }
+                },
             }
         })
         .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The leg's true markers as points: ids kept score no pass and one id per marker; two ids
+    /// traded between markers score two passes, a marker seen under a second id one more id.
+    #[test]
+    fn ids_passed_between_markers_are_counted() {
+        let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../../deploy/rigs/leg.toml");
+        let rig = stereoscope_rig::Rig::load(std::path::Path::new(path)).unwrap();
+        let motions = stereoscope_rig::models::model_motions(&rig.spec, &rig.models);
+        let m = &motions[0];
+        let at = |t_s: f64| -> Vec<[f64; 3]> {
+            let truth = m.model.swing_values(&m.swings, t_s);
+            let mut poses = Vec::new();
+            m.model.forward(&m.world_from_root, &truth, &mut poses);
+            m.model
+                .markers
+                .iter()
+                .map(|k| (poses[k.link] * k.in_link_m).coords.into())
+                .collect()
+        };
+        let mut a = ModelAcc::default();
+        let n = m.model.markers.len();
+        for f in 0..10 {
+            let t = f as f64 / 30.0;
+            note_ids(
+                &mut a,
+                m,
+                at(t)
+                    .into_iter()
+                    .enumerate()
+                    .map(|(i, p)| (i as u32 + 1, p)),
+                t,
+            );
+        }
+        let score = |a: &ModelAcc| {
+            let s = stats(
+                &ModelTruth {
+                    motions: motions.clone(),
+                    fps: 30.0,
+                    loop_frames: None,
+                },
+                BTreeMap::from([(
+                    "leg".to_string(),
+                    ModelAcc {
+                        id_markers: a.id_markers.clone(),
+                        ..ModelAcc::default()
+                    },
+                )]),
+            );
+            (s[0].ids_passed, s[0].ids_per_marker)
+        };
+        assert_eq!(score(&a), (0, 1.0));
+        // Ids 1 and 2 traded; marker 3 under a new id.
+        let mut p = at(0.5);
+        p.swap(0, 1);
+        let points = p.into_iter().enumerate().map(|(i, q)| {
+            let id = if i == 2 { 99 } else { i as u32 + 1 };
+            (id, q)
+        });
+        note_ids(&mut a, m, points, 0.5);
+        let (passed, per_marker) = score(&a);
+        assert_eq!(passed, 2);
+        assert!(
+            (per_marker - (n as f64 + 3.0) / n as f64).abs() < 1e-9,
+            "{per_marker}"
+        );
+        // A point off every marker is no one's.
+        note_ids(&mut a, m, std::iter::once((7, [9.0, 9.0, 9.0])), 0.5);
+        assert_eq!(score(&a).0, 2);
+    }
 }

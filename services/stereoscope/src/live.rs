@@ -113,13 +113,15 @@ pub fn summary_text(s: &DemoSummary) -> String {
             .filter_map(|(n, r)| r.map(|r| format!("{n} {r:.3}")))
             .collect();
         out.push_str(&format!(
-            "  model {}: {} of {} frames valid, {} with every joint determined; joint RMS (degrees; mm for a slide): {}; tool RMS {:.2} mm\n",
+            "  model {}: {} of {} frames valid, {} with every joint determined; joint RMS (degrees; mm for a slide): {}; tool RMS {:.2} mm; object ids passed between its markers {}, ids per marker {:.2}\n",
             m.name,
             m.valid,
             m.frames,
             m.whole,
             joints.join(", "),
-            m.tool_rms_m * 1000.0
+            m.tool_rms_m * 1000.0,
+            m.ids_passed,
+            m.ids_per_marker
         ));
         if let Some(h) = &m.hidden {
             out.push_str(&format!("  model {}: {}\n", m.name, h.line()));
