@@ -10,6 +10,10 @@ usage:
       nearest true target at the nearest truth time (null without truth)}; one line
       {"forged": KEY} for any sample that is a forged one (a JSON object with the key FORGED);
       at the end {"done": frames}.
+  zenoh_tls.py poses ENDPOINT RIG SECONDS CA CERT KEY
+      Subscribes to the rig's pose frames only (a light reader for long runs). Prints one JSON
+      line per pose frame: {"t": wall-clock seconds at receipt, "sequence", "cameras",
+      "objects", "exposure_ns": the frame's timestamp_ns}; at the end {"done": frames}.
   zenoh_tls.py forge ENDPOINT RIG CA CERT KEY SECONDS SUFFIX...
       Publishes {"FORGED": true} on each key stereoscope/RIG/SUFFIX and declares the
       liveliness token stereoscope/RIG/alive/fusion/FORGED, for SECONDS. Prints
@@ -106,6 +110,25 @@ def watch(endpoint, rig, seconds, ca, cert, key):
     session.close()
 
 
+def poses(endpoint, rig, seconds, ca, cert, key):
+    session = zenoh.open(config(endpoint, ca, cert, key))
+    frames = session.declare_subscriber(f"stereoscope/{rig}/poses")
+    got = 0
+    end = time.monotonic() + seconds
+    while time.monotonic() < end:
+        s = frames.try_recv()
+        if s is None:
+            time.sleep(0.001)
+            continue
+        m = json.loads(s.payload.to_bytes())
+        got += 1
+        print(json.dumps({"t": time.time(), "sequence": m["sequence"], "cameras": m["cameras"],
+                          "objects": len(m["poses"]), "exposure_ns": m["timestamp_ns"]}),
+              flush=True)
+    print(json.dumps({"done": got}), flush=True)
+    session.close()
+
+
 def alive(endpoint, rig, ca, cert, key):
     session = zenoh.open(config(endpoint, ca, cert, key))
     tokens = sorted(str(r.ok.key_expr) for r in
@@ -156,6 +179,8 @@ def main():
     a = sys.argv[1:]
     if a[0] == "watch":
         watch(a[1], a[2], float(a[3]), a[4], a[5], a[6])
+    elif a[0] == "poses":
+        poses(a[1], a[2], float(a[3]), a[4], a[5], a[6])
     elif a[0] == "forge":
         forge(a[1], a[2], a[3], a[4], a[5], float(a[6]), a[7:])
     elif a[0] == "alive":

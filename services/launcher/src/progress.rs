@@ -11,6 +11,11 @@
 //! its consumer the whole bound to take it up.
 //! What feeds what:
 //! `capture/<cam>` → `moments/<cam>` → `fusion` (any worker of the rig) → `vrfeed` (fusion).
+//! And a PC's `router` carries its workers' observations to fusion on another PC: when fusion
+//! reports (`cameras_live`) that it hears none of a camera whose worker here flows, the link
+//! is cut inside the routers (seen once in four soaks after the fusion PC's router was
+//! restarted: Zenoh's "Network graph doesn't contain destination node", the link up and
+//! nothing routed), and this PC's router is restarted.
 //! A serial output is left out (it handles nothing while its cable is out, which a restart
 //! does not mend: its `port` detail says so), and so are the recorder and the viewer (they
 //! count what their own clients ask for).
@@ -66,6 +71,11 @@ struct Seen {
 #[derive(Debug, Default)]
 pub struct Progress {
     seen: HashMap<(String, String), Seen>,
+    /// Fusion's last report: its host, when it came, and when its current run of reports
+    /// (none missing for longer than [`FLOWING`]) began.
+    fusion: Option<(String, Instant, Instant)>,
+    /// When fusion last said it heard each camera.
+    heard: HashMap<String, Instant>,
 }
 
 impl Progress {
@@ -101,6 +111,44 @@ impl Progress {
             s.progressed = Some(at);
         }
         s.processed = processed;
+    }
+
+    /// Takes fusion's `cameras_live` (comma-separated camera ids) from its report at `at`.
+    pub fn fusion_hears(&mut self, host: &str, cameras_live: &str, at: Instant) {
+        let since = match &self.fusion {
+            Some((_, last, since)) if at.saturating_duration_since(*last) < FLOWING => *since,
+            _ => at,
+        };
+        self.fusion = Some((host.to_string(), at, since));
+        for cam in cameras_live.split(',').filter(|c| !c.is_empty()) {
+            self.heard.insert(cam.to_string(), at);
+        }
+    }
+
+    /// A camera of `host` whose worker there flows (for longer than `bound`) while fusion, on
+    /// another host and reporting here without a break for longer than `bound`, has not heard
+    /// it for `bound` (counted from no earlier than `since`, the router's start). Names it. (A
+    /// link back after a cut brings fusion's reports first: the run of reports must be as old
+    /// as the bound, or the report made while the cable was out would condemn the router.)
+    fn cut_off(&self, host: &str, since: Instant, now: Instant, bound: Duration) -> Option<String> {
+        let (fusion_host, at, reporting_since) = self.fusion.as_ref()?;
+        if fusion_host == host
+            || now.saturating_duration_since(*at) >= FLOWING
+            || now.saturating_duration_since(*reporting_since) <= bound
+        {
+            return None;
+        }
+        self.seen.iter().find_map(|((h, name), s)| {
+            let cam = name.strip_prefix("moments/").filter(|_| h == host)?;
+            let flows = s
+                .progressed
+                .is_some_and(|t| now.duration_since(t) < FLOWING)
+                && s.flowing_since
+                    .is_some_and(|t| now.saturating_duration_since(t) > bound);
+            let heard = self.heard.get(cam).map_or(since, |t| (*t).max(since));
+            (flows && now.saturating_duration_since(heard) > bound)
+                .then(|| format!("{name} on {host} (fusion on {fusion_host} has not heard {cam})"))
+        })
     }
 
     /// Some service on `host` (any host: `None`) matching `input` that flows at `now` and has
@@ -165,6 +213,7 @@ impl Progress {
                 self.flows(None, last, now, bound, |n| n.starts_with("moments/"))
             }
             None if service == "vrfeed" => self.flows(None, last, now, bound, |n| n == "fusion"),
+            None if service == crate::ROUTER_SERVICE => self.cut_off(host, started, now, bound),
             _ => None,
         }
     }
@@ -184,6 +233,72 @@ mod tests {
         assert_eq!(stall_bound(Some(f64::NAN)), STALL_FLOOR);
         assert_eq!(stall_bound(Some(0.0)), STALL_FLOOR);
         assert_eq!(stall_bound(Some(1e-9)), Duration::from_secs(600));
+    }
+
+    /// A capture PC's router whose cameras fusion (on another PC) stops hearing while their
+    /// workers here go on is named once that lasts `bound`; not while fusion hears them, not
+    /// when fusion runs on this PC, not when fusion's reports stop, not before `bound`.
+    #[test]
+    fn a_router_whose_cameras_fusion_no_longer_hears_is_named() {
+        let t0 = Instant::now();
+        let bound = Duration::from_secs(3);
+        let mut p = Progress::default();
+        let router_started = t0;
+        for i in 0..12u64 {
+            let at = t0 + S * i as u32;
+            p.report("cap1", "moments/cam0", 100 * (i + 1), 7, at);
+            p.report("cap1", "moments/cam1", 100 * (i + 1), 7, at);
+            p.report("fus", "fusion", 100 * (i + 1), 8, at);
+            // Fusion hears both cameras for 4 s, then cam1 only.
+            let live = if i < 4 { "cam0,cam1" } else { "cam1" };
+            p.fusion_hears("fus", live, at);
+            let now = at;
+            let got = p.stuck("cap1", "router", router_started, now, bound);
+            if i <= 6 {
+                assert_eq!(got, None, "second {i}");
+            } else {
+                let why = got.unwrap_or_default();
+                assert!(
+                    why.contains("cam0") && why.contains("fus"),
+                    "second {i}: {why}"
+                );
+            }
+            // Fusion on the same PC: its cameras do not cross this router.
+            assert_eq!(p.stuck("fus", "router", router_started, now, bound), None);
+        }
+        // Fusion's reports stop: nothing is judged.
+        let later = t0 + S * 20;
+        p.report("cap1", "moments/cam0", 5000, 7, later - S);
+        p.report("cap1", "moments/cam0", 5100, 7, later);
+        assert_eq!(
+            p.stuck("cap1", "router", router_started, later, bound),
+            None
+        );
+        // They come back (a cable back in): the first report, made while cam0 was away, does
+        // not condemn the router; more than three seconds of reports still without cam0 do.
+        for k in 0..5u32 {
+            let at = later + S * k;
+            p.report("cap1", "moments/cam0", 5200 + 100 * u64::from(k), 7, at);
+            p.fusion_hears("fus", "cam1", at);
+            let got = p.stuck("cap1", "router", router_started, at, bound);
+            assert_eq!(
+                got.is_some(),
+                k >= 4,
+                "second {k} after the reports came back"
+            );
+        }
+        // A router restarted now gets the whole bound again.
+        let mut q = Progress::default();
+        for i in 0..6u64 {
+            let at = t0 + S * i as u32;
+            q.report("cap1", "moments/cam0", 100 * (i + 1), 7, at);
+            q.fusion_hears("fus", "", at);
+        }
+        assert_eq!(
+            q.stuck("cap1", "router", t0 + S * 4, t0 + S * 5, bound),
+            None
+        );
+        assert!(q.stuck("cap1", "router", t0, t0 + S * 5, bound).is_some());
     }
 
     /// Fusion stuck while a worker's count goes up is named; fusion whose count goes up, or

@@ -6,7 +6,7 @@ use crate::{LaunchError, REJOIN, ROUTER_SERVICE, Running, WATCHDOG, progress, to
 use std::collections::HashMap;
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
-use stereoscope_proto::messages::{Health, Message, SCHEMA_VERSION, TokenRenewal};
+use stereoscope_proto::messages::{Detail, Health, Message, SCHEMA_VERSION, TokenRenewal};
 use stereoscope_proto::names::zenoh as keys;
 use stereoscope_transport::net;
 use zenoh::Wait;
@@ -65,6 +65,10 @@ impl Watch {
                 }
                 if let Ok(mut p) = progress.lock() {
                     p.report(&h.host, &h.service, h.processed, h.started_ns, now);
+                    if h.service == "fusion" {
+                        let live = h.detail.get(Detail::CamerasLive.key());
+                        p.fusion_hears(&h.host, live.map_or("", String::as_str), now);
+                    }
                 }
                 if let Ok(mut t) = tokens.lock() {
                     t.report(&id, now);
