@@ -258,14 +258,7 @@ fn three_pcs_over_mutual_tls_survive_kills_a_cut_cable_and_forgers() {
     };
     let zenoh_before = zenoh_segments();
     let certs = dir.0.join("certs");
-    let make = |out: &Path, names: &[&str]| {
-        let o = Command::new(repo_root().join("deploy/make-certs.sh"))
-            .arg(out)
-            .args(names)
-            .output()
-            .unwrap();
-        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    };
+    let make = common::make_certs;
     let named: Vec<String> = HOSTS.iter().map(|(h, a)| format!("{h}={a}")).collect();
     make(
         &certs,

@@ -18,6 +18,13 @@ usage:
       Publishes {"FORGED": true} on each key stereoscope/RIG/SUFFIX and declares the
       liveliness token stereoscope/RIG/alive/fusion/FORGED, for SECONDS. Prints
       {"opened": true} once connected and {"token": true} once the token is declared.
+  zenoh_tls.py stress ENDPOINT RIG SECONDS CA CERT KEY OTHER_CA OTHER_CERT OTHER_KEY GAP_S
+      For SECONDS, from three threads at once: sessions with the rig's certificate opened,
+      forging the poses, a camera's observations and a liveliness token, and closed again;
+      sessions with another authority's certificate (refused in the handshake); raw TCP
+      connections to the endpoint's port sending garbage, or a TLS record header claiming a
+      huge length, then closed, GAP_S seconds apart. Prints {"forgers": n, "refused": n, "garbage": n,
+      "forger_errors": n, "accepted_foreign": n} at the end.
   zenoh_tls.py alive ENDPOINT RIG CA CERT KEY
       Prints {"alive": [the rig's liveliness tokens]}.
   zenoh_tls.py connect ENDPOINT CA CERT KEY
@@ -129,6 +136,71 @@ def poses(endpoint, rig, seconds, ca, cert, key):
     session.close()
 
 
+def stress(endpoint, rig, seconds, ca, cert, key, oca, ocert, okey, gap_s):
+    import os
+    import socket
+    import threading
+
+    counts = {"forgers": 0, "refused": 0, "garbage": 0, "forger_errors": 0,
+              "accepted_foreign": 0}
+    lock = threading.Lock()
+    end = time.monotonic() + seconds
+    host, port = endpoint.split("/", 1)[1].rsplit(":", 1)
+
+    def count(k):
+        with lock:
+            counts[k] += 1
+
+    def forgers():
+        while time.monotonic() < end:
+            try:
+                session = zenoh.open(config(endpoint, ca, cert, key))
+                token = session.liveliness().declare_token(
+                    f"stereoscope/{rig}/alive/fusion/FORGED")
+                for _ in range(50):
+                    for k in ("poses", "observations/cam0", "pose/1"):
+                        session.put(f"stereoscope/{rig}/{k}",
+                                    json.dumps({"FORGED": True}).encode())
+                token.undeclare()
+                session.close()
+                count("forgers")
+            except Exception as e:
+                count("forger_errors")
+                with lock:
+                    if len(counts.setdefault("forger_error_texts", [])) < 3:
+                        counts["forger_error_texts"].append(str(e)[:200])
+
+    def foreign():
+        while time.monotonic() < end:
+            try:
+                session = zenoh.open(config(endpoint, oca, ocert, okey))
+                session.close()
+                count("accepted_foreign")
+            except Exception:
+                count("refused")
+
+    def garbage():
+        while time.monotonic() < end:
+            try:
+                with socket.create_connection((host, int(port)), timeout=2) as c:
+                    if counts["garbage"] % 2:
+                        c.sendall(os.urandom(512))
+                    else:
+                        # A TLS handshake record header stating 16 KiB, then a little.
+                        c.sendall(bytes([0x16, 0x03, 0x01, 0x40, 0x00]) + os.urandom(64))
+                count("garbage")
+            except OSError:
+                count("garbage")
+            time.sleep(gap_s)
+
+    threads = [threading.Thread(target=f) for f in (forgers, foreign, garbage)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    print(json.dumps(counts), flush=True)
+
+
 def alive(endpoint, rig, ca, cert, key):
     session = zenoh.open(config(endpoint, ca, cert, key))
     tokens = sorted(str(r.ok.key_expr) for r in
@@ -179,6 +251,8 @@ def main():
     a = sys.argv[1:]
     if a[0] == "watch":
         watch(a[1], a[2], float(a[3]), a[4], a[5], a[6])
+    elif a[0] == "stress":
+        stress(a[1], a[2], float(a[3]), a[4], a[5], a[6], a[7], a[8], a[9], float(a[10]))
     elif a[0] == "poses":
         poses(a[1], a[2], float(a[3]), a[4], a[5], a[6])
     elif a[0] == "forge":

@@ -289,3 +289,14 @@ pub fn own_vr_ports(rig: &str) -> String {
         ),
     )
 }
+
+/// `deploy/make-certs.sh OUT NAMES...`: a test authority in `out` (reused when there) and a
+/// certificate per `NAME[=ADDRESS,...]`.
+pub fn make_certs(out: &Path, names: &[&str]) {
+    let o = std::process::Command::new(repo_root().join("deploy/make-certs.sh"))
+        .arg(out)
+        .args(names)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+}

@@ -12,9 +12,10 @@ a consumer PC — joined by veth pairs; certificates from deploy/make-certs.sh, 
 mutual TLS. Each PC runs `stereoscope run RIG --host NAME`; the consumer runs Zenoh's Python
 binding (tests/clients/zenoh_tls.py poses) with a consumer certificate, reading the pose
 frames at the fusion PC's router. With faults (default), at a quarter, half and three
-quarters of the run: capture2's cable cut for 5 s and restored; capture3's launcher killed
-with -9 and started again; the fusion PC's router process killed with -9 (its launcher starts
-it again). Every 10 s the resident memory and CPU of every Stereoscope process is sampled.
+quarters of the run: capture2's cable cut for 5 s and restored; capture3 rebooted (its
+launcher, router and services killed with -9 at once, its iceoryx2
+files removed from /dev/shm, its launcher started again a second later); the fusion PC's
+router process killed with -9 (its launcher starts it again). Every 10 s the resident memory and CPU of every Stereoscope process is sampled.
 
 Prints one JSON object: pose frames/s at the consumer over the whole run and per 10 s window;
 the share of frames with every camera; the latency from a frame's exposure to its receipt at
@@ -190,7 +191,7 @@ def main():
         schedule = []
         if faults:
             schedule = [(seconds * 0.25, "cable", "capture2"),
-                        (seconds * 0.5, "launcher", "capture3" if captures >= 3 else "capture1"),
+                        (seconds * 0.5, "reboot", "capture3" if captures >= 3 else "capture1"),
                         (seconds * 0.75, "router", "fusion")]
         done_faults = []
         samples, cpu = {}, {}
@@ -204,9 +205,23 @@ def main():
                     lan.cable(host, False)
                     time.sleep(5)
                     lan.cable(host, True)
-                elif kind == "launcher":
+                elif kind == "reboot":
+                    # Every process of the PC at once (its launcher, router and services, by
+                    # their --host), then its shared memory gone as after a reboot, and the
+                    # PC back a second later.
+                    victims = [pid for pid, name in stereoscope_processes()
+                               if name.startswith(f"{host}:")]
                     os.killpg(procs[host].pid, signal.SIGKILL)
+                    for pid in victims:
+                        try:
+                            os.kill(pid, signal.SIGKILL)
+                        except ProcessLookupError:
+                            pass
                     procs[host].wait()
+                    prefix = f"ss{os.getpid()}{host}_"
+                    for name in os.listdir("/dev/shm"):
+                        if name.startswith(prefix):
+                            os.remove(os.path.join("/dev/shm", name))
                     time.sleep(1)
                     launch(host)
                 elif kind == "router":
@@ -276,7 +291,7 @@ def main():
                     whole = run[0]
                     break
             fault["longest_gap_s"] = round(max((b["t"] - a["t"] for a, b in zip(frames, frames[1:])
-                                                if fault["t"] - 1 <= a["t"] < end),
+                                                if fault["t"] - 1 <= a["t"] and b["t"] < end),
                                                default=0.0), 3)
             fault["first_gap_s"] = round(gap, 3) if gap is not None else None
             fault["all_cameras_again_s"] = round(whole - fault["t"], 2) if whole else None
