@@ -137,6 +137,23 @@ fn deploy_rig_with_synthetic_cameras() -> String {
            motion = { kind = \"line\", from = [-400.0, 300.0, 500.0], to = [400.0, -300.0, 1100.0], period_s = 10.0 }\n"
 }
 
+/// Processes whose command line has `arg` among its arguments.
+fn processes_with_arg(arg: &str) -> Vec<i32> {
+    let mut out = Vec::new();
+    for e in std::fs::read_dir("/proc").unwrap().flatten() {
+        let Ok(pid) = e.file_name().to_string_lossy().parse::<i32>() else {
+            continue;
+        };
+        let Ok(cmdline) = std::fs::read(e.path().join("cmdline")) else {
+            continue;
+        };
+        if cmdline.split(|b| *b == 0).any(|a| a == arg.as_bytes()) {
+            out.push(pid);
+        }
+    }
+    out
+}
+
 fn now_s() -> f64 {
     SystemTime::now()
         .duration_since(UNIX_EPOCH)
@@ -443,25 +460,33 @@ fn three_pcs_over_mutual_tls_survive_kills_a_cut_cable_and_forgers() {
         std::thread::sleep(Duration::from_secs(4));
     }
 
-    // capture1's launcher killed outright (its services end with it) and started again, as
-    // a PC's supervisor would restart it.
+    // capture1 rebooted: its launcher, router and services killed with -9 at once, its
+    // iceoryx2 files gone from /dev/shm as after a reboot, and its launcher started again, as
+    // the PC's supervisor would at boot.
     let relaunched = now_s();
+    let prefix = format!("st{pid}capture1_");
+    let victims = processes_with_arg(&prefix);
+    assert!(victims.len() >= 5, "capture1's processes: {victims:?}");
+    for v in &victims {
+        // SAFETY: processes this test started (their command lines carry its prefix).
+        unsafe { libc::kill(*v, libc::SIGKILL) };
+    }
     let old = launchers
         .iter_mut()
         .find(|(h, _)| *h == "capture1")
         .unwrap();
-    // SAFETY: a process this test started (`ip netns exec` execs the launcher).
-    assert_eq!(
-        unsafe { libc::kill(old.1.child.id() as i32, libc::SIGKILL) },
-        0
-    );
     let _ = old.1.child.wait();
+    for e in std::fs::read_dir("/dev/shm").unwrap().flatten() {
+        if e.file_name().to_string_lossy().starts_with(&prefix) {
+            let _ = std::fs::remove_file(e.path());
+        }
+    }
     let killed_launcher = std::mem::replace(&mut old.1, launch("capture1"));
     let end = Instant::now() + Duration::from_secs(30);
     while whole_again(&seen_now(), relaunched).is_none() {
         assert!(
             Instant::now() < end,
-            "no four cameras within 30 s of capture1's launcher restarted\n{}\n{}",
+            "no four cameras within 30 s of capture1's reboot\n{}\n{}",
             killed_launcher.output(),
             old_output(&launchers, "capture1")
         );
@@ -549,13 +574,16 @@ fn three_pcs_over_mutual_tls_survive_kills_a_cut_cable_and_forgers() {
     assert!(longest_gap(&seen, restored, last) < 1.0, "{}", context());
     // The launcher of capture1 killed and started again: its cameras back, measured.
     let back = whole_again(&seen, relaunched);
-    eprintln!("capture1's launcher killed and restarted: four cameras again after {back:?} s");
+    eprintln!("capture1 rebooted: four cameras again after {back:?} s");
     assert!(back.is_some_and(|b| b < 30.0), "{}", context());
     // The rig's liveliness as the consumer sees it: its nine services and each PC's router
     // (a service of its launcher), nothing forged. A router can lose another PC's tokens
     // when a link comes back (docs/reliability.md); the fusion PC's launcher then asks their
-    // services to declare them again, 3 s after it finds them missing: all back within 10 s.
-    let end = Instant::now() + Duration::from_secs(10);
+    // services to declare them again, 3 s after it finds them missing. Once (2026-12-08, the
+    // full suite) the fusion router dropped capture2's re-declared tokens again and again for
+    // 17 s or more after the cable's return, each time asked for and renewed: all must be
+    // seen together within 30 s.
+    let end = Instant::now() + Duration::from_secs(30);
     let alive = loop {
         let alive = alive_tokens(&py(&["alive", FUSION, "lab", &ca, &cc, &ck]));
         if alive.len() >= 12 || Instant::now() >= end {
