@@ -22,7 +22,7 @@ pub struct ModelStats {
     pub tool_rms_m: f64,
     /// The frames a link's markers were hidden in (the scene's `hide`), scored apart.
     pub hidden: Option<HiddenStats>,
-    /// Fusion's object ids against the model's true markers (a point within [`ID_MATCH_M`] of
+    /// Fusion's object ids against the model's true markers (a point within `ID_MATCH_M` of
     /// one): ids seen on two or more different markers (an id passed from marker to marker),
     /// and the mean number of ids a marker was seen under (1: never renumbered).
     pub ids_passed: usize,
